@@ -1,0 +1,213 @@
+"""The streaming decoder for bytes from the base station: ``feed(bytes)`` -> events.
+
+It is sans-IO: no port, no clock. The caller feeds whatever it read and gets back
+events (:mod:`aspp.events`); when the line has gone quiet it calls :meth:`line_idle`
+so that what waits for more bytes (a trailing 0xAA, a cut-off packet) is resolved.
+
+How the bytes are read, in order of the stream:
+
+* An 0xAA is a packet candidate. Its header gives the packet's length. A candidate
+  becomes a packet when its checksum holds, unless a valid packet starting inside it
+  completes first: then the candidate was a false header or a truncated packet.
+* ACK and SOP are the same byte. An 0xAA followed by another 0xAA is an ACK at once
+  (no packet has delivery flags 0xAA); an 0xAA whose candidate fails is an ACK when it
+  stands alone, otherwise it is discarded with the bytes up to the next 0xAA. A
+  trailing 0xAA waits for the next byte, or for :meth:`line_idle`.
+* Between packets, 0x21 is a NACK and 0x02 a positive ping answer; any other byte is
+  garbage, reported in runs.
+
+Every decision depends only on the bytes, never on how they were split into chunks,
+so feeding a stream whole, halved or byte by byte gives exactly the same events. What
+it holds between calls is bounded: an unfinished packet (at most 265 bytes) or an
+unfinished run of discarded bytes (at most ``MAX_DISCARD`` bytes).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+from .events import (
+    ACK_EVENT,
+    NACK_EVENT,
+    PING_OK_EVENT,
+    Discarded,
+    DiscardReason,
+    Event,
+    Frame,
+    Reply,
+)
+from .frame import FLAGS_REPLY, NACK, PING, REPLY_OVERHEAD, SOP
+
+MAX_DISCARD = 512
+"""Longest run reported in one :class:`Discarded`; a longer run comes in pieces."""
+
+_MIN_FRAME = REPLY_OVERHEAD - 1  # a packet whose length byte is 0
+_SIZE_FROM_LENGTH = REPLY_OVERHEAD - 1
+_SOP_BYTE = bytes((SOP,))
+_NOT_GARBAGE = re.compile(b"[" + re.escape(bytes((SOP, NACK, PING))) + b"]")
+
+
+@dataclass
+class DecoderStats:
+    """Running totals: what came out of the stream and what was dropped, and why."""
+
+    replies: int = 0
+    frames: int = 0
+    acks: int = 0
+    nacks: int = 0
+    ping_oks: int = 0
+    discarded_bytes: dict[DiscardReason, int] = field(
+        default_factory=lambda: dict.fromkeys(DiscardReason, 0))
+    discarded_runs: dict[DiscardReason, int] = field(
+        default_factory=lambda: dict.fromkeys(DiscardReason, 0))
+
+    @property
+    def packets(self) -> int:
+        return self.replies + self.frames
+
+    @property
+    def bytes_discarded(self) -> int:
+        return sum(self.discarded_bytes.values())
+
+
+class Decoder:
+    """Turns the byte stream from a base station into :mod:`aspp.events`."""
+
+    __slots__ = ("_buf", "stats")
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+        self.stats = DecoderStats()
+
+    @property
+    def pending(self) -> int:
+        """Bytes held back until more arrive or the line goes idle."""
+        return len(self._buf)
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[Event]:
+        """Add bytes read from the line; return every event they complete."""
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            raise TypeError(f"feed() takes bytes, not {type(data).__name__}")
+        self._buf += data
+        return self._decode(final=False)
+
+    def line_idle(self) -> list[Event]:
+        """The line has gone quiet: resolve everything still waiting for bytes.
+
+        A trailing 0xAA becomes an ACK; an unfinished packet is discarded as truncated.
+        """
+        return self._decode(final=True)
+
+    def _decode(self, final: bool) -> list[Event]:
+        buf = self._buf
+        n = len(buf)
+        pos = 0
+        out: list[Event] = []
+        append = out.append
+        stats = self.stats
+        while pos < n:
+            byte = buf[pos]
+            if byte == SOP:
+                avail = n - pos
+                if avail >= 2 and buf[pos + 1] == SOP:
+                    append(ACK_EVENT)
+                    stats.acks += 1
+                    pos += 1
+                    continue
+                if avail < 6:
+                    if not final:
+                        break
+                    if avail == 1:
+                        append(ACK_EVENT)
+                        stats.acks += 1
+                        pos += 1
+                        continue
+                    reason = DiscardReason.TRUNCATED
+                else:
+                    size = buf[pos + 5] + _SIZE_FROM_LENGTH
+                    if avail < size:
+                        if not (final or self._frame_within(pos + 1, n)):
+                            break
+                        reason = DiscardReason.TRUNCATED
+                    elif self._frame_within(pos + 1, pos + size - 1):
+                        reason = DiscardReason.TRUNCATED
+                    else:
+                        ck = pos + size - 2
+                        if (sum(buf[pos + 1:ck - 2]) & 0xFFFF) == ((buf[ck] << 8) | buf[ck + 1]):
+                            raw = bytes(buf[pos:pos + size])
+                            if raw[1] == FLAGS_REPLY and size > _MIN_FRAME + 1:
+                                append(Reply(raw))
+                                stats.replies += 1
+                            else:
+                                append(Frame(raw))
+                                stats.frames += 1
+                            pos += size
+                            continue
+                        reason = DiscardReason.BAD_CHECKSUM
+                end = self._run_end(pos, n, final, candidate=True)
+                if end is None:
+                    break
+                if end - pos == 1:
+                    append(ACK_EVENT)
+                    stats.acks += 1
+                else:
+                    append(self._discard(pos, end, reason))
+                pos = end
+            elif byte == NACK:
+                append(NACK_EVENT)
+                stats.nacks += 1
+                pos += 1
+            elif byte == PING:
+                append(PING_OK_EVENT)
+                stats.ping_oks += 1
+                pos += 1
+            else:
+                end = self._run_end(pos, n, final, candidate=False)
+                if end is None:
+                    break
+                append(self._discard(pos, end, DiscardReason.GARBAGE))
+                pos = end
+        if pos:
+            del buf[:pos]
+        return out
+
+    def _frame_within(self, start: int, limit: int) -> bool:
+        """Is there a valid packet starting at or after ``start`` and ending by ``limit``?"""
+        last_start = limit - _MIN_FRAME + 1  # exclusive; never negative: find() would
+        if last_start <= start:             # read a negative bound from the end
+            return False
+        buf = self._buf
+        j = buf.find(_SOP_BYTE, start, last_start)
+        while j != -1:
+            if buf[j + 1] != SOP:
+                end = j + buf[j + 5] + _SIZE_FROM_LENGTH
+                if end <= limit and (sum(buf[j + 1:end - 4]) & 0xFFFF) == (
+                        (buf[end - 2] << 8) | buf[end - 1]):
+                    return True
+            j = buf.find(_SOP_BYTE, j + 1, last_start)
+        return False
+
+    def _run_end(self, pos: int, n: int, final: bool, candidate: bool) -> int | None:
+        """Where a discarded run that starts at ``pos`` ends, or None if not known yet.
+
+        A failed packet candidate runs to the next 0xAA (the next possible packet); a
+        garbage run stops at the next byte that means something between packets. A run
+        is cut at MAX_DISCARD bytes, so the decoder never holds more than that.
+        """
+        limit = min(n, pos + MAX_DISCARD)
+        if candidate:
+            end = self._buf.find(_SOP_BYTE, pos + 1, limit)
+        else:
+            match = _NOT_GARBAGE.search(self._buf, pos + 1, limit)
+            end = match.start() if match else -1
+        if end != -1:
+            return end
+        if limit == pos + MAX_DISCARD or final:
+            return limit
+        return None
+
+    def _discard(self, start: int, end: int, reason: DiscardReason) -> Discarded:
+        self.stats.discarded_bytes[reason] += end - start
+        self.stats.discarded_runs[reason] += 1
+        return Discarded(bytes(self._buf[start:end]), reason)

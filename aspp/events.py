@@ -1,0 +1,163 @@
+"""What the stream decoder yields: small immutable events, one per thing on the line.
+
+Events are NamedTuples rather than frozen dataclasses for one measured reason: the
+decoder builds one per packet at up to several hundred thousand per second, and a
+frozen dataclass costs about 2 us to construct against about 0.4 us for a tuple.
+Equality is made type-strict, so an ``Ack()`` never equals a ``Nack()`` and a
+``Reply`` never equals a ``Frame`` holding the same bytes.
+
+A packet event keeps only its raw bytes; every field is read from them on demand, so
+an event is exactly as trustworthy as the bytes it was decoded from.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import NamedTuple
+
+from .frame import HEADER_SIZE
+
+
+def _same_type_eq(self: tuple, other: object) -> bool:
+    return type(self) is type(other) and tuple.__eq__(self, other)  # type: ignore[arg-type]
+
+
+def _same_type_ne(self: tuple, other: object) -> bool:
+    return not _same_type_eq(self, other)
+
+
+def _typed_hash(self: tuple) -> int:
+    return hash((type(self).__name__, tuple(self)))
+
+
+class Reply(NamedTuple):
+    """A valid reply packet (delivery flags 0x07) carrying a GX2 reply record.
+
+    ``payload`` is the wired reply record without its own checksum: the echo byte
+    first, then the data, ready for :func:`aspp.records.decode`.
+    """
+
+    raw: bytes
+
+    @property
+    def node(self) -> int:
+        return (self.raw[3] << 8) | self.raw[4]
+
+    @property
+    def command(self) -> int:
+        """The echo byte, which always equals the command that asked for the record."""
+        return self.raw[HEADER_SIZE]
+
+    @property
+    def payload(self) -> bytes:
+        return self.raw[HEADER_SIZE:-4]
+
+    @property
+    def lqi(self) -> int:
+        return self.raw[-4]
+
+    @property
+    def rssi(self) -> int:
+        """Received signal strength in dBm (a signed byte)."""
+        value = self.raw[-3]
+        return value - 256 if value > 127 else value
+
+    __eq__ = _same_type_eq
+    __ne__ = _same_type_ne
+    __hash__ = _typed_hash
+
+
+class Frame(NamedTuple):
+    """A valid packet that is not a reply: other delivery flags (0x00 is a node's
+    power-up discovery packet), or a reply too short to carry an echo byte."""
+
+    raw: bytes
+
+    @property
+    def flags(self) -> int:
+        return self.raw[1]
+
+    @property
+    def app_data_type(self) -> int:
+        return self.raw[2]
+
+    @property
+    def node(self) -> int:
+        return (self.raw[3] << 8) | self.raw[4]
+
+    @property
+    def payload(self) -> bytes:
+        """The bytes after the header's unused byte, before LQI and RSSI."""
+        return self.raw[HEADER_SIZE:-4]
+
+    @property
+    def lqi(self) -> int:
+        return self.raw[-4]
+
+    @property
+    def rssi(self) -> int:
+        value = self.raw[-3]
+        return value - 256 if value > 127 else value
+
+    @property
+    def is_discovery(self) -> bool:
+        return self.raw[1] == 0x00
+
+    __eq__ = _same_type_eq
+    __ne__ = _same_type_ne
+    __hash__ = _typed_hash
+
+
+class Ack(NamedTuple):
+    """0xAA outside any packet: the base station accepted and broadcast a command."""
+
+    __eq__ = _same_type_eq
+    __ne__ = _same_type_ne
+    __hash__ = _typed_hash
+
+
+class Nack(NamedTuple):
+    """0x21 outside any packet: the base station refused a malformed command packet,
+    or, after a raw ping, reports that the node did not answer."""
+
+    __eq__ = _same_type_eq
+    __ne__ = _same_type_ne
+    __hash__ = _typed_hash
+
+
+class PingOk(NamedTuple):
+    """0x02 outside any packet: the pinged node answered over the radio."""
+
+    __eq__ = _same_type_eq
+    __ne__ = _same_type_ne
+    __hash__ = _typed_hash
+
+
+class DiscardReason(StrEnum):
+    GARBAGE = "garbage"
+    """Bytes that could not start a packet nor be an ACK, NACK or ping answer."""
+    BAD_CHECKSUM = "bad_checksum"
+    """A complete packet whose checksum did not match."""
+    TRUNCATED = "truncated"
+    """A packet header whose claimed length was cut short, by a valid packet starting
+    inside it or by the line going quiet. A false header (0xAA inside data followed by
+    a bogus length) is indistinguishable from a truncated packet and is counted here."""
+
+
+class Discarded(NamedTuple):
+    """Bytes the decoder dropped, and why. Every byte fed is accounted for exactly
+    once: in a packet, as a control byte, in a ``Discarded``, or still buffered."""
+
+    data: bytes
+    reason: DiscardReason
+
+    __eq__ = _same_type_eq
+    __ne__ = _same_type_ne
+    __hash__ = _typed_hash
+
+
+ACK_EVENT = Ack()
+NACK_EVENT = Nack()
+PING_OK_EVENT = PingOk()
+
+Event = Reply | Frame | Ack | Nack | PingOk | Discarded

@@ -1,0 +1,311 @@
+"""THE table of GX2 commands and their reply records, and the reply codec it drives.
+
+One row per command: its byte, the contract's record name, the request layout (the
+confirmation bytes and the arguments after the command byte) and the reply layout
+(the fields after the echo byte). Decoding, encoding, lookup by name or byte, command
+building and parsing (:mod:`aspp.commands`) and the documentation all read this table.
+
+A reply record here is the wired record without its trailing checksum, echo byte first:
+exactly the ``m`` bytes an ASPP reply packet carries.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+from .errors import CommandError, RecordError
+from .fields import (
+    F32,
+    MAT3,
+    TEMPS4,
+    TEXT16,
+    TIMER,
+    U8,
+    U16,
+    U32,
+    VEC3,
+    Const,
+    Field,
+    Value,
+    finite,
+    in_range,
+    one_of,
+)
+
+CONFIRM = Const(b"\xC1\x29")
+"""The confirmation bytes most state-changing commands need."""
+
+
+@dataclass(frozen=True)
+class CommandSpec:
+    """One GX2 command and the record it answers with (``reply`` None: no reply)."""
+
+    code: int
+    name: str
+    title: str
+    request: tuple[Const | Field, ...] = ()
+    reply: tuple[Field, ...] | None = ()
+    streamable: bool = False
+    reply_may_run_long: bool = False
+    """The reference's length for this reply is wrong (0xFB); accept extra bytes."""
+
+    reply_struct: struct.Struct = field(init=False, repr=False, compare=False)
+    """The reply layout compiled: the echo byte, then every field, big-endian."""
+    request_struct: struct.Struct = field(init=False, repr=False, compare=False)
+
+    def __repr__(self) -> str:
+        return f"CommandSpec(0x{self.code:02X}, {self.name!r})"
+
+    def __post_init__(self) -> None:
+        reply_codes = "".join(f.type.code for f in self.reply or ())
+        request_codes = "".join(f"{len(item.value)}s" if isinstance(item, Const)
+                                else item.type.code for item in self.request)
+        object.__setattr__(self, "reply_struct", struct.Struct(">B" + reply_codes))
+        object.__setattr__(self, "request_struct", struct.Struct(">B" + request_codes))
+
+    @property
+    def reply_size(self) -> int | None:
+        """Bytes in the reply record (echo byte included), or None for no reply."""
+        return None if self.reply is None else self.reply_struct.size
+
+    @property
+    def request_size(self) -> int:
+        """Bytes in the command (command byte included)."""
+        return self.request_struct.size
+
+    @property
+    def arguments(self) -> tuple[Field, ...]:
+        return tuple(item for item in self.request if isinstance(item, Field))
+
+    @property
+    def pollable(self) -> bool:
+        """Answers a bare command byte with a record (what ``gx2ctl poll`` sends)."""
+        return not self.request and self.reply is not None
+
+    @property
+    def timed(self) -> bool:
+        return self.reply is not None and any(f.name == "timer" for f in self.reply)
+
+    @property
+    def field_names(self) -> tuple[str, ...]:
+        return tuple(f.name for f in self.reply or ())
+
+
+def _timed(*fields: Field) -> tuple[Field, ...]:
+    return (*fields, Field("timer", TIMER, "ticks of 1/19,660,800 s since power-up"))
+
+
+_ACCEL = Field("accel", VEC3, "g")
+_ANG_RATE = Field("ang_rate", VEC3, "rad/s")
+_MAG = Field("mag", VEC3, "gauss; NaN on an Inertia-Link")
+_ORIENTATION = Field("orientation", MAT3, "M, earth to sensor frame, row-major")
+_DELTA_ANGLE = Field("delta_angle", VEC3, "rad")
+_DELTA_VELOCITY = Field("delta_velocity", VEC3, "g*s")
+_EULER = (Field("roll", F32, "rad"), Field("pitch", F32, "rad"), Field("yaw", F32, "rad"))
+_U16_ARG = in_range(0, 0xFFFF)
+
+_SPECS = (
+    CommandSpec(0xC1, "raw_sensors", "Raw accelerometer and angular rate sensor outputs",
+                reply=_timed(Field("raw_accel", VEC3, "A/D codes"),
+                             Field("raw_ang_rate", VEC3, "A/D codes")), streamable=True),
+    CommandSpec(0xC2, "accel_angrate", "Acceleration and angular rate",
+                reply=_timed(_ACCEL, _ANG_RATE), streamable=True),
+    CommandSpec(0xC3, "delta_angle_velocity", "Delta angle and delta velocity",
+                reply=_timed(_DELTA_ANGLE, _DELTA_VELOCITY), streamable=True),
+    CommandSpec(0xC4, "continuous_mode", "Set continuous mode",
+                request=(CONFIRM, Field("continuous_command", U8,
+                                        "record to stream, 0 to stop")),
+                reply=_timed(Field("continuous_command", U8))),
+    CommandSpec(0xC5, "orientation", "Orientation matrix",
+                reply=_timed(_ORIENTATION), streamable=True),
+    CommandSpec(0xC6, "orientation_update", "Orientation update matrix",
+                reply=_timed(Field("orientation_update", MAT3, "C, row-major")),
+                streamable=True),
+    CommandSpec(0xC7, "mag", "Scaled magnetometer vector",
+                reply=_timed(_MAG), streamable=True),
+    CommandSpec(0xC8, "accel_angrate_orientation",
+                "Acceleration, angular rate and orientation matrix",
+                reply=_timed(_ACCEL, _ANG_RATE, _ORIENTATION), streamable=True),
+    CommandSpec(0xC9, "accel_bias", "Write accelerometer bias correction",
+                request=(Const(b"\xB7\x44"), Field("accel_bias", VEC3, "g", finite)),
+                reply=_timed(Field("accel_bias", VEC3, "g"))),
+    CommandSpec(0xCA, "gyro_bias", "Write gyro bias correction",
+                request=(Const(b"\x12\xA5"), Field("gyro_bias", VEC3, "rad/s", finite)),
+                reply=_timed(Field("gyro_bias", VEC3, "rad/s"))),
+    CommandSpec(0xCB, "accel_angrate_mag", "Acceleration, angular rate and magnetometer",
+                reply=_timed(_ACCEL, _ANG_RATE, _MAG), streamable=True),
+    CommandSpec(0xCC, "accel_angrate_mag_orientation",
+                "Acceleration, angular rate, magnetometer and orientation matrix",
+                reply=_timed(_ACCEL, _ANG_RATE, _MAG, _ORIENTATION), streamable=True),
+    CommandSpec(0xCD, "capture_gyro_bias", "Capture gyro bias",
+                request=(CONFIRM, Field("sampling_time", U16, "ms; 10000..30000 advised",
+                                        in_range(1, 0xFFFF))),
+                reply=_timed(Field("gyro_bias", VEC3, "rad/s"))),
+    CommandSpec(0xCE, "euler", "Euler angles", reply=_timed(*_EULER), streamable=True),
+    CommandSpec(0xCF, "euler_angrate", "Euler angles and angular rates",
+                reply=_timed(*_EULER, _ANG_RATE), streamable=True),
+    CommandSpec(0xD0, "store_nonvolatile", "Transfer quantity to non-volatile memory",
+                request=(CONFIRM, Field("quantity", U16, "1 accel bias, 2 gyro bias",
+                                        one_of({1: "accel bias", 2: "gyro bias"}))),
+                reply=_timed(Field("quantity", U16, "0xFFFF: nothing was stored"))),
+    CommandSpec(0xD1, "temperatures", "Temperatures",
+                reply=_timed(Field("temperature", TEMPS4,
+                                   "A/D codes: accel, gyro_x, gyro_y, gyro_z")),
+                streamable=True),
+    CommandSpec(0xD2, "stab_accel_angrate_mag",
+                "Gyro-stabilised acceleration, angular rate and magnetometer",
+                reply=_timed(Field("stab_accel", VEC3, "g"), _ANG_RATE,
+                             Field("stab_mag", VEC3, "gauss")), streamable=True),
+    CommandSpec(0xD3, "delta_angle_velocity_mag",
+                "Delta angle, delta velocity and magnetometer",
+                reply=_timed(_DELTA_ANGLE, _DELTA_VELOCITY, _MAG), streamable=True),
+    CommandSpec(0xE4, "eeprom_write", "Write word to EEPROM",
+                request=(Const(b"\xC1\x29\x00"), Field("address", U16, "", _U16_ARG),
+                         Field("value", U16, "", _U16_ARG)),
+                reply=(Field("value", U16, "the word now stored"),)),
+    CommandSpec(0xE5, "eeprom_read", "Read word from EEPROM",
+                request=(Const(b"\x00"), Field("address", U16, "", _U16_ARG)),
+                reply=(Field("value", U16),)),
+    CommandSpec(0xE9, "firmware_version", "Read firmware version number",
+                reply=(Field("version", U32),)),
+    CommandSpec(0xEA, "device_id", "Read device identifier string",
+                request=(Field("selector", U8, "0 model number, 1 serial number, "
+                               "2 model name, 3 device options", in_range(0, 3)),),
+                reply=(Field("selector", U8), Field("text", TEXT16))),
+    CommandSpec(0xFA, "stop_continuous", "Stop continuous mode (no reply)", reply=None),
+    CommandSpec(0xFB, "built_in_test", "Built-in test",
+                request=(CONFIRM, Field("test_config", U8, "BIT bits 2..5; 0 ends BIT")),
+                reply=(Field("test_config", U8),), reply_may_run_long=True),
+)
+
+BY_CODE: dict[int, CommandSpec] = {spec.code: spec for spec in _SPECS}
+BY_NAME: dict[str, CommandSpec] = {spec.name: spec for spec in _SPECS}
+STREAMABLE: frozenset[int] = frozenset(s.code for s in _SPECS if s.streamable)
+
+
+def all_specs() -> Iterator[CommandSpec]:
+    """Every command, in command-byte order."""
+    return iter(_SPECS)
+
+
+def lookup(record: str | int) -> CommandSpec:
+    """The command for a record name (``"euler"``), a byte (``0xCE``) or ``"0xCE"``."""
+    if isinstance(record, str):
+        text = record.strip()
+        if text.lower().startswith("0x"):
+            try:
+                record = int(text, 16)
+            except ValueError:
+                raise RecordError(f"{record!r} is not a hexadecimal command byte") from None
+        elif text in BY_NAME:
+            return BY_NAME[text]
+        else:
+            raise RecordError(f"unknown record {record!r}; known: {', '.join(BY_NAME)}")
+    if isinstance(record, bool) or not isinstance(record, int):
+        raise RecordError(f"a record is a name or a command byte, not {record!r}")
+    try:
+        return BY_CODE[record]
+    except KeyError:
+        raise RecordError(f"0x{record:02X} is not a GX2 command with a record") from None
+
+
+@dataclass(frozen=True, slots=True)
+class Record:
+    """One decoded reply record: its command and its field values, in table order."""
+
+    spec: CommandSpec
+    values: tuple[Value, ...]
+
+    def __repr__(self) -> str:
+        fields = ", ".join(f"{k}={v!r}" for k, v in self.as_dict().items())
+        return f"Record({self.spec.name}: {fields})"
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def command(self) -> int:
+        return self.spec.code
+
+    @property
+    def timer(self) -> int | None:
+        return self["timer"] if self.spec.timed else None  # type: ignore[return-value]
+
+    def __getitem__(self, field_name: str) -> Value:
+        try:
+            return self.values[self.spec.field_names.index(field_name)]
+        except ValueError:
+            raise KeyError(f"{self.name} has no field {field_name!r}") from None
+
+    def as_dict(self) -> dict[str, Value]:
+        return dict(zip(self.spec.field_names, self.values, strict=True))
+
+    def same_as(self, other: Record) -> bool:
+        """Equality that counts NaN equal to NaN (an Inertia-Link's magnetometer)."""
+        return self.spec is other.spec and _flat(self.values) == _flat(other.values)
+
+
+def _flat(values: object) -> tuple:
+    if isinstance(values, tuple):
+        return tuple(x for v in values for x in _flat(v))
+    if isinstance(values, float) and math.isnan(values):
+        return ("nan",)
+    return (values,)
+
+
+def decode(payload: bytes | bytearray | memoryview) -> Record:
+    """Decode reply bytes (echo byte first, no checksum) into a :class:`Record`.
+
+    Raises :class:`RecordError` for an unknown echo byte or a length that does not
+    match the layout; a record is never decoded from the wrong number of bytes.
+    """
+    if not payload:
+        raise RecordError("an empty reply has no echo byte")
+    spec = BY_CODE.get(payload[0])
+    if spec is None or spec.reply is None:
+        raise RecordError(f"0x{payload[0]:02X} is not a GX2 reply record")
+    size = spec.reply_struct.size
+    if len(payload) != size and not (spec.reply_may_run_long and len(payload) > size):
+        raise RecordError(f"0x{spec.code:02X} {spec.name}: {len(payload)} bytes, "
+                          f"its layout needs {size}")
+    return Record(spec, shape(spec, spec.reply_struct.unpack_from(payload)))
+
+
+def shape(spec: CommandSpec, items: tuple) -> tuple[Value, ...]:
+    """Group the flat struct items after the echo byte into the spec's field values."""
+    values = []
+    at = 1
+    for f in spec.reply or ():
+        values.append(f.type.shape_items(items[at:at + f.type.items]))
+        at += f.type.items
+    return tuple(values)
+
+
+def encode(record: str | int, **fields: object) -> bytes:
+    """Build reply bytes (echo byte first, no checksum) from field values by name.
+
+    The simulator builds every reply with this, so the simulator and the decoder share
+    one definition of each record. Raises :class:`aspp.errors.CommandError` naming a
+    missing, unknown or ill-shaped field.
+    """
+    spec = lookup(record)
+    if spec.reply is None:
+        raise CommandError(f"0x{spec.code:02X} {spec.name} has no reply to encode")
+    unknown = set(fields) - set(spec.field_names)
+    if unknown:
+        raise CommandError(f"{spec.name} has no field {sorted(unknown)[0]!r}")
+    items: list[object] = [spec.code]
+    for f in spec.reply:
+        if f.name not in fields:
+            raise CommandError(f"{spec.name} needs a value for {f.name!r}")
+        items.extend(f.type.flatten(f.name, fields[f.name]))
+    return spec.reply_struct.pack(*items)
+
+
+def encode_record(rec: Record) -> bytes:
+    """The reply bytes of a decoded record (decode's inverse)."""
+    return encode(rec.command, **rec.as_dict())

@@ -1,0 +1,87 @@
+"""The node's timer: tick conversions and unwrapping into a device time that never
+goes back.
+
+The timer is a u32 counting 19,660,800 Hz since power-up; it wraps every 218.45 s. Fed
+in order, consecutive readings less than one wrap apart unwrap exactly. A node silent
+for longer (out of range, a lost stream) can hide whole wraps: given the host's clock
+at each reading, :class:`TimerUnwrapper` counts the wraps the elapsed host time needs,
+and when the timer cannot be reconciled with the host clock at all (the node rebooted
+and its timer restarted) it carries on from the host's elapsed time and says so.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+TICKS_PER_SECOND: Final = 19_660_800
+TIMER_MODULUS: Final = 1 << 32
+WRAP_SECONDS: Final = TIMER_MODULUS / TICKS_PER_SECOND  # 218.45 s
+
+
+def ticks_to_seconds(ticks: int) -> float:
+    return ticks / TICKS_PER_SECOND
+
+
+def seconds_to_ticks(seconds: float) -> int:
+    """Ticks for ``seconds``, wrapped into the u32 a node would report."""
+    return round(seconds * TICKS_PER_SECOND) % TIMER_MODULUS
+
+
+def data_rate(divider: int) -> float:
+    """Records per second in continuous mode for a calculation-cycle divider."""
+    return 51200 / divider
+
+
+def sample_period(divider: int) -> float:
+    """Seconds between records in continuous mode (x / 51200)."""
+    return divider / 51200
+
+
+class TimerUnwrapper:
+    """Turns one node's timer readings into monotonic seconds since its first reading's
+    power-up (the first reading ``t`` gives ``t / 19.6608 MHz``).
+
+    ``tolerance`` is how far (seconds) the timer may disagree with the host clock before
+    a reading counts as a reset rather than wraps; it absorbs radio and USB latency.
+    """
+
+    __slots__ = ("_last_host", "_last_ticks", "_total_ticks", "last_was_reset", "resets",
+                 "tolerance")
+
+    def __init__(self, tolerance: float = 2.0) -> None:
+        self._total_ticks: int | None = None
+        self._last_ticks = 0
+        self._last_host: float | None = None
+        self.tolerance = tolerance
+        self.resets = 0
+        self.last_was_reset = False
+
+    def update(self, ticks: int, host_time: float | None = None) -> float:
+        """Add one reading (``host_time``: when it arrived, any clock in seconds);
+        return the device time in seconds."""
+        if not 0 <= ticks < TIMER_MODULUS:
+            raise ValueError(f"timer reading {ticks} is not a u32")
+        self.last_was_reset = False
+        if self._total_ticks is None:
+            self._total_ticks = ticks
+        else:
+            delta = (ticks - self._last_ticks) % TIMER_MODULUS
+            if host_time is not None and self._last_host is not None:
+                delta = self._reconcile(delta, host_time - self._last_host)
+            self._total_ticks += delta
+        self._last_ticks = ticks
+        if host_time is not None:
+            self._last_host = host_time
+        return self._total_ticks / TICKS_PER_SECOND
+
+    def _reconcile(self, delta: int, host_elapsed: float) -> int:
+        """Add the wraps ``host_elapsed`` needs; if no count of wraps fits, the timer
+        restarted: advance by the host's elapsed time instead."""
+        seconds = delta / TICKS_PER_SECOND
+        wraps = max(0, round((host_elapsed - seconds) / WRAP_SECONDS))
+        seconds += wraps * WRAP_SECONDS
+        if abs(seconds - host_elapsed) <= self.tolerance + 0.01 * host_elapsed:
+            return delta + wraps * TIMER_MODULUS
+        self.resets += 1
+        self.last_was_reset = True
+        return max(0, round(host_elapsed * TICKS_PER_SECOND))
