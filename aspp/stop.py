@@ -90,8 +90,8 @@ class StopPolicy:
 
     def stop_confirmed(self, now: float) -> None:
         """The node answered the long form with continuous command 0."""
-        if self._result is None and self.attempts:
-            self._result = Stopped(self.attempts, now - (self._started or now))
+        if self._result is None and self._started is not None:
+            self._result = Stopped(self.attempts, now - self._started)
 
     def next_action(self, now: float) -> StopAction:
         if self._result is not None:
@@ -102,7 +102,8 @@ class StopPolicy:
         quiet_since = self._last_send
         if self._last_packet is not None and self._last_packet > quiet_since:
             quiet_since = self._last_packet
-        if now - quiet_since >= self.silence:
+        deadline = quiet_since + self.silence  # compared as computed: a caller that
+        if now >= deadline:                      # waits until it must see it passed
             self._result = Stopped(self.attempts, now - self._started)
             return self._result
         if self._last_packet is not None and self._last_packet > self._last_send + self.latency:
@@ -110,7 +111,7 @@ class StopPolicy:
                 self._result = GaveUp(self.attempts, now - self._started)
                 return self._result
             return self._send(now)
-        return WaitUntil(quiet_since + self.silence)
+        return WaitUntil(deadline)
 
     def _send(self, now: float) -> SendStop:
         self.attempts += 1
