@@ -6,9 +6,14 @@ so that what waits for more bytes (a trailing 0xAA, a cut-off packet) is resolve
 
 How the bytes are read, in order of the stream:
 
-* An 0xAA is a packet candidate. Its header gives the packet's length. A candidate
-  becomes a packet when its checksum holds, unless a valid packet starting inside it
-  completes first: then the candidate was a false header or a truncated packet.
+* An 0xAA is a packet candidate; its header gives the packet's length. A packet is
+  valid when its checksum holds and its node address is 1..65534.
+* A candidate whose header is a plausible reply header (flags 0x07, app type 0x00,
+  unused byte 0x00, length at most 102, a valid node) is decided by its checksum
+  alone: a truncated reply delays what follows it by at most one packet length.
+  Any other candidate (an 0xAA inside data followed by a bogus length) gives way to a
+  valid packet that starts inside it and completes first, without waiting for the
+  bytes it claims.
 * ACK and SOP are the same byte. An 0xAA followed by another 0xAA is an ACK at once
   (no packet has delivery flags 0xAA); an 0xAA whose candidate fails is an ACK when it
   stands alone, otherwise it is discarded with the bytes up to the next 0xAA. A
@@ -37,12 +42,22 @@ from .events import (
     Frame,
     Reply,
 )
-from .frame import FLAGS_REPLY, NACK, PING, REPLY_OVERHEAD, SOP
+from .frame import (
+    APP_DATA_TYPE,
+    FLAGS_REPLY,
+    HEADER_SIZE,
+    MAX_COMMAND_BYTES,
+    NACK,
+    PING,
+    REPLY_OVERHEAD,
+    SOP,
+)
 
 MAX_DISCARD = 512
 """Longest run reported in one :class:`Discarded`; a longer run comes in pieces."""
 
 _MIN_FRAME = REPLY_OVERHEAD - 1  # a packet whose length byte is 0
+_MAX_REPLY_LENGTH = MAX_COMMAND_BYTES + 2  # the unused byte, the echo, 100 data bytes
 _SIZE_FROM_LENGTH = REPLY_OVERHEAD - 1
 _SOP_BYTE = bytes((SOP,))
 _NOT_GARBAGE = re.compile(b"[" + re.escape(bytes((SOP, NACK, PING))) + b"]")
@@ -115,7 +130,7 @@ class Decoder:
                     stats.acks += 1
                     pos += 1
                     continue
-                if avail < 6:
+                if avail < HEADER_SIZE:
                     if not final:
                         break
                     if avail == 1:
@@ -125,18 +140,27 @@ class Decoder:
                         continue
                     reason = DiscardReason.TRUNCATED
                 else:
-                    size = buf[pos + 5] + _SIZE_FROM_LENGTH
+                    length = buf[pos + 5]
+                    size = length + _SIZE_FROM_LENGTH
+                    node = (buf[pos + 3] << 8) | buf[pos + 4]
+                    trusted = (buf[pos + 1] == FLAGS_REPLY and buf[pos + 2] == APP_DATA_TYPE
+                               and buf[pos + 6] == 0 and 2 <= length <= _MAX_REPLY_LENGTH
+                               and 0 < node < 0xFFFF)
                     if avail < size:
-                        if not (final or self._frame_within(pos + 1, n)):
+                        if not (final or (not trusted and self._frame_within(pos + 1, n))):
                             break
                         reason = DiscardReason.TRUNCATED
-                    elif self._frame_within(pos + 1, pos + size - 1):
+                    elif not trusted and self._frame_within(pos + 1, pos + size - 1):
                         reason = DiscardReason.TRUNCATED
                     else:
                         ck = pos + size - 2
-                        if (sum(buf[pos + 1:ck - 2]) & 0xFFFF) == ((buf[ck] << 8) | buf[ck + 1]):
+                        if (sum(buf[pos + 1:ck - 2]) & 0xFFFF) != ((buf[ck] << 8) | buf[ck + 1]):
+                            reason = DiscardReason.BAD_CHECKSUM
+                        elif not 0 < node < 0xFFFF:
+                            reason = DiscardReason.BAD_ADDRESS
+                        else:
                             raw = bytes(buf[pos:pos + size])
-                            if raw[1] == FLAGS_REPLY and size > _MIN_FRAME + 1:
+                            if trusted:
                                 append(Reply(raw))
                                 stats.replies += 1
                             else:
@@ -144,7 +168,6 @@ class Decoder:
                                 stats.frames += 1
                             pos += size
                             continue
-                        reason = DiscardReason.BAD_CHECKSUM
                 end = self._run_end(pos, n, final, candidate=True)
                 if end is None:
                     break
@@ -180,7 +203,7 @@ class Decoder:
         buf = self._buf
         j = buf.find(_SOP_BYTE, start, last_start)
         while j != -1:
-            if buf[j + 1] != SOP:
+            if buf[j + 1] != SOP and 0 < ((buf[j + 3] << 8) | buf[j + 4]) < 0xFFFF:
                 end = j + buf[j + 5] + _SIZE_FROM_LENGTH
                 if end <= limit and (sum(buf[j + 1:end - 4]) & 0xFFFF) == (
                         (buf[end - 2] << 8) | buf[end - 1]):

@@ -138,6 +138,9 @@ class DiscardReason(StrEnum):
     """Bytes that could not start a packet nor be an ACK, NACK or ping answer."""
     BAD_CHECKSUM = "bad_checksum"
     """A complete packet whose checksum did not match."""
+    BAD_ADDRESS = "bad_address"
+    """A packet whose checksum holds but whose node address is 0 or 0xFFFF: no node
+    has those, and a run of zero bytes inside data looks exactly like such a packet."""
     TRUNCATED = "truncated"
     """A packet header whose claimed length was cut short, by a valid packet starting
     inside it or by the line going quiet. A false header (0xAA inside data followed by
