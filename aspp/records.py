@@ -309,3 +309,19 @@ def encode(record: str | int, **fields: object) -> bytes:
 def encode_record(rec: Record) -> bytes:
     """The reply bytes of a decoded record (decode's inverse)."""
     return encode(rec.command, **rec.as_dict())
+
+
+def markdown_table() -> str:
+    """The record table as README shows it, generated so the two cannot disagree."""
+    lines = ["| cmd | record | request after the command byte | reply fields after the echo "
+             "| reply bytes |", "|---|---|---|---|---|"]
+    for spec in _SPECS:
+        request = " ".join(item.value.hex(" ").upper() if isinstance(item, Const)
+                           else f"{item.name}:{item.type.name}" for item in spec.request)
+        reply = ("(none)" if spec.reply is None else
+                 ", ".join(f"{f.name}:{f.type.name}" for f in spec.reply))
+        size = "-" if spec.reply_size is None else str(spec.reply_size)
+        stream = " (streams)" if spec.streamable else ""
+        lines.append(f"| 0x{spec.code:02X} | {spec.name}{stream} | {request or '-'} "
+                     f"| {reply} | {size} |")
+    return "\n".join(lines)
