@@ -1,0 +1,541 @@
+"""The stream decoder, case by case: bytes in, exactly these events out.
+
+Every case in ``CASES`` is fed whole, split in two at every split point, and byte by
+byte, each followed by ``line_idle()``; all three must give exactly the expected events
+(the decoder promises that chunking never matters). The expected ``Discarded`` events
+are written out byte for byte with their reason, so these tests pin the rules in the
+module docstring of :mod:`aspp.decoder`, not just "something was dropped".
+
+Two rules from that docstring shape many expectations: a candidate with a plausible
+reply header (flags 0x07, app type 0x00, unused byte 0x00, length 2..102, node
+1..65534) is decided by its checksum alone, so a cut reply waits for the bytes it
+claims; any other candidate gives way at once to a valid packet that starts inside it
+and completes first. A checksum-valid packet needs a node address of 1..65534.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+
+import pytest
+
+from aspp import records
+from aspp.decoder import MAX_DISCARD, Decoder, DecoderStats
+from aspp.events import (
+    Ack,
+    Discarded,
+    DiscardReason,
+    Event,
+    Frame,
+    Nack,
+    PingOk,
+    Reply,
+)
+from aspp.frame import (
+    ACK,
+    FLAGS_DISCOVERY,
+    NACK,
+    PING,
+    SOP,
+    checksum,
+    encode_reply_packet,
+    reply_packet_size,
+)
+
+GARBAGE = DiscardReason.GARBAGE
+BAD_CHECKSUM = DiscardReason.BAD_CHECKSUM
+BAD_ADDRESS = DiscardReason.BAD_ADDRESS
+TRUNCATED = DiscardReason.TRUNCATED
+
+AA = bytes((SOP,))
+NK = bytes((NACK,))
+PG = bytes((PING,))
+
+LONGEST_PACKET = reply_packet_size(0xFF)  # 265 bytes: the length byte is 0xFF
+MAX_REPLY_LENGTH = 102  # the longest length byte of a plausible reply header
+
+
+# --- packets used by the cases --------------------------------------------------------
+
+def pkt(payload: bytes, node: int = 76, lqi: int = 0x64, rssi: int = -44,
+        flags: int = 0x07) -> bytes:
+    return encode_reply_packet(node, payload, lqi=lqi, rssi=rssi, flags=flags)
+
+
+def raw_packet(flags: int, node: int, payload: bytes, app: int = 0, unused: int = 0,
+               lqi: int = 0, rssi_byte: int = 0) -> bytes:
+    """A checksum-valid packet with any header bytes (encode_reply_packet refuses some)."""
+    body = bytes((flags, app, node >> 8, node & 0xFF, len(payload) + 1, unused)) + payload
+    return b"\xaa" + body + bytes((lqi, rssi_byte)) + checksum(body).to_bytes(2, "big")
+
+
+ACCEL = pkt(records.encode("accel_angrate", accel=(0.0, 0.0, -1.0),
+                           ang_rate=(0.01, -0.02, 0.03), timer=123456))
+EULER = pkt(records.encode("euler", roll=0.1, pitch=-0.2, yaw=1.5, timer=999),
+            node=77, lqi=0x50, rssi=-60)
+FIRMWARE = pkt(records.encode("firmware_version", version=4105))
+ORIENT = pkt(records.encode("accel_angrate_orientation", accel=(0, 0, -1),
+                            ang_rate=(0, 0, 0),
+                            orientation=((1, 0, 0), (0, 1, 0), (0, 0, 1)), timer=5),
+             node=300)
+DISCOVERY = pkt(b"\x00\x01\x02\x03", flags=FLAGS_DISCOVERY)
+COMMAND_FLAGS_FRAME = pkt(b"\xe9", flags=0x0B)
+NO_ECHO = pkt(b"")  # flags 0x07 but not even an echo byte: a Frame, not a Reply
+
+# A reply whose data holds every byte that means something between packets, including
+# a whole false header (AA 07 00 00 4C FF) and an ACK-looking AA AA pair.
+TRICKY_DATA = pkt(b"\xc2" + b"\xaa\x21\xaa\xaa\x02\xaa\x07\x00\x00\x4c\xff\x21\x02"
+                  + bytes(range(16)))
+FROM_AAAA = pkt(records.encode("firmware_version", version=4105), node=0xAAAA)
+LQI_RSSI_AA = pkt(records.encode("firmware_version", version=4105), lqi=0xAA, rssi=-86)
+CK_LSB_AA = pkt(records.encode("eeprom_read", value=0x006E))  # checksum 0x01AA
+
+
+def _frame_with_checksum(target: int, node: int = 76) -> bytes:
+    """A discovery frame (flags 0x00) whose checksum is ``target``, and LQI and RSSI
+    0xAA: 0xFF filler plus one odd byte. No plausible reply (length <= 102) can sum to
+    0xAAAA, so this one is a long frame."""
+    for filler in range(254):
+        head = checksum(bytes((0x00, 0x00, node >> 8, node & 0xFF, filler + 2, 0x00)))
+        rest = target - head - 0xFF * filler
+        if 0 <= rest <= 0xFF:
+            return pkt(b"\xff" * filler + bytes((rest,)), node=node, lqi=0xAA, rssi=-86,
+                       flags=FLAGS_DISCOVERY)
+    raise AssertionError(f"no frame has checksum 0x{target:04X}")
+
+
+CK_AAAA = _frame_with_checksum(0xAAAA)
+LONG_DISCOVERY = pkt(bytes(range(1, 61)), node=95, flags=FLAGS_DISCOVERY)
+LONG_0x07 = pkt(b"\xc2" + bytes(range(1, 111)))  # length byte 112: not a plausible reply
+UNUSED_BYTE_SET = raw_packet(0x07, 76, b"\xe9\x00\x00\x10\x09", unused=0x01)
+
+# A checksum-valid packet with a real node address, to hide inside other packets' data.
+EMBEDDED = raw_packet(0x00, 1, b"")  # AA 00 00 00 01 01 00 00 00 00 02
+ZERO_RUN = bytes((SOP,)) + bytes(9)  # checksum-valid, length 0, node 0: BAD_ADDRESS
+NODE_FFFF = raw_packet(0x07, 0xFFFF, b"\xe9\x00\x00\x10\x09")
+DISCOVERY_HIDING = pkt(b"\x01\x02" + EMBEDDED + b"\x03\x04", node=95, flags=FLAGS_DISCOVERY)
+REPLY_HIDING = pkt(b"\xc2" + EMBEDDED + ZERO_RUN + bytes(8))
+PLAUSIBLE_FALSE_HEADER = ACCEL[:7]  # AA 07 00 00 4C 1E 00: claims 40 bytes
+
+
+# Damaged packets. No fixture packet holds an 0xAA after its SOP (checked below), so a
+# failed candidate's discarded run reaches exactly to the next packet's SOP.
+CORRUPTED = ACCEL[:10] + b"\x55" + ACCEL[11:]          # one data byte changed
+BAD_CK = ACCEL[:-1] + bytes(((ACCEL[-1] + 1) & 0xFF,))  # checksum off by one
+INSERTED = ACCEL[:12] + b"\x55" + ACCEL[12:]            # one byte too many inside
+FALSE_HEADER = b"\xaa\x07\x00\x00\x4c\xff"              # claims a 265-byte packet
+
+
+def test_fixture_packets_are_what_the_cases_assume() -> None:
+    plain = [ACCEL, EULER, FIRMWARE, ORIENT, DISCOVERY, COMMAND_FLAGS_FRAME, NO_ECHO,
+             LONG_DISCOVERY, LONG_0x07, UNUSED_BYTE_SET, NODE_FFFF]
+    for raw in plain:
+        assert raw[0] == SOP and SOP not in raw[1:], raw.hex(" ")
+    assert LONG_0x07[5] > MAX_REPLY_LENGTH and LONG_DISCOVERY[5] <= MAX_REPLY_LENGTH
+    assert EMBEDDED.hex(" ") == "aa 00 00 00 01 01 00 00 00 00 02"
+    assert checksum(ZERO_RUN[1:6]) == int.from_bytes(ZERO_RUN[-2:], "big")
+    assert len(LONG_DISCOVERY) > 20 + len(FIRMWARE)  # a cut one ends beyond FIRMWARE
+    assert len(ORIENT) == 20 + len(FIRMWARE) + len(ACCEL)
+    assert len(ORIENT) > 20 + len(FIRMWARE)       # a cut ORIENT ends beyond FIRMWARE
+    assert len(FIRMWARE) < 8 + len(ACCEL)         # a cut FIRMWARE ends inside ACCEL
+    assert FROM_AAAA[3:5] == b"\xaa\xaa"
+    assert LQI_RSSI_AA[-4:-2] == b"\xaa\xaa"
+    assert CK_LSB_AA[-1] == SOP and CK_LSB_AA.count(SOP) == 2
+    assert CK_AAAA[-4:] == b"\xaa\xaa\xaa\xaa" and SOP not in CK_AAAA[1:-4]
+    assert SOP not in CORRUPTED[1:] and SOP not in INSERTED[1:] and SOP not in BAD_CK[1:]
+
+
+# --- helpers --------------------------------------------------------------------------
+
+def run(chunks: Iterable[bytes]) -> tuple[list[Event], Decoder]:
+    decoder = Decoder()
+    events: list[Event] = []
+    for chunk in chunks:
+        events += decoder.feed(chunk)
+    events += decoder.line_idle()
+    return events, decoder
+
+
+def represented(events: Iterable[Event]) -> bytes:
+    """The bytes the events stand for, in order."""
+    out = bytearray()
+    for event in events:
+        if isinstance(event, (Reply, Frame)):
+            out += event.raw
+        elif isinstance(event, Ack):
+            out.append(ACK)
+        elif isinstance(event, Nack):
+            out.append(NACK)
+        elif isinstance(event, PingOk):
+            out.append(PING)
+        else:
+            assert isinstance(event, Discarded)
+            out += event.data
+    return bytes(out)
+
+
+def stats_for(events: Iterable[Event]) -> DecoderStats:
+    expected = DecoderStats()
+    for event in events:
+        if isinstance(event, Reply):
+            expected.replies += 1
+        elif isinstance(event, Frame):
+            expected.frames += 1
+        elif isinstance(event, Ack):
+            expected.acks += 1
+        elif isinstance(event, Nack):
+            expected.nacks += 1
+        elif isinstance(event, PingOk):
+            expected.ping_oks += 1
+        else:
+            expected.discarded_bytes[event.reason] += len(event.data)
+            expected.discarded_runs[event.reason] += 1
+    return expected
+
+
+def d(data: bytes, reason: DiscardReason) -> Discarded:
+    return Discarded(data, reason)
+
+
+# --- the table ------------------------------------------------------------------------
+
+CASES: list[tuple[str, bytes, list[Event]]] = [
+    ("single reply", ACCEL, [Reply(ACCEL)]),
+    ("two replies back to back", ACCEL + EULER, [Reply(ACCEL), Reply(EULER)]),
+    ("ack glued to a reply (AA AA 07 ...)", AA + ACCEL, [Ack(), Reply(ACCEL)]),
+    ("reply then nack", ACCEL + NK, [Reply(ACCEL), Nack()]),
+    ("ack between replies", ACCEL + AA + EULER, [Reply(ACCEL), Ack(), Reply(EULER)]),
+    ("lone ack", AA, [Ack()]),
+    ("lone nack", NK, [Nack()]),
+    ("ping answered", PG, [PingOk()]),
+    ("ping answers and nacks", PG + NK + PG, [PingOk(), Nack(), PingOk()]),
+    ("ping answer between replies", ACCEL + PG + EULER,
+     [Reply(ACCEL), PingOk(), Reply(EULER)]),
+    ("discovery frame between replies", ACCEL + DISCOVERY + EULER,
+     [Reply(ACCEL), Frame(DISCOVERY), Reply(EULER)]),
+    ("other delivery flags are a frame", COMMAND_FLAGS_FRAME, [Frame(COMMAND_FLAGS_FRAME)]),
+    ("flags 0x07 without an echo byte is a frame", NO_ECHO + ACCEL,
+     [Frame(NO_ECHO), Reply(ACCEL)]),
+    ("garbage before a packet", b"\x55\x66\x77" + ACCEL,
+     [d(b"\x55\x66\x77", GARBAGE), Reply(ACCEL)]),
+    ("garbage after a packet", ACCEL + b"\x55\x66",
+     [Reply(ACCEL), d(b"\x55\x66", GARBAGE)]),
+    ("garbage runs stop at nack and ping bytes", b"\x55" + NK + b"\x66\x77" + PG + b"\x88",
+     [d(b"\x55", GARBAGE), Nack(), d(b"\x66\x77", GARBAGE), PingOk(), d(b"\x88", GARBAGE)]),
+    ("corrupted data byte, then a good packet", CORRUPTED + EULER,
+     [d(CORRUPTED, BAD_CHECKSUM), Reply(EULER)]),
+    ("byte inserted inside a packet, then a good packet", INSERTED + EULER,
+     [d(INSERTED, BAD_CHECKSUM), Reply(EULER)]),
+    ("bad checksum then a good packet", BAD_CK + EULER,
+     [d(BAD_CK, BAD_CHECKSUM), Reply(EULER)]),
+    # A failed candidate is discarded "with the bytes up to the next 0xAA", so a NACK
+    # right after it goes with it.
+    ("bad checksum, nack, good packet", BAD_CK + NK + EULER,
+     [d(BAD_CK + NK, BAD_CHECKSUM), Reply(EULER)]),
+    ("bad checksum at the end of the line", BAD_CK, [d(BAD_CK, BAD_CHECKSUM)]),
+    # A cut reply keeps a plausible reply header, so it is decided by its checksum alone
+    # and waits for the bytes it claims: here the line goes quiet first.
+    ("cut reply, line quiet before its claimed end", ORIENT[:20] + FIRMWARE,
+     [d(ORIENT[:20], TRUNCATED), Reply(FIRMWARE)]),
+    ("cut reply whose claimed length is filled by what follows",
+     ORIENT[:20] + FIRMWARE + ACCEL,
+     [d(ORIENT[:20], BAD_CHECKSUM), Reply(FIRMWARE), Reply(ACCEL)]),
+    ("cut reply whose claimed end falls inside the next packet", FIRMWARE[:8] + ACCEL,
+     [d(FIRMWARE[:8], BAD_CHECKSUM), Reply(ACCEL)]),
+    # A cut frame (no plausible reply header) gives way to the packet inside it.
+    ("cut discovery frame gives way to the next packet", LONG_DISCOVERY[:20] + FIRMWARE,
+     [d(LONG_DISCOVERY[:20], TRUNCATED), Reply(FIRMWARE)]),
+    ("truncated packet at the end of the line", ACCEL + ORIENT[:30],
+     [Reply(ACCEL), d(ORIENT[:30], TRUNCATED)]),
+    ("header only at the end of the line", AA + b"\x07\x00", [d(AA + b"\x07\x00", TRUNCATED)]),
+    ("false header (length 0xFF) then a valid packet", FALSE_HEADER + ACCEL,
+     [d(FALSE_HEADER, TRUNCATED), Reply(ACCEL)]),
+    ("false header inside garbage", b"\x55\xaa\x12\x34\x56\x78\xff\x99" + ACCEL,
+     [d(b"\x55", GARBAGE), d(b"\xaa\x12\x34\x56\x78\xff\x99", TRUNCATED), Reply(ACCEL)]),
+    ("two false headers then a valid packet", FALSE_HEADER + FALSE_HEADER + EULER,
+     [d(FALSE_HEADER, TRUNCATED), d(FALSE_HEADER, TRUNCATED), Reply(EULER)]),
+    ("false header, ack, valid packet", FALSE_HEADER + AA + EULER,
+     [d(FALSE_HEADER, TRUNCATED), Ack(), Reply(EULER)]),
+    ("trailing lone 0xAA is an ack", ACCEL + AA, [Reply(ACCEL), Ack()]),
+    ("0xAA 0xAA then a packet", AA + AA + ACCEL, [Ack(), Ack(), Reply(ACCEL)]),
+    ("data holding 0xAA, 0x21, 0x02 and a false header", TRICKY_DATA + NK,
+     [Reply(TRICKY_DATA), Nack()]),
+    ("reply from node 0xAAAA", FROM_AAAA + AA + FROM_AAAA,
+     [Reply(FROM_AAAA), Ack(), Reply(FROM_AAAA)]),
+    ("LQI and RSSI equal to 0xAA", LQI_RSSI_AA + EULER, [Reply(LQI_RSSI_AA), Reply(EULER)]),
+    ("checksum LSB equal to 0xAA", CK_LSB_AA + CK_LSB_AA + AA,
+     [Reply(CK_LSB_AA), Reply(CK_LSB_AA), Ack()]),
+    ("frame whose LQI, RSSI and checksum are all 0xAA", CK_AAAA + AA + CK_AAAA,
+     [Frame(CK_AAAA), Ack(), Frame(CK_AAAA)]),
+    ("plausible false header then a packet", PLAUSIBLE_FALSE_HEADER + ACCEL,
+     [d(PLAUSIBLE_FALSE_HEADER, BAD_CHECKSUM), Reply(ACCEL)]),
+    ("flags 0x07 with a length byte above 102 is a frame", LONG_0x07 + ACCEL,
+     [Frame(LONG_0x07), Reply(ACCEL)]),
+    ("flags 0x07 with a nonzero unused byte is a frame", UNUSED_BYTE_SET,
+     [Frame(UNUSED_BYTE_SET)]),
+    ("zero run: checksum holds but node 0", ZERO_RUN + ACCEL,
+     [d(ZERO_RUN, BAD_ADDRESS), Reply(ACCEL)]),
+    ("checksum holds but node 0xFFFF", NODE_FFFF + EULER,
+     [d(NODE_FFFF, BAD_ADDRESS), Reply(EULER)]),
+    ("reply hiding a valid packet and a zero run in its data", REPLY_HIDING + NK,
+     [Reply(REPLY_HIDING), Nack()]),
+    ("discovery frame gives way to a valid packet inside it", DISCOVERY_HIDING + ACCEL,
+     [d(DISCOVERY_HIDING[:9], TRUNCATED), Frame(EMBEDDED), d(DISCOVERY_HIDING[20:], GARBAGE),
+      Reply(ACCEL)]),
+    # An 0xAA whose candidate fails is an ACK only when it stands alone; otherwise it
+    # is discarded with the bytes up to the next 0xAA (decoder docstring).
+    ("0xAA then garbage at the end of the line", AA + b"\x55", [d(AA + b"\x55", TRUNCATED)]),
+    ("0xAA then a ping answer at the end of the line", AA + PG, [d(AA + PG, TRUNCATED)]),
+    ("0xAA then garbage then a packet", AA + b"\x55" + ACCEL,
+     [d(AA + b"\x55", BAD_CHECKSUM), Reply(ACCEL)]),
+    ("garbage longer than MAX_DISCARD comes in pieces", b"\x55" * (MAX_DISCARD + 88),
+     [d(b"\x55" * MAX_DISCARD, GARBAGE), d(b"\x55" * 88, GARBAGE)]),
+    ("a failed candidate's run is cut at MAX_DISCARD too",
+     BAD_CK + b"\x55" * 500 + ACCEL,
+     [d(BAD_CK + b"\x55" * (MAX_DISCARD - len(BAD_CK)), BAD_CHECKSUM),
+      d(b"\x55" * (500 - MAX_DISCARD + len(BAD_CK)), GARBAGE), Reply(ACCEL)]),
+    ("a long mixed stream",
+     b"\x01" + AA + ACCEL + DISCOVERY + NK + FALSE_HEADER + EULER + BAD_CK + AA + FIRMWARE
+     + PG + ORIENT[:25],
+     [d(b"\x01", GARBAGE), Ack(), Reply(ACCEL), Frame(DISCOVERY), Nack(),
+      d(FALSE_HEADER, TRUNCATED), Reply(EULER), d(BAD_CK, BAD_CHECKSUM), Ack(),
+      Reply(FIRMWARE), PingOk(), d(ORIENT[:25], TRUNCATED)]),
+]
+
+CHUNKINGS: dict[str, Callable[[bytes], list[list[bytes]]]] = {
+    "whole": lambda data: [[data]],
+    "halves": lambda data: [[data[:i], data[i:]] for i in range(len(data) + 1)],
+    "bytewise": lambda data: [[data[i:i + 1] for i in range(len(data))]],
+}
+
+
+@pytest.mark.parametrize("chunking", list(CHUNKINGS))
+@pytest.mark.parametrize(("data", "expected"), [pytest.param(c[1], c[2], id=c[0])
+                                                for c in CASES])
+def test_case(data: bytes, expected: list[Event], chunking: str) -> None:
+    assert represented(expected) == data, "the case's expectation must cover its input"
+    for chunks in CHUNKINGS[chunking](data):
+        events, decoder = run(chunks)
+        where = [len(c) for c in chunks]
+        assert events == expected, f"chunk sizes {where}"
+        assert decoder.pending == 0
+        assert decoder.stats == stats_for(expected)
+
+
+def test_case_names_are_unique() -> None:
+    names = [name for name, _, _ in CASES]
+    assert len(names) == len(set(names))
+
+
+# --- when events come out -------------------------------------------------------------
+
+def test_reply_behind_false_header_comes_out_without_idle() -> None:
+    decoder = Decoder()
+    assert decoder.feed(FALSE_HEADER + ACCEL) == [d(FALSE_HEADER, TRUNCATED), Reply(ACCEL)]
+    assert decoder.pending == 0
+    assert decoder.line_idle() == []
+
+
+def test_reply_behind_false_header_comes_out_on_its_last_byte() -> None:
+    decoder = Decoder()
+    stream = FALSE_HEADER + ACCEL
+    for i, byte in enumerate(stream[:-1]):
+        assert decoder.feed(bytes((byte,))) == [], f"byte {i}"
+        assert decoder.pending == i + 1
+    assert decoder.feed(stream[-1:]) == [d(FALSE_HEADER, TRUNCATED), Reply(ACCEL)]
+    assert decoder.pending == 0
+
+
+def test_reply_comes_out_on_its_last_byte() -> None:
+    decoder = Decoder()
+    assert decoder.feed(ACCEL[:-1]) == []
+    assert decoder.pending == len(ACCEL) - 1
+    assert decoder.feed(ACCEL[-1:]) == [Reply(ACCEL)]
+    assert decoder.pending == 0
+
+
+def test_cut_reply_delays_what_follows_by_at_most_its_claimed_length() -> None:
+    decoder = Decoder()
+    assert decoder.feed(ORIENT[:20] + FIRMWARE) == []
+    assert decoder.pending == 20 + len(FIRMWARE)
+    assert decoder.feed(ACCEL[:-1]) == []  # one byte short of ORIENT's claimed length
+    assert decoder.feed(ACCEL[-1:]) == [d(ORIENT[:20], BAD_CHECKSUM), Reply(FIRMWARE),
+                                        Reply(ACCEL)]
+    assert decoder.pending == 0
+
+
+def test_cut_frame_gives_way_without_waiting() -> None:
+    decoder = Decoder()
+    assert decoder.feed(LONG_DISCOVERY[:20] + FIRMWARE) == [
+        d(LONG_DISCOVERY[:20], TRUNCATED), Reply(FIRMWARE)]
+    assert decoder.pending == 0
+
+
+def test_trailing_aa_waits_for_line_idle() -> None:
+    decoder = Decoder()
+    assert decoder.feed(ACCEL + AA) == [Reply(ACCEL)]
+    assert decoder.pending == 1
+    assert decoder.feed(b"") == []
+    assert decoder.pending == 1
+    assert decoder.line_idle() == [Ack()]
+    assert decoder.pending == 0
+    assert decoder.stats.acks == 1
+
+
+def test_aa_then_aa_is_an_ack_at_once() -> None:
+    decoder = Decoder()
+    assert decoder.feed(AA) == []
+    assert decoder.pending == 1
+    assert decoder.feed(AA) == [Ack()]
+    assert decoder.pending == 1  # the second 0xAA may be an SOP
+    assert decoder.feed(ACCEL[1:]) == [Reply(ACCEL)]
+    assert decoder.pending == 0
+
+
+def test_garbage_run_waits_for_its_end() -> None:
+    decoder = Decoder()
+    assert decoder.feed(b"\x55\x66") == []
+    assert decoder.pending == 2
+    assert decoder.feed(NK) == [d(b"\x55\x66", GARBAGE), Nack()]
+    assert decoder.pending == 0
+
+
+def test_unfinished_packet_is_truncated_at_line_idle() -> None:
+    decoder = Decoder()
+    assert decoder.feed(ACCEL[:-1]) == []
+    assert decoder.line_idle() == [d(ACCEL[:-1], TRUNCATED)]
+    assert decoder.pending == 0
+    assert decoder.feed(ACCEL) == [Reply(ACCEL)]
+
+
+def test_line_idle_with_nothing_pending() -> None:
+    decoder = Decoder()
+    assert decoder.line_idle() == []
+    assert decoder.feed(ACCEL) == [Reply(ACCEL)]
+    assert decoder.line_idle() == []
+    assert decoder.line_idle() == []
+
+
+# --- bounded memory -------------------------------------------------------------------
+
+def test_longest_unfinished_packet_is_held_whole() -> None:
+    decoder = Decoder()
+    held = FALSE_HEADER + bytes(LONGEST_PACKET - len(FALSE_HEADER) - 1)
+    assert decoder.feed(held) == []
+    assert decoder.pending == LONGEST_PACKET - 1
+    # Complete now and its checksum fails: it is discarded with the bytes up to the
+    # next 0xAA, so the run stays open until one comes.
+    assert decoder.feed(b"\x00") == []
+    assert decoder.pending == LONGEST_PACKET
+    assert decoder.feed(ACCEL) == [d(held + b"\x00", BAD_CHECKSUM), Reply(ACCEL)]
+    assert decoder.pending == 0
+
+
+def test_pending_never_exceeds_max_discard() -> None:
+    decoder = Decoder()
+    assert decoder.feed(b"\x55" * (MAX_DISCARD - 1)) == []
+    assert decoder.pending == MAX_DISCARD - 1
+    assert decoder.feed(b"\x55") == [d(b"\x55" * MAX_DISCARD, GARBAGE)]
+    assert decoder.pending == 0
+    assert decoder.feed(b"\x55" * (3 * MAX_DISCARD + 7)) == [
+        d(b"\x55" * MAX_DISCARD, GARBAGE)] * 3
+    assert decoder.pending == 7
+
+
+# --- stats ----------------------------------------------------------------------------
+
+def test_stats_for_a_mixed_stream() -> None:
+    stream = (b"\x01" + AA + ACCEL + DISCOVERY + NK + FALSE_HEADER + EULER + BAD_CK + AA
+              + FIRMWARE + PG + ORIENT[:25])
+    decoder = Decoder()
+    decoder.feed(stream[:50])
+    decoder.feed(stream[50:])
+    decoder.line_idle()
+    stats = decoder.stats
+    assert (stats.replies, stats.frames, stats.acks, stats.nacks, stats.ping_oks) == (
+        3, 1, 2, 1, 1)
+    assert stats.packets == 4
+    assert stats.discarded_bytes == {GARBAGE: 1, BAD_CHECKSUM: len(BAD_CK), BAD_ADDRESS: 0,
+                                     TRUNCATED: len(FALSE_HEADER) + 25}
+    assert stats.discarded_runs == {GARBAGE: 1, BAD_CHECKSUM: 1, BAD_ADDRESS: 0,
+                                    TRUNCATED: 2}
+    assert stats.bytes_discarded == 1 + len(BAD_CK) + len(FALSE_HEADER) + 25
+
+
+def test_stats_count_garbage_pieces_as_runs() -> None:
+    decoder = Decoder()
+    decoder.feed(b"\x55" * (MAX_DISCARD + 1) + ACCEL + NK + NK)
+    decoder.line_idle()
+    assert decoder.stats.discarded_bytes[GARBAGE] == MAX_DISCARD + 1
+    assert decoder.stats.discarded_runs[GARBAGE] == 2
+    assert decoder.stats.replies == 1 and decoder.stats.nacks == 2
+    assert decoder.stats.bytes_discarded == MAX_DISCARD + 1
+
+
+def test_stats_keep_running_across_line_idle() -> None:
+    decoder = Decoder()
+    for _ in range(3):
+        decoder.feed(ACCEL + AA)
+        decoder.line_idle()
+    assert decoder.stats.replies == 3 and decoder.stats.acks == 3
+    assert decoder.stats.bytes_discarded == 0
+
+
+# --- the events read back -------------------------------------------------------------
+
+def test_reply_fields_read_from_aa_heavy_packets() -> None:
+    (reply,) = Decoder().feed(FROM_AAAA)
+    assert isinstance(reply, Reply)
+    assert reply.node == 0xAAAA and reply.command == 0xE9
+    assert records.decode(reply.payload)["version"] == 4105
+    (reply,) = Decoder().feed(LQI_RSSI_AA)
+    assert (reply.node, reply.lqi, reply.rssi) == (76, 0xAA, -86)
+    (reply,) = Decoder().feed(ACCEL)
+    assert (reply.node, reply.command, reply.lqi, reply.rssi) == (76, 0xC2, 0x64, -44)
+    assert records.decode(reply.payload)["timer"] == 123456
+
+
+def test_frame_fields() -> None:
+    (frame,) = Decoder().feed(DISCOVERY)
+    assert isinstance(frame, Frame) and frame.is_discovery
+    assert (frame.flags, frame.node, frame.payload) == (0x00, 76, b"\x00\x01\x02\x03")
+    (frame,) = Decoder().feed(COMMAND_FLAGS_FRAME)
+    assert isinstance(frame, Frame) and not frame.is_discovery and frame.flags == 0x0B
+
+
+def test_events_are_type_strict() -> None:
+    assert Ack() != Nack() and Nack() != PingOk()
+    assert Reply(ACCEL) != Frame(ACCEL)
+    assert Discarded(b"\x55", GARBAGE) != Discarded(b"\x55", TRUNCATED)
+    assert [Ack(), Reply(ACCEL)] == [Ack(), Reply(ACCEL)]
+
+
+# --- input types ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("kind", [bytes, bytearray, memoryview])
+def test_feed_takes_any_bytes_like(kind: type) -> None:
+    stream = AA + ACCEL + NK
+    decoder = Decoder()
+    events = decoder.feed(kind(stream))
+    assert events == [Ack(), Reply(ACCEL), Nack()]
+    assert type(events[1].raw) is bytes
+
+
+def test_feed_keeps_no_reference_to_a_mutable_input() -> None:
+    decoder = Decoder()
+    buffer = bytearray(ACCEL[:20])
+    assert decoder.feed(buffer) == []
+    buffer[:] = b"\x00" * 20
+    events = decoder.feed(ACCEL[20:])
+    assert events == [Reply(ACCEL)]
+    assert type(events[0].raw) is bytes
+
+
+@pytest.mark.parametrize("bad", ["\xaa\x07", "", 0xAA, None, [0xAA]])
+def test_feed_of_non_bytes_raises_type_error(bad: object) -> None:
+    decoder = Decoder()
+    decoder.feed(ACCEL[:10])
+    with pytest.raises(TypeError):
+        decoder.feed(bad)  # type: ignore[arg-type]
+    assert decoder.pending == 10  # nothing was taken in
+    assert decoder.feed(ACCEL[10:]) == [Reply(ACCEL)]
