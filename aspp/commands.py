@@ -95,9 +95,12 @@ def _check_streamable(code: object) -> None:
                            f"{', '.join(f'0x{c:02X}' for c in sorted(STREAMABLE))}")
 
 
-def parse(data: bytes) -> Command:
-    """Parse GX2 command bytes as a device would; raise CommandError if they are not
-    exactly one valid command (unknown byte, wrong length, wrong confirmation bytes)."""
+def parse(data: bytes, check_arguments: bool = True) -> Command:
+    """Parse GX2 command bytes; raise CommandError if they are not exactly one valid
+    command (unknown byte, wrong length, wrong confirmation bytes, and with
+    ``check_arguments`` an argument out of its range). A device parses with
+    ``check_arguments=False``: the reference defines what it does with some values a
+    host should never send (0xD0 answers any quantity but 1 and 2 with 0xFFFF)."""
     if not data:
         raise CommandError("no command byte")
     try:
@@ -108,11 +111,12 @@ def parse(data: bytes) -> Command:
         raise CommandError(f"0x{spec.code:02X} {spec.name} takes {spec.request_size} "
                            f"bytes, not {len(data)}")
     arguments = _read_arguments(spec, data)
-    for item in spec.arguments:
-        if item.check is not None:
-            item.check(item.name, arguments[item.name])
-    if spec.code == 0xC4:
-        _check_streamable(arguments["continuous_command"])
+    if check_arguments:
+        for item in spec.arguments:
+            if item.check is not None:
+                item.check(item.name, arguments[item.name])
+        if spec.code == 0xC4:
+            _check_streamable(arguments["continuous_command"])
     return Command(spec, arguments, bytes(data))
 
 

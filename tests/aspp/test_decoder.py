@@ -115,7 +115,12 @@ ZERO_RUN = bytes((SOP,)) + bytes(9)  # checksum-valid, length 0, node 0: BAD_ADD
 NODE_FFFF = raw_packet(0x07, 0xFFFF, b"\xe9\x00\x00\x10\x09")
 DISCOVERY_HIDING = pkt(b"\x01\x02" + EMBEDDED + b"\x03\x04", node=95, flags=FLAGS_DISCOVERY)
 REPLY_HIDING = pkt(b"\xc2" + EMBEDDED + ZERO_RUN + bytes(8))
+DISCOVERY_HIDING_ZERO_RUN = pkt(b"\x01" + ZERO_RUN + b"\x03", node=95, flags=FLAGS_DISCOVERY)
 PLAUSIBLE_FALSE_HEADER = ACCEL[:7]  # AA 07 00 00 4C 1E 00: claims 40 bytes
+# No plausible reply header; they claim to end exactly where ACCEL after them ends, and
+# one byte later.
+ENDS_WITH_ACCEL = b"\xaa\x12\x34\x56\x78" + bytes((6 + len(ACCEL) - 10,))
+ENDS_AFTER_ACCEL = b"\xaa\x12\x34\x56\x78" + bytes((6 + len(ACCEL) - 10 + 1,))
 
 
 # Damaged packets. No fixture packet holds an 0xAA after its SOP (checked below), so a
@@ -279,6 +284,14 @@ CASES: list[tuple[str, bytes, list[Event]]] = [
      [d(NODE_FFFF, BAD_ADDRESS), Reply(EULER)]),
     ("reply hiding a valid packet and a zero run in its data", REPLY_HIDING + NK,
      [Reply(REPLY_HIDING), Nack()]),
+    ("discovery frame does not give way to a zero run (node 0)", DISCOVERY_HIDING_ZERO_RUN,
+     [Frame(DISCOVERY_HIDING_ZERO_RUN)]),
+    # "gives way to a valid packet that starts inside it and completes first": a packet
+    # completing with the candidate's last byte does not complete first.
+    ("false header ending with the packet after it", ENDS_WITH_ACCEL + ACCEL,
+     [d(ENDS_WITH_ACCEL, BAD_CHECKSUM), Reply(ACCEL)]),
+    ("false header ending one byte after the packet after it", ENDS_AFTER_ACCEL + ACCEL,
+     [d(ENDS_AFTER_ACCEL, TRUNCATED), Reply(ACCEL)]),
     ("discovery frame gives way to a valid packet inside it", DISCOVERY_HIDING + ACCEL,
      [d(DISCOVERY_HIDING[:9], TRUNCATED), Frame(EMBEDDED), d(DISCOVERY_HIDING[20:], GARBAGE),
       Reply(ACCEL)]),

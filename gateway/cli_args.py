@@ -1,0 +1,65 @@
+"""Argument helpers every console script shares: one-line usage errors, and parsers for
+the values the tools take (node lists, probabilities, record names)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import NoReturn
+
+from aspp.errors import AsppError
+from aspp.frame import MAX_NODE, MIN_NODE
+from aspp.records import lookup
+
+USAGE_ERROR = 2
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line (and exit status 2)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(USAGE_ERROR, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
+def node_address(text: str) -> int:
+    try:
+        value = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"node address {text!r} is not a number") from None
+    if not MIN_NODE <= value <= MAX_NODE:
+        raise argparse.ArgumentTypeError(
+            f"node address {value} is out of range {MIN_NODE}..{MAX_NODE}")
+    return value
+
+
+def node_list(text: str) -> list[int]:
+    """``76,77,95`` -> [76, 77, 95], each checked, no repeats."""
+    nodes = [node_address(part.strip()) for part in text.split(",") if part.strip()]
+    if not nodes:
+        raise argparse.ArgumentTypeError("no node addresses given")
+    if len(set(nodes)) != len(nodes):
+        raise argparse.ArgumentTypeError(f"a node appears twice in {text!r}")
+    return nodes
+
+
+def probability(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"{value} is not a probability (0..1)")
+    return value
+
+
+def record_name(text: str) -> str:
+    """A record by name or ``0xNN``, returned as its name."""
+    try:
+        return lookup(text).name
+    except AsppError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def fail(prog: str, message: str, status: int) -> NoReturn:
+    print(f"{prog}: {message}", file=sys.stderr)
+    raise SystemExit(status)

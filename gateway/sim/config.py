@@ -1,0 +1,108 @@
+"""gx2-sim's configuration: a small YAML file, or the same keys from the command line.
+
+```yaml
+baudrate: 115200
+seed: 1
+first_write_failure: 0.3      # chance the first EEPROM write after power-up fails
+line: {garbage: 0.01, bad_checksum: 0.0, false_header: 0.0, glue_ack: false}
+nodes:
+  - address: 76
+    model: inertia-link       # or 3dm-gx2 (which has a magnetometer)
+    stream: accel_angrate     # auto-start record (EEPROM 0xFCA6), or omit for polled
+    divider: 512              # 51200 / 512 = 100 Hz
+    timer_start: 0.0          # seconds on the timer at power-up (215: near the wrap)
+    radio: {in_range: true, command_loss: 0.0, data_loss: 0.0, stop_loss: 0.0,
+            lqi: 200, rssi: -45}
+```
+"""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from aspp.commands import MAX_DIVIDER, MIN_DIVIDER
+from aspp.errors import AsppError
+from aspp.records import STREAMABLE, lookup
+
+from .node import GX2, INERTIA_LINK, NodeSettings
+from .station import LineFaults, RadioLink
+
+Probability = Field(default=0.0, ge=0.0, le=1.0)
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class RadioConfig(_Strict):
+    in_range: bool = True
+    command_loss: float = Probability
+    data_loss: float = Probability
+    stop_loss: float = Probability
+    lqi: int = Field(default=200, ge=0, le=255)
+    rssi: int = Field(default=-45, ge=-128, le=127)
+
+    def build(self) -> RadioLink:
+        return RadioLink(**self.model_dump())
+
+
+class LineConfig(_Strict):
+    garbage: float = Probability
+    bad_checksum: float = Probability
+    false_header: float = Probability
+    glue_ack: bool = False
+
+    def build(self) -> LineFaults:
+        return LineFaults(**self.model_dump())
+
+
+class NodeConfig(_Strict):
+    address: int = Field(ge=1, le=65534)
+    model: str = INERTIA_LINK
+    stream: str | None = None
+    divider: int = Field(default=512, ge=MIN_DIVIDER, le=MAX_DIVIDER)
+    timer_start: float = Field(default=0.0, ge=0.0)
+    serial: str = Field(default="", max_length=16)
+    radio: RadioConfig = RadioConfig()
+
+    @field_validator("model")
+    @classmethod
+    def _known_model(cls, value: str) -> str:
+        if value not in (INERTIA_LINK, GX2):
+            raise ValueError(f"must be {INERTIA_LINK} or {GX2}, not {value!r}")
+        return value
+
+    @field_validator("stream")
+    @classmethod
+    def _streamable(cls, value: str | None) -> str | None:
+        if value is None:
+            return None
+        try:
+            spec = lookup(value)
+        except AsppError as error:
+            raise ValueError(str(error)) from None
+        if spec.code not in STREAMABLE:
+            raise ValueError(f"{spec.name} cannot be streamed in continuous mode")
+        return spec.name
+
+    def build(self) -> NodeSettings:
+        return NodeSettings(address=self.address, model=self.model, stream=self.stream,
+                            divider=self.divider, timer_start=self.timer_start,
+                            serial=self.serial)
+
+
+class SimConfig(_Strict):
+    baudrate: int = Field(default=115200, ge=1200, le=4_000_000)
+    seed: int = 1
+    first_write_failure: float = Probability
+    line: LineConfig = LineConfig()
+    nodes: list[NodeConfig] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _unique_addresses(self) -> SimConfig:
+        seen: set[int] = set()
+        for node in self.nodes:
+            if node.address in seen:
+                raise ValueError(f"node address {node.address} appears twice")
+            seen.add(node.address)
+        return self

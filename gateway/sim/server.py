@@ -1,0 +1,224 @@
+"""gx2-sim's process side: a pseudo-terminal that looks like a USB base station, and a
+loop that serves it.
+
+The pty is put in raw mode and its slave path is what the gateway opens, exactly as it
+opens /dev/ttyUSB0; an optional symlink gives it a stable name. Unplugging closes the
+pty (the gateway's reads fail as they would on a real unplug) and replugging makes a
+new one behind the same symlink. :class:`Simulator` runs the loop in a thread and gives
+tests a thread-safe handle on it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import random
+import selectors
+import threading
+import time
+import tty
+from collections.abc import Callable
+from pathlib import Path
+from typing import TypeVar
+
+from .node import NodeSettings, SimNode
+from .station import BaseStation, LineFaults, RadioLink
+
+log = logging.getLogger("gx2.sim")
+HOST_IDLE = 0.05
+"""A host that stops mid-packet for this long gets a NACK for what it sent."""
+T = TypeVar("T")
+
+
+class PtyPort:
+    """One pseudo-terminal pair standing in for the base station's USB serial port."""
+
+    def __init__(self, link: str | Path | None = None) -> None:
+        self.link = Path(link) if link else None
+        self.master: int | None = None
+        self._slave: int | None = None
+        self.path = ""
+
+    def open(self) -> None:
+        master, slave = os.openpty()
+        tty.setraw(slave)  # no echo, no line discipline: bytes pass untouched
+        os.set_blocking(master, False)
+        self.master, self._slave, self.path = master, slave, os.ttyname(slave)
+        if self.link:
+            temporary = self.link.with_name(self.link.name + ".new")
+            with contextlib.suppress(FileNotFoundError):
+                temporary.unlink()
+            temporary.symlink_to(self.path)
+            temporary.replace(self.link)  # atomic: the link never dangles mid-update
+
+    def close(self) -> None:
+        if self.link and self.link.is_symlink() and os.readlink(self.link) == self.path:
+            self.link.unlink()
+        for fd in (self.master, self._slave):
+            if fd is not None:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        self.master = self._slave = None
+
+    @property
+    def is_open(self) -> bool:
+        return self.master is not None
+
+    def write(self, data: bytes) -> int:
+        """Write what the pty takes; a full pty (nobody reading) drops the rest, as a
+        USB serial adapter does when the port is not being read."""
+        assert self.master is not None
+        try:
+            return os.write(self.master, data)
+        except BlockingIOError:
+            return 0
+
+
+class Simulator:
+    """A base station and its nodes behind a pty, served from a background thread."""
+
+    def __init__(self, nodes: list[NodeSettings], *, link: str | Path | None = None,
+                 radio: dict[int, RadioLink] | None = None, line: LineFaults | None = None,
+                 baudrate: int = 115200, seed: int = 1,
+                 first_write_failure_rate: float = 0.0) -> None:
+        rng = random.Random(seed)
+        now = time.monotonic()
+        sim_nodes = [SimNode(s, now, random.Random(rng.random())) for s in nodes]
+        for node in sim_nodes:
+            node.first_write_failure_rate = first_write_failure_rate
+        self.station = BaseStation(sim_nodes, radio, line, baudrate, rng)
+        self.port = PtyPort(link)
+        self.dropped_bytes = 0
+        self._lock = threading.RLock()
+        self._wake_r, self._wake_w = os.pipe()
+        self._stop = threading.Event()
+        self._ready = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._replug_at: float | None = None
+        self.error: BaseException | None = None
+
+    # -- life cycle --------------------------------------------------------------------
+
+    def start(self) -> Simulator:
+        self.port.open()
+        self._thread = threading.Thread(target=self._run, name="gx2-sim", daemon=True)
+        self._thread.start()
+        self._ready.wait(5)
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._wake()
+        if self._thread:
+            self._thread.join(5)
+        with self._lock:
+            self.port.close()
+        for fd in (self._wake_r, self._wake_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+    def __enter__(self) -> Simulator:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def path(self) -> str:
+        """What a client opens: the symlink if there is one, else the pty itself."""
+        return str(self.port.link) if self.port.link else self.port.path
+
+    # -- what tests do while it runs ------------------------------------------------------
+
+    def call(self, action: Callable[[BaseStation, float], T]) -> T:
+        """Run ``action(station, now)`` on the simulator's state, safely."""
+        with self._lock:
+            result = action(self.station, time.monotonic())
+        self._wake()
+        return result
+
+    def node(self, address: int) -> SimNode:
+        return self.station.nodes[address]
+
+    def reboot(self, address: int) -> None:
+        self.call(lambda station, now: station.reboot(address, now))
+
+    def unplug(self, duration: float | None = None) -> None:
+        """Pull the USB plug; with ``duration``, plug it back in after that long."""
+        with self._lock:
+            self.port.close()
+            self._replug_at = None if duration is None else time.monotonic() + duration
+        self._wake()
+
+    def replug(self) -> None:
+        with self._lock:
+            if not self.port.is_open:
+                self.port.open()
+                self._replug_at = None
+        self._wake()
+
+    def _wake(self) -> None:
+        with contextlib.suppress(OSError):
+            os.write(self._wake_w, b"!")
+
+    # -- the loop -----------------------------------------------------------------------
+
+    def _run(self) -> None:
+        selector = selectors.DefaultSelector()
+        selector.register(self._wake_r, selectors.EVENT_READ)
+        registered: int | None = None
+        last_host_byte: float | None = None
+        self._ready.set()
+        try:
+            while not self._stop.is_set():
+                with self._lock:
+                    now = time.monotonic()
+                    if self._replug_at is not None and now >= self._replug_at:
+                        self.port.open()
+                        self._replug_at = None
+                    master = self.port.master
+                    if master != registered:
+                        if registered is not None:
+                            selector.unregister(registered)
+                        if master is not None:
+                            selector.register(master, selectors.EVENT_READ)
+                        registered = master
+                    due = self.station.next_due(now)
+                    if self._replug_at is not None:
+                        due = min(due, self._replug_at)
+                    if last_host_byte is not None:
+                        due = min(due, last_host_byte + HOST_IDLE)
+                ready = selector.select(max(0.0, due - time.monotonic()))
+                with self._lock:
+                    now = time.monotonic()
+                    for key, _ in ready:
+                        if key.fd == self._wake_r:
+                            os.read(self._wake_r, 4096)
+                        elif key.fd == self.port.master:
+                            data = self._read_master()
+                            if data:
+                                self.station.from_host(data, now)
+                                last_host_byte = now
+                    if last_host_byte is not None and now - last_host_byte >= HOST_IDLE:
+                        self.station.host_idle(now)
+                        last_host_byte = None
+                    self.station.advance(now)
+                    out = self.station.take_output(now)
+                    if out and self.port.is_open:
+                        written = self.port.write(out)
+                        self.dropped_bytes += len(out) - written
+        except BaseException as error:  # report, don't vanish: tests check sim.error
+            self.error = error
+            log.exception("simulator loop failed")
+            raise
+        finally:
+            selector.close()
+
+    def _read_master(self) -> bytes:
+        try:
+            return os.read(self.port.master, 4096)  # type: ignore[arg-type]
+        except (BlockingIOError, InterruptedError):
+            return b""
+        except OSError:  # EIO: no client holds the other end; nothing to read
+            return b""

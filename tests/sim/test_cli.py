@@ -1,0 +1,240 @@
+"""The ``gx2-sim`` console script, run as a user runs it: a subprocess, its output, its
+exit status, and the port it serves, opened with pyserial."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import queue
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+import serial
+
+from aspp import TICKS_PER_SECOND, Decoder, Event, Reply, decode
+from aspp import commands as gx2
+
+STARTUP = 15.0
+"""Seconds allowed for the script to import and print its port (slow CI machines)."""
+EXIT = 2.0
+"""Seconds allowed between a SIGTERM/SIGINT and the exit."""
+
+
+def gx2_sim() -> str:
+    found = shutil.which("gx2-sim", path=str(Path(sys.executable).parent))
+    assert found, f"the gx2-sim console script is not installed beside {sys.executable}"
+    return found
+
+
+class Running:
+    """A gx2-sim process whose stdout and stderr lines are collected by threads."""
+
+    def __init__(self, *args: str) -> None:
+        self.proc = subprocess.Popen([gx2_sim(), *args], stdin=subprocess.DEVNULL,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True)
+        self.lines: queue.Queue[str] = queue.Queue()
+        self.stdout: list[str] = []
+        self.stderr: list[str] = []
+        self._threads = [threading.Thread(target=self._pump, args=(self.proc.stdout, True),
+                                          daemon=True),
+                         threading.Thread(target=self._pump, args=(self.proc.stderr, False),
+                                          daemon=True)]
+        for thread in self._threads:
+            thread.start()
+
+    def _pump(self, stream: object, is_stdout: bool) -> None:
+        for line in stream:  # type: ignore[attr-defined]
+            (self.stdout if is_stdout else self.stderr).append(line)
+            if is_stdout:
+                self.lines.put(line.rstrip("\n"))
+
+    def wait_for_line(self, predicate: Callable[[str], bool], timeout: float) -> str:
+        deadline = time.monotonic() + timeout
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0 or (self.proc.poll() is not None and self.lines.empty()):
+                raise AssertionError(f"no such line on stdout within {timeout} s; exit "
+                                     f"{self.proc.poll()}, stdout {self.stdout!r}, "
+                                     f"stderr {self.stderr!r}")
+            try:
+                line = self.lines.get(timeout=min(left, 0.1))
+            except queue.Empty:
+                continue
+            if predicate(line):
+                return line
+
+    def finish(self, timeout: float) -> int:
+        status = self.proc.wait(timeout)
+        for thread in self._threads:
+            thread.join(2)
+        return status
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(5)
+        for thread in self._threads:
+            thread.join(2)
+
+
+@pytest.fixture
+def launch() -> Iterator[Callable[..., Running]]:
+    started: list[Running] = []
+
+    def start(*args: str) -> Running:
+        running = Running(*args)
+        started.append(running)
+        return running
+
+    yield start
+    for running in started:
+        running.kill()
+
+
+def read_events(ser: serial.Serial, decoder: Decoder,
+                until: Callable[[list[Event]], bool], timeout: float = 2.0) -> list[Event]:
+    """Short reads until ``until(events)`` holds; TimeoutError at the deadline."""
+    deadline = time.monotonic() + timeout
+    events: list[Event] = []
+    while not until(events):
+        if time.monotonic() >= deadline:
+            raise TimeoutError(f"condition not met within {timeout} s: {len(events)} events")
+        data = ser.read(4096)
+        events += decoder.feed(data) if data else decoder.line_idle()
+    return events
+
+
+def replies(events: list[Event], node: int, command: int | None = None) -> list[Reply]:
+    return [e for e in events if isinstance(e, Reply) and e.node == node
+            and (command is None or e.command == command)]
+
+
+def poll(ser: serial.Serial, decoder: Decoder, node: int, command: gx2.Command) -> Reply:
+    ser.write(command.packet(node))
+    events = read_events(ser, decoder, lambda ev: bool(replies(ev, node, command.code)))
+    return replies(events, node, command.code)[0]
+
+
+# -- a running simulator ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_serves_streaming_nodes_and_exits_cleanly_on_a_signal(
+        launch: Callable[..., Running], tmp_path: Path, signum: int) -> None:
+    link = tmp_path / "gx2"
+    sim = launch("--nodes", "76,77", "--stream", "accel_angrate", "--link", str(link))
+    banner = sim.wait_for_line(lambda line: "/dev/" in line, STARTUP)
+    sim.wait_for_line(lambda line: line == str(link), STARTUP)
+    pty = re.search(r"/dev/pts/\d+", banner)
+    assert pty, f"the pty path is printed: {banner!r}"
+    assert link.is_symlink() and os.readlink(link) == pty.group()
+
+    with serial.Serial(str(link), 115200, timeout=0.01) as ser:
+        events = read_events(ser, Decoder(), lambda ev: len(replies(ev, 76, 0xC2)) >= 5
+                             and len(replies(ev, 77, 0xC2)) >= 5)
+    for node in (76, 77):
+        for reply in replies(events, node, 0xC2):
+            rec = decode(reply.payload)
+            assert rec.name == "accel_angrate"
+            assert math.dist(rec["accel"], (0, 0, 0)) == pytest.approx(1.0, abs=0.01)
+    assert {e.node for e in events if isinstance(e, Reply)} == {76, 77}
+
+    signalled = time.monotonic()
+    sim.proc.send_signal(signum)
+    assert sim.finish(EXIT + 1) == 0
+    assert time.monotonic() - signalled < EXIT
+    assert not link.is_symlink() and not link.exists(), "the link is removed on exit"
+    assert not any("Traceback" in line for line in sim.stderr), sim.stderr
+
+
+def test_config_file_with_two_nodes(launch: Callable[..., Running], tmp_path: Path) -> None:
+    config = tmp_path / "sim.yaml"
+    config.write_text("seed: 3\n"
+                      "nodes:\n"
+                      "  - address: 76\n"
+                      "  - address: 300\n"
+                      "    model: 3dm-gx2\n"
+                      "    stream: euler\n"
+                      "    divider: 1024\n")
+    link = tmp_path / "gx2"
+    sim = launch("--config", str(config), "--link", str(link))
+    sim.wait_for_line(lambda line: line == str(link), STARTUP)
+
+    with serial.Serial(str(link), 115200, timeout=0.01) as ser:
+        decoder = Decoder()
+        events = read_events(ser, decoder, lambda ev: len(replies(ev, 300, 0xCE)) >= 6)
+        assert replies(events, 76) == [], "76 is polled: it does not stream"
+        timers = [decode(r.payload).timer for r in replies(events, 300, 0xCE)]
+        steps = {b - a for a, b in itertools.pairwise(timers)}
+        assert steps == {round(1024 / 51200 * TICKS_PER_SECOND)}, "50 Hz, as configured"
+
+        mag_300 = decode(poll(ser, decoder, 300, gx2.poll("mag")).payload)["mag"]
+        assert all(math.isfinite(x) for x in mag_300), "a 3DM-GX2 has a magnetometer"
+        mag_76 = decode(poll(ser, decoder, 76, gx2.poll("mag")).payload)["mag"]
+        assert all(math.isnan(x) for x in mag_76), "76 is an Inertia-Link (the default)"
+        name = decode(poll(ser, decoder, 300, gx2.device_id(2)).payload)["text"]
+        assert name == "3DM-GX2"
+
+    sim.proc.send_signal(signal.SIGTERM)
+    assert sim.finish(EXIT + 1) == 0
+    assert not link.exists()
+
+
+# -- bad arguments ------------------------------------------------------------------------
+
+
+BAD = {
+    # id: (arguments, config file text or None, words the one error line must contain)
+    "node-0": (["--nodes", "0"], None, ["--nodes", "0", "out of range"]),
+    "node-70000": (["--nodes", "76,70000"], None, ["--nodes", "70000", "out of range"]),
+    "unknown-record": (["--nodes", "76", "--stream", "bogus_record"], None,
+                       ["--stream", "bogus_record"]),
+    "no-nodes": ([], None, ["no nodes"]),
+    "unknown-key": ([], "nodes:\n  - address: 76\n    colour: red\n",
+                    ["{config}", "colour", "unknown key"]),
+    "duplicate-address": ([], "nodes:\n  - address: 76\n  - address: 76\n",
+                          ["{config}", "76", "twice"]),
+    "both-config-and-nodes": (["--nodes", "76"], "nodes:\n  - address: 76\n", ["76"]),
+    "unreadable-config": ([], "{missing}", ["{missing}", "cannot read"]),
+    "config-is-a-directory": ([], "{directory}", ["{directory}", "cannot read"]),
+    "invalid-yaml": ([], "nodes: [\n  - address: 76\n", ["{config}", "line"]),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD), ids=list(BAD))
+def test_bad_arguments_exit_2_with_one_line(tmp_path: Path, case: str) -> None:
+    arguments, config_text, words = BAD[case]
+    config, missing, directory = tmp_path / "sim.yaml", tmp_path / "absent.yaml", tmp_path
+    places = {"config": str(config), "missing": str(missing), "directory": str(directory)}
+    arguments = list(arguments)
+    if config_text == "{missing}":
+        arguments += ["--config", str(missing)]
+    elif config_text == "{directory}":
+        arguments += ["--config", str(directory)]
+    elif config_text is not None:
+        config.write_text(config_text)
+        arguments += ["--config", str(config)]
+    link = tmp_path / "gx2"
+
+    done = subprocess.run([gx2_sim(), *arguments, "--link", str(link)], capture_output=True,
+                          text=True, timeout=30, stdin=subprocess.DEVNULL)
+    assert done.returncode == 2, (done.returncode, done.stderr)
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1, f"exactly one line on stderr, got {done.stderr!r}"
+    assert "Traceback" not in done.stderr
+    line = lines[0]
+    assert line.startswith("gx2-sim: ")
+    for word in words:
+        assert word.format(**places) in line, f"{word.format(**places)!r} not in {line!r}"
+    assert done.stdout == "", "nothing is served"
+    assert not link.is_symlink()

@@ -1,0 +1,170 @@
+"""The simulated node, without a port: its replies decoded by aspp and checked against
+the physics and the reference's rules (cycles, combined order, EEPROM, power-up)."""
+
+from __future__ import annotations
+
+import math
+from itertools import pairwise
+
+import pytest
+
+from aspp import commands, decode
+from aspp.orientation import euler_from_matrix
+from aspp.records import STREAMABLE, all_specs
+from aspp.timing import TICKS_PER_SECOND, TIMER_MODULUS
+from gateway.sim.node import GX2, INERTIA_LINK, NodeSettings, SimNode
+from gateway.sim.physics import EARTH_FIELD, Motion, multiply, rotate
+
+T0 = 1000.0
+
+
+def node(**settings) -> SimNode:
+    return SimNode(NodeSettings(address=76, **settings), now=T0)
+
+
+def norm(v) -> float:
+    return math.sqrt(sum(x * x for x in v))
+
+
+def polled(sim: SimNode, command, at: float = T0 + 1.0):
+    """Send one command and run the node long enough to answer it."""
+    sim.receive(command.data)
+    return [decode(reply) for _, reply in sim.run_until(at)]
+
+
+@pytest.mark.parametrize("code", sorted(STREAMABLE), ids=lambda c: f"0x{c:02X}")
+def test_every_data_record_decodes_with_its_contract_name(code):
+    sim = node(model=GX2)
+    record = decode(sim.record(code, T0 + 0.5))
+    assert record.command == code
+    assert record.timer == round(0.5 * TICKS_PER_SECOND)
+
+
+def test_every_command_of_the_reference_is_answered_as_defined():
+    """Each command with a reply gets exactly one record with the same echo byte."""
+    args = {"continuous_command": 0xC2, "accel_bias": (0.01, 0, 0), "gyro_bias": (0, 0, 0),
+            "sampling_time": 100, "quantity": 2, "address": 0xFCA2, "value": 256,
+            "selector": 1, "test_config": 0}
+    for spec in all_specs():
+        if spec.reply is None:
+            continue
+        sim = node()
+        command = commands.build(spec.code, **{f.name: args[f.name] for f in spec.arguments})
+        replies = [r for r in polled(sim, command) if r.command == spec.code]
+        assert len(replies) == 1, spec.name
+
+
+def test_values_are_physically_consistent():
+    sim = node(model=GX2)
+    t, period = T0 + 12.3, sim.period
+    full = decode(sim.record(0xCC, t))
+    m = full["orientation"]
+    for i in range(3):
+        for j in range(3):
+            dot = sum(m[i][k] * m[j][k] for k in range(3))
+            assert dot == pytest.approx(1.0 if i == j else 0.0, abs=1e-6)
+    assert norm(full["accel"]) == pytest.approx(1.0, abs=1e-6)  # gravity, at rest
+    assert norm(full["mag"]) == pytest.approx(norm(EARTH_FIELD), abs=1e-6)
+    # the rate is the body's turn about earth-down, seen in the sensor frame
+    assert full["ang_rate"] == pytest.approx(rotate(m, (0, 0, Motion().yaw_rate)), abs=1e-6)
+    euler = decode(sim.record(0xCE, t))
+    assert (euler["roll"], euler["pitch"], euler["yaw"]) == pytest.approx(
+        euler_from_matrix(m), abs=1e-6)
+    # the update matrix carries the previous cycle's orientation into this one
+    before = decode(sim.record(0xC5, t - period))["orientation"]
+    update = decode(sim.record(0xC6, t))["orientation_update"]
+    for got, want in zip(multiply(update, before), m, strict=True):
+        assert got == pytest.approx(want, abs=1e-6)
+    delta = decode(sim.record(0xC3, t))
+    assert delta["delta_angle"] == pytest.approx(
+        tuple(w * period for w in full["ang_rate"]), abs=1e-7)
+    assert delta["delta_velocity"] == pytest.approx(
+        tuple(a * period for a in full["accel"]), abs=1e-7)
+
+
+def test_an_inertia_link_has_no_magnetometer():
+    sim = node(model=INERTIA_LINK)
+    for code in (0xC7, 0xCB, 0xCC, 0xD2, 0xD3):
+        record = decode(sim.record(code, T0 + 1))
+        mag = record["stab_mag" if code == 0xD2 else "mag"]
+        assert all(math.isnan(v) for v in mag)
+
+
+def test_continuous_mode_streams_one_record_per_cycle_at_the_divider_rate():
+    sim = node(divider=1024)  # 50 Hz
+    polled(sim, commands.set_continuous("euler"), at=T0 + 0.03)
+    out = sim.run_until(T0 + 2.03)
+    assert len(out) == 100
+    timers = [decode(reply).timer for _, reply in out]
+    assert {b - a for a, b in pairwise(timers)} == {1024 * 384}
+
+
+def test_combined_mode_continuous_record_first_then_the_polled_reply():
+    sim = node(stream="accel_angrate")
+    sim.run_until(T0 + 0.1)
+    for _ in range(3):
+        sim.receive(commands.poll("euler").data)
+    out = [decode(reply) for _, reply in sim.run_until(T0 + 0.1 + 4 * sim.period)]
+    assert [r.name for r in out] == ["accel_angrate", "euler"] * 3 + ["accel_angrate"]
+
+
+def test_stop_short_form_is_silent_long_form_is_answered():
+    sim = node(stream="accel_angrate")
+    sim.receive(commands.stop_continuous().data)
+    assert sim.run_until(T0 + 1) == [] and sim.continuous == 0
+    sim = node(stream="accel_angrate")
+    sim.run_until(T0 + 0.5)
+    replies = polled(sim, commands.stop_continuous_long(), at=T0 + 0.5 + 2 * sim.period)
+    assert replies[-1].name == "continuous_mode" and replies[-1]["continuous_command"] == 0
+    assert sim.run_until(T0 + 2) == []
+
+
+def test_eeprom_divider_changes_the_rate_and_first_write_may_fail():
+    sim = node()
+    sim.first_write_failure_rate = 1.0
+    failed = polled(sim, commands.set_divider(256))
+    assert failed[0]["value"] == 512  # the reply shows the word unchanged
+    retried = polled(sim, commands.set_divider(256), at=T0 + 2)
+    assert retried[0]["value"] == 256 and sim.period == 256 / 51200
+    assert polled(sim, commands.read_eeprom(0xFCA2), at=T0 + 3)[0]["value"] == 256
+
+
+def test_power_up_auto_start_and_reset_state():
+    sim = node()
+    polled(sim, commands.set_auto_start("euler"))
+    polled(sim, commands.write_accel_bias((0.5, 0.0, 0.0)), at=T0 + 2)
+    assert sim.continuous == 0
+    sim.power_up(T0 + 10)
+    assert sim.continuous == 0xCE  # auto-start from EEPROM 0xFCA6
+    assert sim.accel_bias == (0.0, 0.0, 0.0)  # RAM state is lost
+    first = decode(sim.run_until(T0 + 10 + sim.period)[0][1])
+    assert first.name == "euler" and first.timer == 512 * 384  # timer restarted
+
+
+def test_bias_is_subtracted_and_capture_answers_after_sampling():
+    sim = node()
+    plain = decode(sim.record(0xC2, T0 + 1))["accel"]
+    polled(sim, commands.write_accel_bias((0.25, 0.0, 0.0)))
+    biased = decode(sim.record(0xC2, T0 + 1))["accel"]
+    assert biased[0] == pytest.approx(plain[0] - 0.25, abs=1e-6)
+    sim.receive(commands.capture_gyro_bias(500).data)
+    assert sim.run_until(T0 + 1.4) == []
+    replies = [decode(r) for _, r in sim.run_until(T0 + 1.6)]
+    assert [r.name for r in replies] == ["capture_gyro_bias"]
+
+
+def test_device_side_quirks_of_the_reference():
+    sim = node()
+    # 0xD0 with a quantity other than 1 or 2 stores nothing and answers 0xFFFF
+    sim.receive(bytes.fromhex("D0 C1 29 00 07"))
+    assert decode(sim.run_until(T0 + 1)[0][1])["quantity"] == 0xFFFF
+    # wrong confirmation bytes: the node ignores the command
+    sim.receive(bytes.fromhex("C4 C1 28 C2"))
+    assert sim.run_until(T0 + 2) == [] and sim.log.ignored
+
+
+def test_timer_wraps_at_two_to_the_32():
+    sim = node(timer_start=218.4)
+    ticks = [decode(sim.record(0xC2, T0 + dt)).timer for dt in (0.0, 0.1)]
+    assert ticks[0] > ticks[1]  # wrapped in between
+    assert (ticks[1] - ticks[0]) % TIMER_MODULUS == round(0.1 * TICKS_PER_SECOND)

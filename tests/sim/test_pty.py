@@ -1,0 +1,689 @@
+"""gx2-sim end to end: a client on the real pseudo-terminal, as the gateway would be.
+
+Every test opens the simulator's pty (or its symlink) with pyserial at 115200 baud,
+writes command packets and raw pings, and decodes what comes back with
+:class:`aspp.Decoder`. Nothing here talks to the simulator's objects to learn what was
+sent; they are only read afterwards (node state, station statistics) to check that the
+bytes on the line and the simulated world agree.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+import serial
+
+from aspp import (
+    TICKS_PER_SECOND,
+    Ack,
+    Decoder,
+    Discarded,
+    DiscardReason,
+    Event,
+    Frame,
+    Nack,
+    PingOk,
+    Reply,
+    TimerUnwrapper,
+    decode,
+)
+from aspp import commands as gx2
+from aspp.stop import GaveUp, SendStop, Stopped, StopPolicy, WaitUntil
+from aspp.timing import TIMER_MODULUS
+from gateway.sim.node import FIRMWARE_VERSION, GX2, INERTIA_LINK, NodeSettings
+from gateway.sim.physics import EARTH_FIELD
+from gateway.sim.server import Simulator
+from gateway.sim.station import LineFaults, RadioLink
+
+BAUD = 115200
+LINE_BYTES_PER_SECOND = BAUD / 10  # 8N1
+READ_SLICE = 0.01
+"""Each read waits at most this long; an empty read means the line was quiet."""
+
+Predicate = Callable[[list[Event]], bool]
+
+
+# -- the client ---------------------------------------------------------------------------
+
+
+class Client:
+    """A host on the pty: short pyserial reads, fed to one decoder; keeps a log of every
+    read and every event with the monotonic time its read returned."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.ser = serial.Serial(str(path), BAUD, timeout=READ_SLICE)
+        self.decoder = Decoder()
+        self.reads: list[tuple[float, bytes]] = []
+        self.log: list[tuple[float, Event]] = []
+
+    def send(self, data: bytes) -> None:
+        self.ser.write(data)
+
+    def read_once(self) -> list[Event]:
+        """One read of at most READ_SLICE; a quiet line resolves what the decoder holds."""
+        data = self.ser.read(4096)
+        now = time.monotonic()
+        if data:
+            self.reads.append((now, data))
+            events = self.decoder.feed(data)
+        else:
+            events = self.decoder.line_idle()
+        self.log.extend((now, event) for event in events)
+        return events
+
+    def read_events(self, until: Predicate | None = None, timeout: float = 2.0) -> list[Event]:
+        """Read until ``until(events read by this call)`` holds and return those events;
+        raise TimeoutError at the deadline. Without ``until``: read for ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        seen: list[Event] = []
+        while True:
+            seen.extend(self.read_once())
+            if until is not None and until(seen):
+                return seen
+            if time.monotonic() >= deadline:
+                if until is None:
+                    return seen
+                raise TimeoutError(f"condition not met within {timeout} s; got {summary(seen)}")
+
+    def close(self) -> None:
+        self.ser.close()
+
+
+def summary(events: list[Event]) -> str:
+    counts: Counter[str] = Counter()
+    for e in events:
+        if isinstance(e, Reply):
+            counts[f"Reply({e.node}, 0x{e.command:02X})"] += 1
+        elif isinstance(e, Frame):
+            counts[f"Frame({e.node}, flags 0x{e.flags:02X})"] += 1
+        elif isinstance(e, Discarded):
+            counts[f"Discarded({e.reason})"] += 1
+        else:
+            counts[type(e).__name__] += 1
+    return ", ".join(f"{k} x{v}" for k, v in counts.items()) or "nothing"
+
+
+def is_reply(event: Event, node: int, command: int | None = None) -> bool:
+    return (isinstance(event, Reply) and event.node == node
+            and (command is None or event.command == command))
+
+
+def replies(events: list[Event], node: int, command: int | None = None) -> list[Reply]:
+    return [e for e in events if is_reply(e, node, command)]  # type: ignore[misc]
+
+
+def reply_from(node: int, command: int | None = None, count: int = 1) -> Predicate:
+    return lambda events: len(replies(events, node, command)) >= count
+
+
+def has(kind: type) -> Predicate:
+    return lambda events: any(isinstance(e, kind) for e in events)
+
+
+def transact(client: Client, node: int, command: gx2.Command,
+             timeout: float = 1.0) -> tuple[list[Event], Reply]:
+    """Send ``command`` to ``node``; read until the node's reply (echo = command byte)."""
+    client.send(command.packet(node))
+    events = client.read_events(reply_from(node, command.code), timeout)
+    return events, replies(events, node, command.code)[0]
+
+
+def start_streaming(client: Client, node: int, record: str) -> Reply:
+    """0xC4 with a record; returns the 0xC4 echo after checking it."""
+    events, echo = transact(client, node, gx2.set_continuous(record))
+    assert echo.command == 0xC4 and Ack() in events
+    rec = decode(echo.payload)
+    assert rec.name == "continuous_mode"
+    assert rec["continuous_command"] == gx2.lookup(record).code
+    return echo
+
+
+def norm(v: object) -> float:
+    return math.sqrt(sum(x * x for x in v))  # type: ignore[attr-defined]
+
+
+def wait_until(condition: Callable[[], bool], timeout: float, what: str) -> float:
+    """Poll ``condition`` until it holds; return when it did (monotonic)."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() >= deadline:
+            raise TimeoutError(f"{what}: not within {timeout} s")
+        time.sleep(0.005)  # polling interval of a deadline-bounded wait, not a sync point
+    return time.monotonic()
+
+
+# -- fixtures -----------------------------------------------------------------------------
+
+
+class Sims:
+    """Starts simulators; each is stopped (once) and checked for a loop error."""
+
+    def __init__(self) -> None:
+        self.running: list[Simulator] = []
+
+    def start(self, nodes: list[NodeSettings], **kwargs: object) -> Simulator:
+        sim = Simulator(nodes, **kwargs).start()  # type: ignore[arg-type]
+        self.running.append(sim)
+        return sim
+
+    def stop(self, sim: Simulator) -> None:
+        self.running.remove(sim)
+        sim.stop()
+        assert sim.error is None, f"simulator loop failed: {sim.error!r}"
+
+
+class Clients:
+    def __init__(self) -> None:
+        self.open_clients: list[Client] = []
+
+    def open(self, path: str | Path) -> Client:
+        client = Client(path)
+        self.open_clients.append(client)
+        return client
+
+    def close(self, client: Client) -> None:
+        self.open_clients.remove(client)
+        client.close()
+
+
+@pytest.fixture
+def sims() -> Iterator[Sims]:
+    pool = Sims()
+    yield pool
+    errors = []
+    for sim in list(pool.running):
+        pool.running.remove(sim)
+        sim.stop()
+        if sim.error is not None:
+            errors.append(sim.error)
+    assert errors == [], f"simulator loop failed: {errors!r}"
+
+
+@pytest.fixture
+def clients(sims: Sims) -> Iterator[Clients]:  # closed before the simulators stop
+    pool = Clients()
+    yield pool
+    for client in pool.open_clients:
+        client.close()
+
+
+# -- 1. polled commands -------------------------------------------------------------------
+
+
+IL, G2 = 76, 77  # an Inertia-Link and a 3DM-GX2, both polled
+
+
+@pytest.fixture
+def polled(sims: Sims, clients: Clients) -> tuple[Simulator, Client]:
+    sim = sims.start([NodeSettings(IL), NodeSettings(G2, model=GX2, divider=1024,
+                                                      serial="SN-0077")])
+    return sim, clients.open(sim.path)
+
+
+def polled_reply(client: Client, node: int, command: gx2.Command) -> Reply:
+    """A polled node answers with the ACK, then exactly one reply echoing the command."""
+    events, reply = transact(client, node, command)
+    assert events == [Ack(), reply], summary(events)
+    assert reply.command == command.code
+    assert reply.lqi > 0 and -128 <= reply.rssi < 0
+    return reply
+
+
+def test_polled_data_records_are_plausible(polled: tuple[Simulator, Client]) -> None:
+    sim, client = polled
+    for node in (IL, G2):
+        motion = sim.node(node).settings.motion
+        rec = decode(polled_reply(client, node, gx2.poll("accel_angrate")).payload)
+        assert rec.name == "accel_angrate"
+        assert norm(rec["accel"]) == pytest.approx(1.0, abs=0.01)
+        assert norm(rec["ang_rate"]) == pytest.approx(motion.yaw_rate, abs=0.01)
+        since_power_up = time.monotonic() - sim.node(node).powered_at
+        assert 0 < rec.timer / TICKS_PER_SECOND <= since_power_up
+
+        rec = decode(polled_reply(client, node, gx2.poll("euler")).payload)
+        assert rec.name == "euler"
+        assert rec["roll"] == pytest.approx(motion.roll, abs=1e-4)
+        assert rec["pitch"] == pytest.approx(motion.pitch, abs=1e-4)
+        assert -math.pi <= rec["yaw"] <= math.pi
+
+        rec = decode(polled_reply(client, node, gx2.poll(
+            "accel_angrate_mag_orientation")).payload)
+        m = rec["orientation"]
+        for i in range(3):  # orthonormal: M M^T = I
+            for j in range(3):
+                dot = sum(m[i][k] * m[j][k] for k in range(3))
+                assert dot == pytest.approx(1.0 if i == j else 0.0, abs=1e-5)
+        # at rest the accelerometers see gravity: M . (0, 0, -1 g)
+        assert rec["accel"] == pytest.approx([-m[0][2], -m[1][2], -m[2][2]], abs=1e-5)
+        if node == IL:
+            assert all(math.isnan(x) for x in rec["mag"]), "an Inertia-Link has no magnetometer"
+        else:
+            assert all(math.isfinite(x) for x in rec["mag"])
+            assert norm(rec["mag"]) == pytest.approx(norm(EARTH_FIELD), abs=1e-4)
+    # nothing more arrives: each command was answered exactly once
+    assert client.read_events(timeout=0.06) == []
+    assert sim.station.stats.acks == 6 and sim.station.stats.nacks == 0
+
+
+def test_polled_identity_and_eeprom(polled: tuple[Simulator, Client]) -> None:
+    sim, client = polled
+    for node, model, name, divider in ((IL, INERTIA_LINK, "Inertia-Link", 512),
+                                       (G2, GX2, "3DM-GX2", 1024)):
+        assert sim.node(node).settings.model == model
+        rec = decode(polled_reply(client, node, gx2.firmware_version()).payload)
+        assert rec.name == "firmware_version" and rec["version"] == FIRMWARE_VERSION
+        texts = {}
+        for selector in range(4):
+            rec = decode(polled_reply(client, node, gx2.device_id(selector)).payload)
+            assert rec.name == "device_id" and rec["selector"] == selector
+            text = rec["text"]
+            assert isinstance(text, str) and text and text == text.rstrip(" \x00")
+            texts[selector] = text
+        assert texts[2] == name
+        rec = decode(polled_reply(client, node, gx2.read_eeprom(gx2.EEPROM_DIVIDER)).payload)
+        assert rec.name == "eeprom_read" and rec["value"] == divider
+    assert texts[1] == "SN-0077"  # the configured serial number, node 77
+
+    rec = decode(polled_reply(client, IL, gx2.write_eeprom(0x0100, 0xBEEF)).payload)
+    assert rec.name == "eeprom_write" and rec["value"] == 0xBEEF
+    rec = decode(polled_reply(client, IL, gx2.read_eeprom(0x0100)).payload)
+    assert rec["value"] == 0xBEEF
+    rec = decode(polled_reply(client, G2, gx2.read_eeprom(0x0100)).payload)
+    assert rec["value"] != 0xBEEF, "the write went to node 76 only"
+    assert client.read_events(timeout=0.06) == []
+
+
+# -- 2. continuous mode at a known rate ---------------------------------------------------
+
+
+def stream_timing(client: Client, since: int, node: int, command: int
+                  ) -> tuple[list[float], list[int]]:
+    """Arrival times and timers of ``node``'s ``command`` records logged after ``since``."""
+    times, timers = [], []
+    for t, e in client.log[since:]:
+        if is_reply(e, node, command):
+            times.append(t)
+            timers.append(decode(e.payload).timer)
+    return times, timers
+
+
+def check_rate(times: list[float], timers: list[int], divider: int) -> None:
+    expected_hz = 51200 / divider
+    period_ticks = round(divider / 51200 * TICKS_PER_SECOND)
+    steps = [(b - a) % TIMER_MODULUS for a, b in itertools.pairwise(timers)]
+    assert steps and all(abs(s - period_ticks) <= 1 for s in steps), \
+        f"timer steps {sorted(set(steps))} are not all {period_ticks} (lost or repeated records)"
+    wall = times[-1] - times[0]
+    assert wall > 0.8
+    assert (len(times) - 1) / wall == pytest.approx(expected_hz, rel=0.05)
+    # the stream keeps up with the node's clock: no growing backlog
+    device = sum(steps) / TICKS_PER_SECOND
+    assert device == pytest.approx(wall, abs=0.05)
+
+
+def test_two_streams_at_their_rates_and_a_poll_in_between(sims: Sims, clients: Clients) -> None:
+    sim = sims.start([NodeSettings(76, divider=512), NodeSettings(77, model=GX2, divider=1024),
+                      NodeSettings(78)])
+    client = clients.open(sim.path)
+    start_streaming(client, 76, "accel_angrate")
+    start_streaming(client, 77, "euler")
+    assert (sim.node(76).continuous, sim.node(77).continuous) == (0xC2, 0xCE)
+    mark = len(client.log)
+
+    client.read_events(timeout=0.5)
+    events, reply = transact(client, 78, gx2.poll("accel_angrate_orientation"))
+    assert events.count(Ack()) == 1
+    assert replies(events, 78) == [reply]
+    assert decode(reply.payload).name == "accel_angrate_orientation"
+    client.read_events(timeout=0.6)
+
+    logged = [e for _, e in client.log[mark:]]
+    assert replies(logged, 78) == [reply], "node 78 answered once and does not stream"
+    assert sim.node(78).continuous == 0
+    check_rate(*stream_timing(client, mark, 76, 0xC2), divider=512)
+    check_rate(*stream_timing(client, mark, 77, 0xCE), divider=1024)
+    for rec in map(decode, (e.payload for e in replies(logged, 77, 0xCE))):
+        assert rec["roll"] == pytest.approx(sim.node(77).settings.motion.roll, abs=1e-4)
+    assert not [e for e in logged if not isinstance(e, (Reply, Ack))], summary(logged)
+
+
+def test_rate_follows_an_eeprom_divider_write(sims: Sims, clients: Clients) -> None:
+    """What ``gx2ctl rate`` does: write 0xFCA2, then the stream runs at 51200/x Hz."""
+    sim = sims.start([NodeSettings(76)])
+    client = clients.open(sim.path)
+    rec = decode(polled_reply(client, 76, gx2.set_divider(256)).payload)
+    assert rec["value"] == 256
+    start_streaming(client, 76, "accel_angrate")
+    mark = len(client.log)
+    client.read_events(timeout=1.0)
+    check_rate(*stream_timing(client, mark, 76, 0xC2), divider=256)
+
+
+# -- 3. stop under 0xFA loss --------------------------------------------------------------
+
+
+def drive_stop(client: Client, node: int, period: float,
+               timeout: float = 10.0) -> Stopped | GaveUp:
+    """Run the gateway's stop policy against the real line until it decides."""
+    policy = StopPolicy(sample_period=period)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        action = policy.next_action(time.monotonic())
+        if isinstance(action, (Stopped, GaveUp)):
+            return action
+        if isinstance(action, SendStop):
+            client.send(action.command.packet(node))
+            continue
+        assert isinstance(action, WaitUntil)
+        while time.monotonic() < action.deadline:
+            seen = False
+            for e in client.read_once():
+                if not is_reply(e, node):
+                    continue
+                now = time.monotonic()
+                rec = decode(e.payload)
+                if rec.name == "continuous_mode" and rec["continuous_command"] == 0:
+                    policy.stop_confirmed(now)
+                else:
+                    policy.packet_seen(now)
+                seen = True
+            if seen:
+                break
+    raise AssertionError("the stop policy did not decide in time")
+
+
+def test_stop_is_retried_until_the_stream_is_silent(sims: Sims, clients: Clients) -> None:
+    attempts_by_seed = {}
+    for seed in range(1, 15):
+        sim = sims.start([NodeSettings(76, stream="accel_angrate")],
+                         radio={76: RadioLink(stop_loss=0.5)}, seed=seed)
+        client = clients.open(sim.path)
+        client.read_events(reply_from(76, 0xC2, count=3))
+        result = drive_stop(client, 76, sim.node(76).period)
+        assert isinstance(result, Stopped), result
+        assert sim.node(76).continuous == 0
+        after = client.read_events(timeout=0.25)
+        assert replies(after, 76) == [], f"seed {seed}: still streaming: {summary(after)}"
+
+        stats = sim.station.stats
+        stops = [c for c in sim.node(76).log.commands if c.code in (0xFA, 0xC4)]
+        assert stats.acks == result.attempts, "every attempt was sent and ACKed"
+        assert stats.commands_lost + len(stops) == result.attempts
+        attempts_by_seed[seed] = result.attempts
+        clients.close(client)
+        sims.stop(sim)
+        if result.attempts > 1:
+            break
+    assert max(attempts_by_seed.values()) > 1, \
+        f"with half the stops lost, some seed must need a retry: {attempts_by_seed}"
+
+
+# -- 4. ping ------------------------------------------------------------------------------
+
+
+def test_ping_in_and_out_of_range(sims: Sims, clients: Clients) -> None:
+    sim = sims.start([NodeSettings(76), NodeSettings(95, stream="accel_angrate")],
+                     radio={95: RadioLink(in_range=False)})
+    client = clients.open(sim.path)
+
+    def ping(node: int) -> list[Event]:
+        client.send(gx2.ping(node))
+        return client.read_events(lambda ev: bool(ev), timeout=1.0)
+
+    assert ping(76) == [PingOk()]
+    assert ping(95) == [Nack()]
+    assert ping(1234) == [Nack()]  # no such node
+    assert ping(76) == [PingOk()]
+    assert sim.station.stats.pings == 4
+
+    client.send(gx2.poll("accel_angrate").packet(95))
+    events = client.read_events(has(Ack), timeout=1.0)
+    events += client.read_events(timeout=0.2)
+    assert events == [Ack()], "accepted by the base station, never answered by the node"
+    assert sim.node(95).log.commands == []
+    assert sim.station.stats.commands_lost == 1
+    assert all(getattr(e, "node", None) != 95 for _, e in client.log), "95 is out of range"
+
+
+# -- 5. NACK ------------------------------------------------------------------------------
+
+
+def test_malformed_packets_are_nacked_and_not_delivered(sims: Sims, clients: Clients) -> None:
+    sim = sims.start([NodeSettings(76)])
+    client = clients.open(sim.path)
+    node = sim.node(76)
+
+    good = gx2.poll("accel_angrate").packet(76)
+    bad_checksum = good[:-1] + bytes(((good[-1] + 1) & 0xFF,))
+    # a bad SOP; this command's bytes hold no 0xAA or 0x02, where the station would resync
+    bad_sop = b"\xab" + gx2.device_id(3).packet(76)[1:]
+    assert not set(bad_sop[1:]) & {0xAA, 0x02}
+    truncated = good[:5]  # the host stops mid-packet
+
+    for bad in (bad_checksum, bad_sop, truncated):
+        client.send(bad)
+        events = client.read_events(has(Nack), timeout=1.0)
+        events += client.read_events(timeout=0.05)
+        assert events == [Nack()], f"{bad.hex(' ')}: {summary(events)}"
+    assert node.log.commands == []
+    assert sim.station.stats.commands_delivered == 0
+    assert sim.station.stats.nacks == 3
+
+    # a good packet right behind a bad one, in one write: NACK, ACK, and the reply
+    client.send(bad_checksum + good)
+    events = client.read_events(reply_from(76, 0xC2), timeout=1.0)
+    assert events[:2] == [Nack(), Ack()] and is_reply(events[2], 76, 0xC2), summary(events)
+    assert len(node.log.commands) == 1
+    polled_reply(client, 76, gx2.poll("euler"))
+
+
+# -- 6. the ACK glued to the next SOP -----------------------------------------------------
+
+
+def test_ack_glued_to_the_next_packet(sims: Sims, clients: Clients) -> None:
+    sim = sims.start([NodeSettings(76, stream="accel_angrate"), NodeSettings(77)],
+                     line=LineFaults(glue_ack=True))
+    client = clients.open(sim.path)
+    client.read_events(reply_from(76, 0xC2, count=3))
+    for node in (76, 77):
+        first_read, first_event = len(client.reads), len(client.log)
+        transact(client, node, gx2.firmware_version())
+        reads = [data for _, data in client.reads[first_read:]]
+        assert any(b"\xaa\xaa\x07" in data for data in reads), \
+            "the ACK and the next packet's SOP arrive back to back in one read"
+        assert b"\xaa" not in reads, "the ACK is never written alone"
+        events = [e for _, e in client.log[first_event:]]
+        assert events.count(Ack()) == 1
+        after_ack = events[events.index(Ack()) + 1]
+        assert isinstance(after_ack, Reply), summary(events)
+        assert not [e for e in events if isinstance(e, (Discarded, Nack, Frame))]
+    assert sim.station.stats.acks == 2
+
+
+# -- 7. line faults -----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("bad_checksum", [0.0, 0.2], ids=["no-bad-checksums", "bad-checksums"])
+def test_valid_packets_survive_line_faults(sims: Sims, clients: Clients,
+                                           bad_checksum: float) -> None:
+    sim = sims.start([NodeSettings(76, stream="accel_angrate")], seed=7,
+                     line=LineFaults(garbage=0.2, bad_checksum=bad_checksum, false_header=0.2))
+    client = clients.open(sim.path)
+    client.read_events(timeout=1.0)
+    sim.call(lambda station, now: setattr(station.nodes[76], "continuous", 0))
+    # read until the line has been quiet for a while: everything sent has arrived
+    while client.read_events(timeout=0.1):
+        pass
+    events = [e for _, e in client.log]
+    stats = sim.station.stats
+
+    assert sim.dropped_bytes == 0 and stats.packets_dropped_full == 0
+    received = sum(len(data) for _, data in client.reads)
+    assert received == stats.bytes_sent, "the pty passes every byte, untouched"
+
+    good = replies(events, 76, 0xC2)
+    for reply in good:
+        assert norm(decode(reply.payload)["accel"]) == pytest.approx(1.0, abs=0.01)
+    timers = [decode(r.payload).timer for r in good]
+    period_ticks = round(sim.node(76).period * TICKS_PER_SECOND)
+    steps = [b - a for a, b in itertools.pairwise(timers)]
+    assert all(s > 0 and s % period_ticks in (0, 1, period_ticks - 1) for s in steps)
+    spanned = round((timers[-1] - timers[0]) / period_ticks) + 1
+    sent = stats.packets_sent[76]
+    assert sent >= 80
+
+    discarded = [e for e in events if isinstance(e, Discarded)]
+    reasons = {d.reason for d in discarded}
+    assert {DiscardReason.GARBAGE, DiscardReason.TRUNCATED} <= reasons, summary(events)
+    assert stats.faults_injected > 0
+    if bad_checksum == 0:
+        assert len(good) == sent, "every packet was valid, so every one is decoded"
+        assert spanned == sent
+    else:
+        assert DiscardReason.BAD_CHECKSUM in reasons
+        lost = sent - len(good)
+        assert 0 < lost <= stats.faults_injected
+        assert len(good) >= 0.6 * sent
+        assert spanned - len(good) <= lost, "a missing record is a gap, never a duplicate"
+    # everything read is accounted for: packets, control bytes, discarded runs
+    accounted = sum(len(e.raw) for e in events if isinstance(e, (Reply, Frame)))
+    accounted += sum(len(d.data) for d in discarded)
+    accounted += sum(1 for e in events if isinstance(e, (Ack, Nack, PingOk)))
+    assert accounted == received
+
+
+# -- 8. unplug, replug, reboot -------------------------------------------------------------
+
+
+def test_unplug_and_return(sims: Sims, clients: Clients, tmp_path: Path) -> None:
+    link = tmp_path / "gx2"
+    sim = sims.start([NodeSettings(76, stream="accel_angrate")], link=link)
+    assert sim.path == str(link)
+    client = clients.open(link)
+    client.read_events(reply_from(76, 0xC2, count=5))
+    old_pty = os.readlink(link)
+    assert old_pty == sim.port.path and old_pty.startswith("/dev/")
+
+    unplugged_at = time.monotonic()
+    sim.unplug(duration=0.5)
+    assert not link.is_symlink() and not link.exists(), "the link goes with the device"
+    # Linux: the pty's other end is gone, select() says readable and read() returns
+    # nothing, which pyserial reports as a SerialException (not a timeout, not b"")
+    with pytest.raises(serial.SerialException, match="returned no data"):
+        client.read_events(lambda ev: False, timeout=1.0)
+
+    back_at = wait_until(link.is_symlink, timeout=3.0, what="the link reappears")
+    assert back_at - unplugged_at >= 0.45
+    new_pty = os.readlink(link)
+    assert new_pty == sim.port.path and os.path.exists(new_pty)
+    # a new device: the old one (still held open here) stays dead
+    assert new_pty != old_pty
+    with pytest.raises(serial.SerialException):
+        client.read_once()
+    clients.close(client)
+
+    client = clients.open(link)  # the same path as before
+    client.read_events(reply_from(76, 0xC2, count=5))
+    polled_reply_among_stream(client, 76, gx2.firmware_version())
+    assert sim.error is None
+
+
+def polled_reply_among_stream(client: Client, node: int, command: gx2.Command) -> Reply:
+    events, reply = transact(client, node, command)
+    assert events.count(Ack()) == 1 and len(replies(events, node, command.code)) == 1
+    return reply
+
+
+def test_reboot_announces_itself_and_restarts(sims: Sims, clients: Clients) -> None:
+    sim = sims.start([NodeSettings(76), NodeSettings(77, stream="euler")])
+    client = clients.open(sim.path)
+    start_streaming(client, 76, "accel_angrate")
+    client.read_events(lambda ev: len(replies(ev, 76, 0xC2)) >= 20)  # timers well past 0
+    unwrap = TimerUnwrapper()
+    for t, e in client.log:
+        if is_reply(e, 77, 0xCE):
+            unwrap.update(decode(e.payload).timer, t)
+
+    # 76 was started by the host: a reboot ends its stream
+    mark = len(client.log)
+    sim.reboot(76)
+    events = client.read_events(has(Frame), timeout=1.0)
+    frame = next(e for e in events if isinstance(e, Frame))
+    assert frame.node == 76 and frame.flags == 0x00 and frame.is_discovery
+    assert sim.node(76).continuous == 0
+    after = client.read_events(timeout=0.15)
+    assert replies(after, 76) == [], "no records from 76 after its discovery packet"
+    rebooted_at = next(t for t, e in client.log[mark:] if e is frame)
+    reply = polled_reply_among_stream(client, 76, gx2.poll("accel_angrate"))
+    timer = decode(reply.payload).timer / TICKS_PER_SECOND
+    assert 0 < timer < time.monotonic() - rebooted_at + 0.05, "the timer restarted"
+
+    # 77 streams from power-up (auto-start): after a reboot it streams again, from 0
+    sim.reboot(77)
+    events = client.read_events(reply_from(77, 0xCE, count=5), timeout=1.0)
+    frames = [e for e in events if isinstance(e, Frame)]
+    assert [f.node for f in frames] == [77] and frames[0].is_discovery
+    after_frame = replies(events[events.index(frames[0]):], 77, 0xCE)
+    timers = [decode(r.payload).timer for r in after_frame]
+    assert timers[0] / TICKS_PER_SECOND < 0.1 and timers == sorted(timers)
+    assert sim.node(77).continuous == 0xCE
+    device_times = [unwrap.update(timer, time.monotonic()) for timer in timers]
+    assert unwrap.resets == 1 and device_times == sorted(device_times)
+
+
+# -- 9. timer wrap ------------------------------------------------------------------------
+
+
+def test_timer_wraps_and_unwraps_monotonically(sims: Sims, clients: Clients) -> None:
+    sim = sims.start([NodeSettings(76, stream="accel_angrate", timer_start=218.0)])
+    client = clients.open(sim.path)
+
+    def wrapped_and_more(events: list[Event]) -> bool:
+        timers = [decode(r.payload).timer for r in replies(events, 76, 0xC2)]
+        drops = [i for i, (a, b) in enumerate(itertools.pairwise(timers)) if b < a]
+        return bool(drops) and len(timers) - drops[0] > 10
+
+    client.read_events(wrapped_and_more, timeout=2.0)
+    seen = [(t, decode(e.payload).timer) for t, e in client.log if is_reply(e, 76, 0xC2)]
+    raw = [timer for _, timer in seen]
+    assert max(raw) > TIMER_MODULUS - 0.1 * TICKS_PER_SECOND and min(raw) < 0.5 * TICKS_PER_SECOND
+    unwrap = TimerUnwrapper()
+    device = [unwrap.update(timer, t) for t, timer in seen]
+    steps = [b - a for a, b in itertools.pairwise(device)]
+    assert all(s == pytest.approx(sim.node(76).period, abs=2 / TICKS_PER_SECOND) for s in steps)
+    assert unwrap.resets == 0
+    assert device[0] == pytest.approx(218.0, abs=0.5) and device[-1] > 2**32 / TICKS_PER_SECOND
+
+
+# -- 10. pacing ---------------------------------------------------------------------------
+
+
+def test_a_saturated_line_is_paced_at_the_baud_rate(sims: Sims, clients: Clients) -> None:
+    nodes = [NodeSettings(a, model=GX2, stream="accel_angrate_mag_orientation", divider=170)
+             for a in (76, 77, 78)]
+    sim = sims.start(nodes)
+    offered = 3 * (51200 / 170) * 88  # 88-byte packets: about 80 kB/s
+    assert offered > 5 * LINE_BYTES_PER_SECOND
+    powered = min(sim.node(a).powered_at for a in (76, 77, 78))
+    client = clients.open(sim.path)
+    opened = time.monotonic()
+    client.read_events(timeout=1.2)
+
+    last = client.reads[-1][0]
+    received = sum(len(data) for _, data in client.reads)
+    # no byte leaves the UART before its time: a hard bound since power-up
+    assert received <= LINE_BYTES_PER_SECOND * (last - powered) * 1.01 + 100
+    # and the line is kept busy
+    assert received >= 0.85 * LINE_BYTES_PER_SECOND * (last - opened) - 500
+    assert sim.station.stats.packets_dropped_full > 0
+    assert sim.dropped_bytes == 0
+    events = [e for _, e in client.log]
+    assert all(isinstance(e, Reply) for e in events), "whole packets are dropped, never parts"
+    assert {e.node for e in events} == {76, 77, 78}  # type: ignore[union-attr]

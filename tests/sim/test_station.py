@@ -1,0 +1,162 @@
+"""The simulated base station without a port, on a clock the test owns: ACK and NACK,
+pings, radio loss, line pacing at the baud rate, faults and reboots."""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+
+from aspp import Ack, Decoder, Discarded, Frame, Nack, PingOk, Reply, commands, decode
+from aspp.frame import encode_command_packet
+from gateway.sim.node import NodeSettings, SimNode
+from gateway.sim.station import (
+    BUFFER_BYTES,
+    GLUE_WAIT,
+    PING_TIMEOUT,
+    BaseStation,
+    LineFaults,
+    RadioLink,
+)
+
+T0 = 50.0
+
+
+class Bench:
+    """A station, its nodes and a decoder on the host side, on a test-owned clock."""
+
+    def __init__(self, *settings: NodeSettings, radio=None, line=None, seed=3):
+        self.now = T0
+        nodes = [SimNode(s, T0, random.Random(s.address)) for s in settings]
+        self.station = BaseStation(nodes, radio, line, rng=random.Random(seed))
+        self.decoder = Decoder()
+        self.chunks: list[bytes] = []
+
+    def send(self, data: bytes) -> None:
+        self.station.from_host(data, self.now)
+
+    def run(self, seconds: float, step: float = 0.001) -> list:
+        events = []
+        end = self.now + seconds
+        while self.now < end:
+            self.now = min(end, self.now + step)
+            self.station.advance(self.now)
+            chunk = self.station.take_output(self.now)
+            if chunk:
+                self.chunks.append(chunk)
+                events += self.decoder.feed(chunk)
+        return events + self.decoder.line_idle()
+
+
+def replies(events, node=None):
+    return [e for e in events if type(e) is Reply and (node is None or e.node == node)]
+
+
+def test_ack_then_reply_and_nack_for_malformed():
+    bench = Bench(NodeSettings(76))
+    bench.send(commands.poll("euler").packet(76))
+    events = bench.run(0.1)
+    assert type(events[0]) is Ack and decode(replies(events)[0].payload).name == "euler"
+    bad = bytearray(commands.poll("euler").packet(76))
+    bad[-1] ^= 0xFF
+    bench.send(bytes(bad))
+    assert bench.run(0.1) == [Nack()]
+    assert bench.station.nodes[76].log.commands == [commands.poll("euler")]
+
+
+def test_ping_answers_in_range_out_of_range_and_unknown():
+    bench = Bench(NodeSettings(76), NodeSettings(77), radio={77: RadioLink(in_range=False)})
+    for node, answer in ((76, PingOk()), (77, Nack()), (300, Nack())):
+        bench.send(commands.ping(node))
+        assert bench.run(PING_TIMEOUT * 2) == [answer], node
+
+
+def test_out_of_range_node_is_acked_but_never_answers():
+    bench = Bench(NodeSettings(77), radio={77: RadioLink(in_range=False)})
+    bench.send(commands.poll("euler").packet(77))
+    assert bench.run(0.2) == [Ack()]
+    assert bench.station.stats.commands_lost == 1
+
+
+def test_radio_loss_of_commands_and_data():
+    bench = Bench(NodeSettings(76, stream="euler"), NodeSettings(77),
+                  radio={76: RadioLink(data_loss=0.3), 77: RadioLink(command_loss=1.0)})
+    bench.send(commands.poll("euler").packet(77))
+    events = bench.run(2.0)
+    assert replies(events, 77) == []
+    got = len(replies(events, 76))
+    assert 100 < got < 170  # 200 records at 100 Hz, 30% lost
+    assert got + bench.station.stats.packets_lost_radio == pytest.approx(200, abs=2)
+
+
+def test_stop_loss_applies_to_0xfa_only():
+    bench = Bench(NodeSettings(76, stream="euler"), radio={76: RadioLink(stop_loss=1.0)})
+    bench.send(commands.stop_continuous().packet(76))
+    bench.run(0.2)
+    assert bench.station.nodes[76].continuous == 0xCE
+    bench.send(commands.stop_continuous_long().packet(76))
+    events = bench.run(0.2)
+    assert bench.station.nodes[76].continuous == 0
+    answers = [decode(r.payload) for r in replies(events)]
+    assert [r["continuous_command"] for r in answers if r.name == "continuous_mode"] == [0]
+
+
+def test_the_line_is_paced_at_the_baud_rate_and_a_full_buffer_drops():
+    """Three nodes at ~301 Hz of 0xCC offer ~78 kB/s; 115200 8N1 carries 11,520 B/s."""
+    settings = [NodeSettings(a, stream="accel_angrate_mag_orientation", divider=170)
+                for a in (76, 77, 78)]
+    bench = Bench(*settings)
+    bench.run(0.5)  # fill the base station's buffer
+    start = sum(map(len, bench.chunks))
+    bench.run(1.0)
+    assert sum(map(len, bench.chunks)) - start == pytest.approx(11_520, rel=0.02)
+    assert bench.station.stats.packets_dropped_full > 0
+    backlog = (bench.station._line_free_at - bench.now) * 11_520
+    assert backlog <= BUFFER_BYTES
+
+
+def test_glued_ack_arrives_in_one_chunk_with_the_next_packet():
+    bench = Bench(NodeSettings(76, stream="euler"), line=LineFaults(glue_ack=True))
+    bench.run(0.05)
+    bench.chunks.clear()
+    bench.send(commands.poll("accel_angrate").packet(76))
+    events = bench.run(0.1)
+    assert any(chunk.startswith(b"\xaa\xaa\x07") for chunk in bench.chunks)
+    assert Ack() in events and not any(type(e) is Discarded for e in events)
+
+
+def test_a_lone_glued_ack_is_not_held_forever():
+    bench = Bench(NodeSettings(76), line=LineFaults(glue_ack=True))
+    bench.send(commands.set_divider(512).packet(76))
+    bench.send(encode_command_packet(76, b"\xfa"))
+    events = bench.run(GLUE_WAIT * 3)
+    assert events.count(Ack()) == 2
+
+
+@pytest.mark.parametrize("fault", ["garbage", "bad_checksum", "false_header"])
+def test_line_faults_are_reported_and_good_packets_survive(fault):
+    bench = Bench(NodeSettings(76, stream="euler"), line=LineFaults(**{fault: 0.3}))
+    events = bench.run(2.0)
+    good = len(replies(events))
+    injected = bench.station.stats.faults_injected
+    assert injected > 20 and any(type(e) is Discarded for e in events)
+    if fault == "bad_checksum":
+        assert good == pytest.approx(200 - injected, abs=2)
+    else:
+        assert good == pytest.approx(200, abs=2)  # garbage and false headers cost nothing
+
+
+def test_reboot_announces_itself_and_restarts_the_timer():
+    bench = Bench(NodeSettings(76, stream="euler"), NodeSettings(77))
+    bench.send(commands.set_continuous("accel_angrate").packet(77))
+    bench.run(3.0)
+    for address in (76, 77):
+        bench.station.reboot(address, bench.now)
+    events = bench.run(0.5)
+    discovery = [e for e in events if type(e) is Frame]
+    assert sorted(f.node for f in discovery) == [76, 77]
+    assert all(f.is_discovery for f in discovery)
+    after = [decode(r.payload) for r in replies(events, 76)]
+    assert after[0].timer < 0.05 * 19_660_800  # timer restarted at power-up
+    assert bench.station.nodes[77].continuous == 0  # set by command: lost on reboot
+    assert bench.station.nodes[76].continuous == 0xCE  # auto-start from EEPROM
