@@ -1,0 +1,1 @@
+"""The gateway programs: gx2-sim now; the gx2-gateway daemon and gx2ctl next."""
