@@ -9,7 +9,7 @@ from typing import NoReturn
 
 from aspp.errors import AsppError
 from aspp.frame import MAX_NODE, MIN_NODE
-from aspp.records import lookup
+from aspp.records import STREAMABLE, lookup
 
 USAGE_ERROR = 2
 
@@ -58,6 +58,28 @@ def record_name(text: str) -> str:
         return lookup(text).name
     except AsppError as error:
         raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def bounded(kind: type[int] | type[float], low: float, high: float):
+    """An argparse type: a number of ``kind`` within low..high."""
+    def parse(text: str) -> int | float:
+        try:
+            value = kind(text)
+        except ValueError:
+            what = "an integer" if kind is int else "a number"
+            raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{value} is out of range {low}..{high}")
+        return value
+    return parse
+
+
+def streamable_record(text: str) -> str:
+    """A record that can be streamed in continuous mode, by name or ``0xNN``."""
+    name = record_name(text)
+    if lookup(name).code not in STREAMABLE:
+        raise argparse.ArgumentTypeError(f"{name} cannot be streamed in continuous mode")
+    return name
 
 
 def fail(prog: str, message: str, status: int) -> NoReturn:

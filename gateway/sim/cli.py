@@ -8,8 +8,18 @@ import sys
 import threading
 from typing import Any
 
-from gateway.cli_args import ArgumentParser, fail, node_list, probability, record_name
-from gateway.yamlconfig import ConfigError, load_model
+from pydantic import ValidationError
+
+from aspp.commands import MAX_DIVIDER, MIN_DIVIDER
+from gateway.cli_args import (
+    ArgumentParser,
+    bounded,
+    fail,
+    node_list,
+    probability,
+    streamable_record,
+)
+from gateway.yamlconfig import ConfigError, describe, load_model
 
 from .config import SimConfig
 from .node import GX2, INERTIA_LINK
@@ -29,11 +39,12 @@ def build_parser() -> ArgumentParser:
     parser.add_argument("--config", metavar="FILE", help="YAML file of nodes and faults")
     nodes = parser.add_argument_group("settings of the --nodes nodes")
     nodes.add_argument("--model", choices=(INERTIA_LINK, GX2), default=INERTIA_LINK)
-    nodes.add_argument("--stream", type=record_name, metavar="RECORD",
+    nodes.add_argument("--stream", type=streamable_record, metavar="RECORD",
                        help="record streamed from power-up (auto-start), e.g. accel_angrate")
-    nodes.add_argument("--divider", type=int, default=512,
+    nodes.add_argument("--divider", type=bounded(int, MIN_DIVIDER, MAX_DIVIDER), default=512,
                        help="data rate divider: 51200/x Hz (default 512, 100 Hz)")
-    nodes.add_argument("--timer-start", type=float, default=0.0, metavar="SECONDS",
+    nodes.add_argument("--timer-start", type=bounded(float, 0.0, 1e9), default=0.0,
+                       metavar="SECONDS",
                        help="timer value at power-up (215 starts 3.45 s before the wrap)")
     faults = parser.add_argument_group("faults (applied to every node)")
     for name, what in (("command-loss", "commands lost over the radio"),
@@ -50,7 +61,7 @@ def build_parser() -> ArgumentParser:
                         help="send each ACK in one write with the next packet")
     faults.add_argument("--first-write-failure", type=probability, metavar="P",
                         help="chance that the first EEPROM write after power-up fails")
-    parser.add_argument("--baudrate", type=int, default=None)
+    parser.add_argument("--baudrate", type=bounded(int, 1200, 4_000_000), default=None)
     parser.add_argument("--seed", type=int, default=None)
     parser.add_argument("-v", "--verbose", action="store_true")
     return parser
@@ -81,7 +92,10 @@ def merged_config(args: Any) -> SimConfig:
     for key in ("baudrate", "seed", "first_write_failure"):
         if getattr(args, key) is not None:
             data[key] = getattr(args, key)
-    config = SimConfig.model_validate(data)
+    try:
+        config = SimConfig.model_validate(data)
+    except ValidationError as error:
+        raise ConfigError(describe(error, args.config or "command line")) from None
     if not config.nodes:
         raise ConfigError("no nodes: give --nodes 76,77 or a --config with nodes")
     missing = set(args.out_of_range) - {n.address for n in config.nodes}
@@ -105,8 +119,6 @@ def main(argv: list[str] | None = None) -> int:
         config = merged_config(args)
     except ConfigError as error:
         fail(PROG, str(error), 2)
-    except ValueError as error:  # pydantic, on a command-line value
-        fail(PROG, str(error).splitlines()[-1].strip(), 2)
     done = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: done.set())

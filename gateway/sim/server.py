@@ -108,13 +108,17 @@ class Simulator:
         return self
 
     def stop(self) -> None:
+        """Stop serving and close the pty; calling it again does nothing."""
+        if self._stop.is_set():
+            return
         self._stop.set()
         self._wake()
         if self._thread:
             self._thread.join(5)
         with self._lock:
             self.port.close()
-        for fd in (self._wake_r, self._wake_w):
+            wake_fds, self._wake_r, self._wake_w = (self._wake_r, self._wake_w), -1, -1
+        for fd in wake_fds:
             with contextlib.suppress(OSError):
                 os.close(fd)
 
@@ -159,8 +163,9 @@ class Simulator:
         self._wake()
 
     def _wake(self) -> None:
-        with contextlib.suppress(OSError):
-            os.write(self._wake_w, b"!")
+        if self._wake_w >= 0:
+            with contextlib.suppress(OSError):
+                os.write(self._wake_w, b"!")
 
     # -- the loop -----------------------------------------------------------------------
 

@@ -29,7 +29,8 @@ PING_TIMEOUT = 0.030
 GLUE_WAIT = 0.050
 """How long a held ACK waits for a packet to be glued to."""
 BUFFER_BYTES = 4096
-"""The base station's serial output buffer; packets arriving to a full buffer are lost."""
+"""The base station's serial output buffer; packets arriving to a full buffer are lost.
+ACK, NACK and ping answers are never dropped: they are the base station's own answers."""
 
 
 @dataclass
@@ -103,7 +104,7 @@ class BaseStation:
     def _handle(self, event: CommandPacket | PingRequest | Malformed, now: float) -> None:
         if isinstance(event, Malformed):
             self.stats.nacks += 1
-            self._queue(bytes((NACK,)), now)
+            self._queue(bytes((NACK,)), now, control=True)
         elif isinstance(event, PingRequest):
             self.stats.pings += 1
             link = self.radio.get(event.node)
@@ -117,7 +118,7 @@ class BaseStation:
                     self._held_ack_since = now
                 self._held_acks += 1
             else:
-                self._queue(bytes((ACK,)), now)
+                self._queue(bytes((ACK,)), now, control=True)
             self._broadcast(event.node, event.command, now)
 
     def _broadcast(self, node: int, command: bytes, now: float) -> None:
@@ -150,7 +151,7 @@ class BaseStation:
         reach the serial line."""
         while self._answers and self._answers[0][0] <= now:
             due, _, byte = heapq.heappop(self._answers)
-            self._queue(byte, due)
+            self._queue(byte, due, control=True)
         while self._to_nodes and self._to_nodes[0][0] <= now:
             _, _, address, command = heapq.heappop(self._to_nodes)
             self.nodes[address].receive(command)
@@ -162,7 +163,7 @@ class BaseStation:
         for t, address, reply in sorted(replies):
             self._send_packet(address, reply, t)
         if self._held_ack_since is not None and now - self._held_ack_since >= GLUE_WAIT:
-            self._queue(self._release_acks(), now)
+            self._queue(self._release_acks(), now, control=True)
 
     def _release_acks(self) -> bytes:
         acks = bytes((ACK,)) * self._held_acks
@@ -176,13 +177,14 @@ class BaseStation:
             return
         lqi = max(0, min(255, link.lqi + self.rng.randint(-3, 3)))
         rssi = max(-128, min(127, link.rssi + self.rng.randint(-2, 2)))
-        chunk = self._with_faults(encode_reply_packet(address, reply, lqi, rssi, flags))
-        if self._held_acks:
-            chunk = self._release_acks() + chunk
-        if self._queue(chunk, t):
+        packet = self._with_faults(encode_reply_packet(address, reply, lqi, rssi, flags))
+        acks = self._release_acks() if self._held_acks else b""
+        if self._queue(acks + packet, t):
             self.stats.packets_sent[address] = self.stats.packets_sent.get(address, 0) + 1
         else:
             self.stats.packets_dropped_full += 1
+            if acks:
+                self._queue(acks, t, control=True)
 
     def _with_faults(self, packet: bytes) -> bytes:
         line, rng = self.line, self.rng
@@ -199,10 +201,11 @@ class BaseStation:
 
     # -- the serial line --------------------------------------------------------------
 
-    def _queue(self, chunk: bytes, t: float) -> bool:
-        """Schedule ``chunk`` on the UART; False if the buffer is full."""
+    def _queue(self, chunk: bytes, t: float, control: bool = False) -> bool:
+        """Schedule ``chunk`` on the UART; False if the buffer is full (never for
+        ``control`` bytes, the base station's own answers)."""
         backlog = (self._line_free_at - t) / self.byte_time
-        if backlog + len(chunk) > BUFFER_BYTES:
+        if backlog + len(chunk) > BUFFER_BYTES and not control:
             return False
         start = max(t, self._line_free_at)
         self._line_free_at = start + len(chunk) * self.byte_time

@@ -199,6 +199,9 @@ BAD = {
     "node-70000": (["--nodes", "76,70000"], None, ["--nodes", "70000", "out of range"]),
     "unknown-record": (["--nodes", "76", "--stream", "bogus_record"], None,
                        ["--stream", "bogus_record"]),
+    "record-that-cannot-stream": (["--nodes", "76", "--stream", "eeprom_read"], None,
+                                  ["eeprom_read", "stream"]),
+    "divider-out-of-range": (["--nodes", "76", "--divider", "5"], None, ["divider"]),
     "no-nodes": ([], None, ["no nodes"]),
     "unknown-key": ([], "nodes:\n  - address: 76\n    colour: red\n",
                     ["{config}", "colour", "unknown key"]),
@@ -211,30 +214,50 @@ BAD = {
 }
 
 
-@pytest.mark.parametrize("case", list(BAD), ids=list(BAD))
-def test_bad_arguments_exit_2_with_one_line(tmp_path: Path, case: str) -> None:
-    arguments, config_text, words = BAD[case]
-    config, missing, directory = tmp_path / "sim.yaml", tmp_path / "absent.yaml", tmp_path
-    places = {"config": str(config), "missing": str(missing), "directory": str(directory)}
-    arguments = list(arguments)
-    if config_text == "{missing}":
-        arguments += ["--config", str(missing)]
-    elif config_text == "{directory}":
-        arguments += ["--config", str(directory)]
-    elif config_text is not None:
-        config.write_text(config_text)
-        arguments += ["--config", str(config)]
-    link = tmp_path / "gx2"
+@pytest.fixture(scope="module")
+def bad_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, dict, object]]:
+    """Every BAD case, run at once (each start-up costs most of a second of CPU)."""
+    started = {}
+    for case, (arguments, config_text, _) in BAD.items():
+        tmp = tmp_path_factory.mktemp(case)
+        config, missing = tmp / "sim.yaml", tmp / "absent.yaml"
+        places = {"config": str(config), "missing": str(missing), "directory": str(tmp)}
+        arguments = list(arguments)
+        if config_text == "{missing}":
+            arguments += ["--config", str(missing)]
+        elif config_text == "{directory}":
+            arguments += ["--config", str(tmp)]
+        elif config_text is not None:
+            config.write_text(config_text)
+            arguments += ["--config", str(config)]
+        proc = subprocess.Popen([gx2_sim(), *arguments, "--link", str(tmp / "gx2")],
+                                stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        started[case] = (tmp, places, proc)
+    results = {}
+    try:
+        for case, (tmp, places, proc) in started.items():
+            stdout, stderr = proc.communicate(timeout=60)
+            results[case] = (tmp, places, (proc.returncode, stdout, stderr))
+    finally:
+        for _, _, proc in started.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+    return results
 
-    done = subprocess.run([gx2_sim(), *arguments, "--link", str(link)], capture_output=True,
-                          text=True, timeout=30, stdin=subprocess.DEVNULL)
-    assert done.returncode == 2, (done.returncode, done.stderr)
-    lines = done.stderr.splitlines()
-    assert len(lines) == 1, f"exactly one line on stderr, got {done.stderr!r}"
-    assert "Traceback" not in done.stderr
+
+@pytest.mark.parametrize("case", list(BAD), ids=list(BAD))
+def test_bad_arguments_exit_2_with_one_line(bad_runs: dict, case: str) -> None:
+    tmp, places, (returncode, stdout, stderr) = bad_runs[case]
+    words = BAD[case][2]
+    assert returncode == 2, (returncode, stderr)
+    lines = stderr.splitlines()
+    assert len(lines) == 1, f"exactly one line on stderr, got {stderr!r}"
+    assert "Traceback" not in stderr
     line = lines[0]
     assert line.startswith("gx2-sim: ")
     for word in words:
         assert word.format(**places) in line, f"{word.format(**places)!r} not in {line!r}"
-    assert done.stdout == "", "nothing is served"
-    assert not link.is_symlink()
+    assert stdout == "", "nothing is served"
+    assert not (tmp / "gx2").is_symlink()

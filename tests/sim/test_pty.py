@@ -2,13 +2,15 @@
 
 Every test opens the simulator's pty (or its symlink) with pyserial at 115200 baud,
 writes command packets and raw pings, and decodes what comes back with
-:class:`aspp.Decoder`. Nothing here talks to the simulator's objects to learn what was
-sent; they are only read afterwards (node state, station statistics) to check that the
-bytes on the line and the simulated world agree.
+:class:`aspp.Decoder`. The simulator's objects are not used to learn what was sent; they
+are read afterwards (node state, station statistics) to check that the bytes on the line
+and the simulated world agree, and touched only to act as the world would (a reboot, an
+unplug, a stream ended so that the line falls quiet).
 """
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import os
@@ -325,7 +327,7 @@ def check_rate(times: list[float], timers: list[int], divider: int) -> None:
     assert (len(times) - 1) / wall == pytest.approx(expected_hz, rel=0.05)
     # the stream keeps up with the node's clock: no growing backlog
     device = sum(steps) / TICKS_PER_SECOND
-    assert device == pytest.approx(wall, abs=0.05)
+    assert device == pytest.approx(wall, abs=0.08)
 
 
 def test_two_streams_at_their_rates_and_a_poll_in_between(sims: Sims, clients: Clients) -> None:
@@ -415,6 +417,7 @@ def test_stop_is_retried_until_the_stream_is_silent(sims: Sims, clients: Clients
         stats = sim.station.stats
         stops = [c for c in sim.node(76).log.commands if c.code in (0xFA, 0xC4)]
         assert stats.acks == result.attempts, "every attempt was sent and ACKed"
+        assert [e for _, e in client.log].count(Ack()) == result.attempts
         assert stats.commands_lost + len(stops) == result.attempts
         attempts_by_seed[seed] = result.attempts
         clients.close(client)
@@ -505,6 +508,17 @@ def test_ack_glued_to_the_next_packet(sims: Sims, clients: Clients) -> None:
         assert isinstance(after_ack, Reply), summary(events)
         assert not [e for e in events if isinstance(e, (Discarded, Nack, Frame))]
     assert sim.station.stats.acks == 2
+
+
+def test_pipelined_commands_get_one_glued_ack_each(sims: Sims, clients: Clients) -> None:
+    sim = sims.start([NodeSettings(77)], line=LineFaults(glue_ack=True))
+    client = clients.open(sim.path)
+    client.send(gx2.firmware_version().packet(77) + gx2.device_id(0).packet(77))
+    events = client.read_events(lambda ev: len(replies(ev, 77)) >= 2, timeout=1.0)
+    events += client.read_events(timeout=0.1)
+    assert events.count(Ack()) == 2, "one ACK after every command packet"
+    assert [e.command for e in replies(events, 77)] == [0xE9, 0xEA]
+    assert any(b"\xaa\xaa\xaa\x07" in data for _, data in client.reads)
 
 
 # -- 7. line faults -----------------------------------------------------------------------
@@ -612,7 +626,7 @@ def test_reboot_announces_itself_and_restarts(sims: Sims, clients: Clients) -> N
             unwrap.update(decode(e.payload).timer, t)
 
     # 76 was started by the host: a reboot ends its stream
-    mark = len(client.log)
+    rebooted_by = time.monotonic()
     sim.reboot(76)
     events = client.read_events(has(Frame), timeout=1.0)
     frame = next(e for e in events if isinstance(e, Frame))
@@ -620,10 +634,9 @@ def test_reboot_announces_itself_and_restarts(sims: Sims, clients: Clients) -> N
     assert sim.node(76).continuous == 0
     after = client.read_events(timeout=0.15)
     assert replies(after, 76) == [], "no records from 76 after its discovery packet"
-    rebooted_at = next(t for t, e in client.log[mark:] if e is frame)
     reply = polled_reply_among_stream(client, 76, gx2.poll("accel_angrate"))
     timer = decode(reply.payload).timer / TICKS_PER_SECOND
-    assert 0 < timer < time.monotonic() - rebooted_at + 0.05, "the timer restarted"
+    assert 0 < timer <= time.monotonic() - rebooted_by, "the timer restarted"
 
     # 77 streams from power-up (auto-start): after a reboot it streams again, from 0
     sim.reboot(77)
@@ -687,3 +700,49 @@ def test_a_saturated_line_is_paced_at_the_baud_rate(sims: Sims, clients: Clients
     events = [e for _, e in client.log]
     assert all(isinstance(e, Reply) for e in events), "whole packets are dropped, never parts"
     assert {e.node for e in events} == {76, 77, 78}  # type: ignore[union-attr]
+
+
+@pytest.mark.parametrize("glue_ack", [False, True], ids=["separate-ack", "glued-ack"])
+def test_commands_are_acked_on_a_saturated_line(sims: Sims, clients: Clients,
+                                                glue_ack: bool) -> None:
+    """The base station's buffer is full, so it drops packets from the nodes; the host
+    still gets one ACK for each command it sends (the contract: after every command
+    packet, one byte), behind the backlog (at most 4096 bytes, 0.36 s)."""
+    nodes = [NodeSettings(a, model=GX2, stream="accel_angrate_mag_orientation", divider=170)
+             for a in (76, 77, 78)]
+    sim = sims.start([*nodes, NodeSettings(79)], line=LineFaults(glue_ack=glue_ack))
+    client = clients.open(sim.path)
+    client.read_events(timeout=0.3)
+    assert sim.station.stats.packets_dropped_full > 0
+    seen: list[Event] = []
+    for _ in range(8):
+        client.send(gx2.firmware_version().packet(79))
+        seen += client.read_events(timeout=0.03)
+    try:
+        client.read_events(lambda ev: (seen + ev).count(Ack()) >= 8, timeout=1.5)
+    except TimeoutError:
+        acked = [e for _, e in client.log].count(Ack())
+        pytest.fail(f"8 commands sent, {acked} ACKs arrived (the station counted "
+                    f"{sim.station.stats.acks})")
+
+
+# -- the Simulator object itself ------------------------------------------------------------
+
+
+def test_stopping_twice_leaves_other_descriptors_alone(tmp_path: Path) -> None:
+    link = tmp_path / "gx2"
+    with Simulator([NodeSettings(76)], link=link) as sim:
+        assert link.is_symlink()
+    assert not link.is_symlink() and sim.error is None
+    r, w = os.pipe()  # likely reuses the numbers the simulator's descriptors had
+    try:
+        sim.stop()  # again, as a fixture's teardown after a with block would
+        try:
+            os.write(w, b"x")
+            assert os.read(r, 1) == b"x"
+        except OSError as error:
+            pytest.fail(f"a second stop() closed descriptors it no longer owns: {error}")
+    finally:
+        for fd in (r, w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
