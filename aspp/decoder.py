@@ -14,10 +14,12 @@ How the bytes are read, in order of the stream:
   Any other candidate (an 0xAA inside data followed by a bogus length) gives way to a
   valid packet that starts inside it and completes first, without waiting for the
   bytes it claims.
+* A failed candidate is discarded up to the next 0xAA. So an ACK is only recognised
+  as the byte before another 0xAA, or alone when the line goes idle: a caller that
+  sent a command with no reply (0xFA) calls :meth:`line_idle` when the line is quiet.
 * ACK and SOP are the same byte. An 0xAA followed by another 0xAA is an ACK at once
-  (no packet has delivery flags 0xAA); an 0xAA whose candidate fails is an ACK when it
-  stands alone, otherwise it is discarded with the bytes up to the next 0xAA. A
-  trailing 0xAA waits for the next byte, or for :meth:`line_idle`.
+  (no packet has delivery flags 0xAA). A trailing 0xAA waits for the next byte, or for
+  :meth:`line_idle`, which makes it an ACK.
 * Between packets, 0x21 is a NACK and 0x02 a positive ping answer; any other byte is
   garbage, reported in runs.
 
@@ -171,11 +173,7 @@ class Decoder:
                 end = self._run_end(pos, n, final, candidate=True)
                 if end is None:
                     break
-                if end - pos == 1:
-                    append(ACK_EVENT)
-                    stats.acks += 1
-                else:
-                    append(self._discard(pos, end, reason))
+                append(self._discard(pos, end, reason))  # never a lone byte: see AA AA
                 pos = end
             elif byte == NACK:
                 append(NACK_EVENT)

@@ -31,7 +31,9 @@ def _typed_hash(self: tuple) -> int:
 
 
 class Reply(NamedTuple):
-    """A valid reply packet (delivery flags 0x07) carrying a GX2 reply record.
+    """A valid reply packet carrying a GX2 reply record: delivery flags 0x07, app type
+    0x00, the unused byte 0x00 and a length of 2..102 (an echo byte and at most 100
+    data bytes), from node 1..65534.
 
     ``payload`` is the wired reply record without its own checksum: the echo byte
     first, then the data, ready for :func:`aspp.records.decode`.
@@ -69,7 +71,8 @@ class Reply(NamedTuple):
 
 class Frame(NamedTuple):
     """A valid packet that is not a reply: other delivery flags (0x00 is a node's
-    power-up discovery packet), or a reply too short to carry an echo byte."""
+    power-up discovery packet), or a header that is not a reply's (no echo byte, more
+    than 100 data bytes, a nonzero app type or unused byte)."""
 
     raw: bytes
 
@@ -142,9 +145,11 @@ class DiscardReason(StrEnum):
     """A packet whose checksum holds but whose node address is 0 or 0xFFFF: no node
     has those, and a run of zero bytes inside data looks exactly like such a packet."""
     TRUNCATED = "truncated"
-    """A packet header whose claimed length was cut short, by a valid packet starting
-    inside it or by the line going quiet. A false header (0xAA inside data followed by
-    a bogus length) is indistinguishable from a truncated packet and is counted here."""
+    """A header that is not a plausible reply's, given way to a valid packet that
+    starts inside it and completes first (a false header: 0xAA inside data followed by
+    a bogus length), or any unfinished packet when the line goes quiet. A cut-off reply
+    whose header is plausible waits for the bytes it claims and then fails its
+    checksum, so it is counted as ``bad_checksum``."""
 
 
 class Discarded(NamedTuple):
