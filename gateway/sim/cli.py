@@ -26,12 +26,15 @@ from .node import GX2, INERTIA_LINK
 from .server import Simulator
 
 PROG = "gx2-sim"
+UNPLUG_SECONDS = 2.0
 
 
 def build_parser() -> ArgumentParser:
     parser = ArgumentParser(
         prog=PROG, description="A virtual 3DM-GX2 wireless base station with nodes, behind "
-        "a pseudo-terminal. Prints the port to open and serves until interrupted.")
+        "a pseudo-terminal. Prints the port to open and serves until interrupted. "
+        f"While it runs, SIGUSR1 reboots every node and SIGUSR2 unplugs the base station "
+        f"for {UNPLUG_SECONDS:g} s.")
     parser.add_argument("--nodes", type=node_list, default=[], metavar="76,77,95",
                         help="node addresses to simulate (added to those in --config)")
     parser.add_argument("--link", metavar="PATH",
@@ -126,6 +129,8 @@ def main(argv: list[str] | None = None) -> int:
         sim = simulator_from(config, args.link).start()
     except OSError as error:
         fail(PROG, f"cannot create the port: {error}", 1)
+    signal.signal(signal.SIGUSR1, lambda *_: [sim.reboot(n.address) for n in config.nodes])
+    signal.signal(signal.SIGUSR2, lambda *_: sim.unplug(duration=UNPLUG_SECONDS))
     nodes = ", ".join(f"{n.address}" + (f" ({n.stream})" if n.stream else "")
                       for n in config.nodes)
     print(f"{PROG}: base station on {sim.port.path}"

@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 import serial
 
-from aspp import TICKS_PER_SECOND, Decoder, Event, Reply, decode
+from aspp import TICKS_PER_SECOND, Decoder, Event, Frame, Reply, decode
 from aspp import commands as gx2
 
 STARTUP = 15.0
@@ -261,3 +261,33 @@ def test_bad_arguments_exit_2_with_one_line(bad_runs: dict, case: str) -> None:
         assert word.format(**places) in line, f"{word.format(**places)!r} not in {line!r}"
     assert stdout == "", "nothing is served"
     assert not (tmp / "gx2").is_symlink()
+
+
+def wait_until(condition: Callable[[], bool], timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, f"not within {timeout} s"
+        time.sleep(0.01)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGUSR1, signal.SIGUSR2], ids=["reboot", "unplug"])
+def test_signals_trigger_reboot_and_unplug(launch: Callable[..., Running], tmp_path: Path,
+                                           signum: signal.Signals) -> None:
+    """Triggers for a person at the demo: SIGUSR1 reboots every node (discovery frames
+    arrive), SIGUSR2 unplugs the base station (the link goes away and comes back)."""
+    link = tmp_path / "gx2"
+    running = launch("--nodes", "76,77", "--link", str(link))
+    running.wait_for_line(lambda line: line == str(link), STARTUP)
+    with serial.Serial(str(link), 115200, timeout=0.05) as port:
+        running.proc.send_signal(signum)
+        if signum == signal.SIGUSR1:
+            events = read_events(port, Decoder(), lambda ev: len(
+                [e for e in ev if type(e) is Frame]) >= 2)
+            frames = [e for e in events if type(e) is Frame]
+            assert sorted(f.node for f in frames) == [76, 77]
+            assert all(f.is_discovery for f in frames)
+        else:
+            wait_until(lambda: not link.exists(), 2.0)
+            wait_until(link.exists, 5.0)
+    running.proc.send_signal(signal.SIGTERM)
+    assert running.finish(EXIT) == 0

@@ -168,3 +168,38 @@ def test_timer_wraps_at_two_to_the_32():
     ticks = [decode(sim.record(0xC2, T0 + dt)).timer for dt in (0.0, 0.1)]
     assert ticks[0] > ticks[1]  # wrapped in between
     assert (ticks[1] - ticks[0]) % TIMER_MODULUS == round(0.1 * TICKS_PER_SECOND)
+
+
+# The simulator's replies as bytes, worked out by hand from the reference (record without
+# its wired checksum), so the simulator, the table and the reference cannot drift together.
+GOLDEN_REPLIES = [
+    ("firmware 2.1.13", commands.firmware_version(), "E9 00 00 08 41"),  # 2113 = 0x0841
+    ("divider word", commands.read_eeprom(0xFCA2), "E5 02 00"),          # 512
+    ("eeprom write", commands.write_eeprom(0x0100, 0xBEEF), "E4 BE EF"),
+    ("model name", commands.device_id(2),
+     "EA 02" + " 49 6E 65 72 74 69 61 2D 4C 69 6E 6B" + " 20" * 4),   # "Inertia-Link"
+    ("serial number", commands.device_id(1),
+     "EA 01" + " 34 32 30 30 2D 30 30 37 36" + " 20" * 7),            # "4200-0076"
+    ("built-in test", commands.built_in_test(0x14), "FB 14"),
+    ("store gyro bias", commands.store_nonvolatile(2), "D0 00 02 00 00 00 00"),
+]
+
+
+@pytest.mark.parametrize(("command", "expected"), [g[1:] for g in GOLDEN_REPLIES],
+                         ids=[g[0] for g in GOLDEN_REPLIES])
+def test_simulator_replies_match_hand_made_bytes(command, expected):
+    sim = node()
+    sim.receive(command.data)
+    ((_, reply),) = sim.run_until(T0 + sim.period)
+    expected = bytes.fromhex(expected)
+    if expected[0] == 0xD0:  # timed: the timer of the first cycle, 512 * 384 ticks
+        expected = expected[:3] + (512 * 384).to_bytes(4, "big")
+    assert reply == expected
+
+
+def test_continuous_mode_confirmation_bytes():
+    sim = node()
+    sim.receive(bytes.fromhex("C4 C1 29 CE"))
+    ((_, reply),) = sim.run_until(T0 + sim.period)
+    assert reply == bytes.fromhex("C4 CE") + (512 * 384).to_bytes(4, "big")
+    assert sim.continuous == 0xCE
