@@ -36,6 +36,8 @@ def describe(error: ValidationError, source: str) -> str:
     elif first["type"] == "missing":
         message = "required key is missing"
     more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+    if not first["loc"]:  # a check across keys: its message names them itself
+        return f"{source}: {message}{more}"
     return f"{source}: {key_path(first['loc'])}: {message}{more}"
 
 

@@ -1,0 +1,122 @@
+"""The gateway's configuration: ``gx2-gateway --config nodes.yaml``.
+
+The keys of CONTRACT section 3, plus a few documented in README (marked "added" below).
+Strict: an unknown key is an error, so a typo never passes silently.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from aspp.errors import AsppError
+from aspp.frame import MAX_NODE, MIN_NODE
+from aspp.records import STREAMABLE, lookup
+
+from .yamlconfig import ConfigError, load_model
+
+__all__ = ["ConfigError", "GatewayConfig", "load_config"]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _endpoint(value: str) -> str:
+    scheme, sep, rest = value.partition("://")
+    if not sep or scheme not in ("tcp", "ipc", "inproc") or not rest:
+        raise ValueError(f"must be a ZeroMQ endpoint such as tcp://127.0.0.1:5555 or "
+                         f"ipc:///run/gx2-gateway/control, not {value!r}")
+    return value
+
+
+class BaseStationConfig(_Strict):
+    port: Annotated[str, Field(min_length=1)]
+    """A device path, a pyserial URL, or sim:// (the built-in simulator)."""
+    baudrate: Annotated[int, Field(ge=1200, le=4_000_000)] = 115200
+    idle_ms: Annotated[float, Field(ge=1, le=1000)] = 30.0
+    """Added: a line silent this long has finished what it was sending."""
+
+
+class PublishConfig(_Strict):
+    endpoint: str = "tcp://127.0.0.1:5555"
+    heartbeat_s: Annotated[float, Field(gt=0, le=60)] = 1.0
+    """Added: period of the gx2/gateway/status message."""
+    high_water_mark: Annotated[int, Field(ge=100, le=10_000_000)] = 20_000
+    """Added: messages queued per subscriber before the slowest one loses some."""
+
+    @field_validator("endpoint")
+    @classmethod
+    def _check_endpoint(cls, value: str) -> str:
+        return _endpoint(value)
+
+
+class ControlConfig(_Strict):
+    endpoint: str = "tcp://127.0.0.1:5556"
+    allow_eeprom_write: bool = False
+
+    @field_validator("endpoint")
+    @classmethod
+    def _check_endpoint(cls, value: str) -> str:
+        return _endpoint(value)
+
+
+class ShutdownConfig(_Strict):
+    """Added: what the gateway does on SIGTERM/SIGINT (it exits within 2 s either way)."""
+
+    stop_streams: bool = False
+    """Send 0xFA to the streams it started, best effort, within the exit budget. Off by
+    default: a restarted gateway re-arms them, so leaving them on loses no data."""
+
+
+class NodeConfig(_Strict):
+    address: Annotated[int, Field(ge=MIN_NODE, le=MAX_NODE, strict=True)]
+    name: Annotated[str, Field(min_length=1, max_length=64)] | None = None
+    stream: str | None = None
+
+    @field_validator("stream")
+    @classmethod
+    def _streamable(cls, value: str | None) -> str | None:
+        if value is None:
+            return None
+        try:
+            spec = lookup(value)
+        except AsppError as error:
+            raise ValueError(str(error)) from None
+        if spec.code not in STREAMABLE:
+            raise ValueError(f"{spec.name} cannot be streamed in continuous mode")
+        return spec.name
+
+    @property
+    def label(self) -> str:
+        return f"{self.address} ({self.name})" if self.name else str(self.address)
+
+
+class GatewayConfig(_Strict):
+    base_station: BaseStationConfig
+    publish: PublishConfig = PublishConfig()
+    control: ControlConfig = ControlConfig()
+    shutdown: ShutdownConfig = ShutdownConfig()
+    nodes: Annotated[list[NodeConfig], Field(min_length=1)]
+
+    @model_validator(mode="after")
+    def _distinct(self) -> GatewayConfig:
+        seen: set[int] = set()
+        for index, node in enumerate(self.nodes):
+            if node.address in seen:
+                raise ValueError(f"nodes[{index}].address: {node.address} is already "
+                                 "configured")
+            seen.add(node.address)
+        if self.publish.endpoint == self.control.endpoint:
+            raise ValueError("publish.endpoint and control.endpoint must differ")
+        return self
+
+    def node(self, address: int) -> NodeConfig | None:
+        return next((n for n in self.nodes if n.address == address), None)
+
+
+def load_config(path: str | Path) -> GatewayConfig:
+    """Read and validate a gateway configuration; raises ConfigError (one line)."""
+    return load_model(path, GatewayConfig)
