@@ -88,6 +88,13 @@ class StopPolicy:
         if self._last_packet is None or now > self._last_packet:
             self._last_packet = now
 
+    def sent(self, now: float) -> None:
+        """The last stop left the base station at ``now`` (its ACK arrived): packets
+        before then were queued ahead of it and prove nothing. Without this call the
+        time :meth:`next_action` returned the SendStop counts as the send."""
+        if self.attempts and now > self._last_send:
+            self._last_send = now
+
     def stop_confirmed(self, now: float) -> None:
         """The node answered the long form with continuous command 0."""
         if self._result is None and self._started is not None:

@@ -60,6 +60,8 @@ def build_parser() -> ArgumentParser:
                        ("bad-checksum", "packets with a corrupted checksum"),
                        ("false-header", "packets preceded by a false header")):
         faults.add_argument(f"--{name}", type=probability, metavar="P", help=what)
+    faults.add_argument("--nack", type=probability, metavar="P",
+                        help="well-formed commands NACKed anyway (the host must resend)")
     faults.add_argument("--glue-ack", action="store_true",
                         help="send each ACK in one write with the next packet")
     faults.add_argument("--first-write-failure", type=probability, metavar="P",
@@ -87,7 +89,7 @@ def merged_config(args: Any) -> SimConfig:
                 radio[key] = getattr(args, key)
         if node["address"] in args.out_of_range:
             radio["in_range"] = False
-    for key in ("garbage", "bad_checksum", "false_header"):
+    for key in ("garbage", "bad_checksum", "false_header", "nack"):
         if getattr(args, key) is not None:
             data["line"][key] = getattr(args, key)
     if args.glue_ack:

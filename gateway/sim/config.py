@@ -4,7 +4,7 @@
 baudrate: 115200
 seed: 1
 first_write_failure: 0.3      # chance the first EEPROM write after power-up fails
-line: {garbage: 0.01, bad_checksum: 0.0, false_header: 0.0, glue_ack: false}
+line: {garbage: 0.01, bad_checksum: 0.0, false_header: 0.0, glue_ack: false, nack: 0.0}
 nodes:
   - address: 76
     model: inertia-link       # or 3dm-gx2 (which has a magnetometer)
@@ -51,6 +51,7 @@ class LineConfig(_Strict):
     bad_checksum: float = Probability
     false_header: float = Probability
     glue_ack: bool = False
+    nack: float = Probability
 
     def build(self) -> LineFaults:
         return LineFaults(**self.model_dump())

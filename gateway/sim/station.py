@@ -42,6 +42,9 @@ class LineFaults:
     false_header: float = 0.0
     glue_ack: bool = False
     """Hold each ACK and write it in one chunk with the next packet (AA AA 07 ...)."""
+    nack: float = 0.0
+    """Chance that a well-formed command packet is NACKed anyway (received garbled)
+    and not broadcast: the host must send it again."""
 
 
 @dataclass
@@ -111,6 +114,9 @@ class BaseStation:
             ok = link is not None and link.in_range
             delay = 2 * RADIO_LATENCY if ok else PING_TIMEOUT
             self._push_answer(now + delay, bytes((PING if ok else NACK,)))
+        elif self.line.nack and self.rng.random() < self.line.nack:
+            self.stats.nacks += 1
+            self._queue(bytes((NACK,)), now, control=True)
         else:
             self.stats.acks += 1
             if self.line.glue_ack:

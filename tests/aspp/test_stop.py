@@ -100,3 +100,15 @@ def test_invalid_configuration_raises():
         StopPolicy(0.0)
     with pytest.raises(ValueError):
         StopPolicy(PERIOD, short_attempts=5, max_attempts=3)
+
+
+def test_packets_queued_before_the_stops_ack_do_not_count():
+    """On a saturated link the ACK waits behind buffered packets; silence is measured
+    from the ACK, so those packets neither cost an attempt nor prove failure."""
+    policy = StopPolicy(PERIOD, latency=0.05)
+    assert isinstance(policy.next_action(0.0), SendStop)
+    for t in (0.1, 0.2, 0.3):
+        policy.packet_seen(t)  # still draining the base station's buffer
+    policy.sent(0.3)            # the ACK arrives after them
+    assert policy.next_action(0.31) == WaitUntil(0.3 + policy.silence)
+    assert policy.next_action(0.3 + policy.silence) == Stopped(1, 0.3 + policy.silence)

@@ -160,3 +160,10 @@ def test_reboot_announces_itself_and_restarts_the_timer():
     assert after[0].timer < 0.05 * 19_660_800  # timer restarted at power-up
     assert bench.station.nodes[77].continuous == 0  # set by command: lost on reboot
     assert bench.station.nodes[76].continuous == 0xCE  # auto-start from EEPROM
+
+
+def test_nack_fault_refuses_good_packets_without_delivering_them():
+    bench = Bench(NodeSettings(76), line=LineFaults(nack=1.0))
+    bench.send(commands.poll("euler").packet(76))
+    assert bench.run(0.1) == [Nack()]
+    assert bench.station.nodes[76].log.commands == []

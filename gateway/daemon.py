@@ -1,0 +1,229 @@
+"""The gateway: one asyncio loop owning the serial port, the PUB and ROUTER sockets and
+every timer, so no socket is ever touched by two threads.
+
+Data flows one way: bytes from :mod:`gateway.link` -> :class:`aspp.Decoder` events ->
+:class:`gateway.nodes.NodeState` payloads -> :mod:`gateway.publisher`. Control requests
+go :mod:`gateway.control` -> :mod:`gateway.operations` -> :mod:`gateway.scheduler` ->
+serial writes, and their replies come back through the same decoder.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import shutil
+import time
+from importlib.metadata import PackageNotFoundError, version
+from typing import Any
+
+import zmq
+import zmq.asyncio
+
+from aspp import Ack, Decoder, Frame, Nack, PingOk, Reply, commands, decode
+from aspp.errors import RecordError
+
+from .config import GatewayConfig
+from .control import ControlServer
+from .link import SerialLink, embedded_link_path, simulator_for
+from .nodes import Delivery, NodeState
+from .operations import Operations
+from .publisher import Publisher
+from .scheduler import Scheduler
+from .sim.server import Simulator
+
+log = logging.getLogger("gx2.gateway")
+EXIT_BUDGET = 1.5
+"""Seconds a shutdown may spend stopping streams, within the promised 2 s."""
+
+try:
+    VERSION = version("gx2-gateway")
+except PackageNotFoundError:  # pragma: no cover - running from a source tree
+    VERSION = "unknown"
+
+
+class StartupError(Exception):
+    """The gateway cannot start (an endpoint cannot be bound): one line, exit 1."""
+
+
+class Gateway:
+    def __init__(self, config: GatewayConfig) -> None:
+        self.config = config
+        self.nodes = {n.address: NodeState(n) for n in config.nodes}
+        self.decoder = Decoder()
+        self.started = time.time()
+        self.unknown_node_packets = 0
+        self.bad_records = 0
+        self.simulator: Simulator | None = None
+        self._idle: asyncio.TimerHandle | None = None
+        self._arming: dict[int, asyncio.Task[None]] = {}
+        self._context = zmq.asyncio.Context()
+        port = config.base_station.port
+        if port.startswith("sim://"):
+            self._sim_link = embedded_link_path()
+            self.simulator = simulator_for(port, list(self.nodes), self._sim_link)
+            port = str(self._sim_link)
+        self.link = SerialLink(port, config.base_station.baudrate, self._on_data,
+                               self._on_link_state)
+        self.scheduler = Scheduler(self.link.write)
+        self.ops = Operations(self.scheduler, self.nodes, config.control.allow_eeprom_write)
+        try:
+            self.publisher = Publisher(self._context, config.publish.endpoint,
+                                       config.publish.high_water_mark)
+            self.control = ControlServer(self._context, config.control.endpoint, self.ops,
+                                         self.status)
+        except zmq.ZMQError as error:
+            self._context.destroy(linger=0)
+            raise StartupError(f"cannot bind {error}") from None
+
+    # -- running --------------------------------------------------------------------------
+
+    async def run(self, stop: asyncio.Event) -> None:
+        if self.simulator is not None:
+            self.simulator.start()
+        try:
+            self.link.open()
+            log.info("base station %s open", self.config.base_station.port)
+        except OSError as error:
+            log.warning("base station %s: %s; retrying", self.config.base_station.port, error)
+            self.link.start_reopening()
+        serving = asyncio.get_running_loop().create_task(self.control.serve())
+        heartbeat = asyncio.get_running_loop().create_task(self._heartbeat())
+        log.info("publishing on %s, control on %s, %d nodes", self.config.publish.endpoint,
+                 self.config.control.endpoint, len(self.nodes))
+        try:
+            await stop.wait()
+        finally:
+            serving.cancel()
+            heartbeat.cancel()
+            await self._shutdown()
+
+    async def _shutdown(self) -> None:
+        for task in self._arming.values():
+            task.cancel()
+        if self.config.shutdown.stop_streams and self.link.up:
+            streaming = [n for n in self.nodes.values() if n.record]
+            stops = [self.ops.send(n, commands.stop_continuous()) for n in streaming]
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(asyncio.gather(*stops, return_exceptions=True),
+                                       EXIT_BUDGET)
+        self.control.close()
+        self.link.close()
+        self.publisher.close()
+        self._context.destroy(linger=0)
+        if self.simulator is not None:
+            self.simulator.stop()
+            shutil.rmtree(self._sim_link.parent, ignore_errors=True)
+        log.info("stopped")
+
+    # -- the serial side ------------------------------------------------------------------
+
+    def _on_data(self, data: bytes, host_time: float) -> None:
+        self._dispatch(self.decoder.feed(data), host_time)
+        if self._idle is not None:
+            self._idle.cancel()
+            self._idle = None
+        if self.decoder.pending:
+            self._idle = asyncio.get_running_loop().call_later(
+                self.config.base_station.idle_ms / 1000, self._line_idle, host_time)
+
+    def _line_idle(self, host_time: float) -> None:
+        self._idle = None
+        self._dispatch(self.decoder.line_idle(), host_time)
+
+    def _dispatch(self, events: list[Any], host_time: float) -> None:
+        scheduler = self.scheduler
+        for event in events:
+            kind = type(event)
+            if kind is Reply:
+                self._on_reply(event, host_time)
+            elif kind is Ack:
+                scheduler.on_ack()
+            elif kind is Nack:
+                scheduler.on_nack()
+            elif kind is PingOk:
+                scheduler.on_ping_ok()
+            elif kind is Frame and event.is_discovery:
+                self._on_discovery(event.node)
+
+    def _on_reply(self, event: Reply, host_time: float) -> None:
+        node = self.nodes.get(event.node)
+        if node is None:
+            self.unknown_node_packets += 1
+            return
+        try:
+            record = decode(event.payload)
+        except RecordError as error:
+            self.bad_records += 1
+            log.debug("node %d: %s", event.node, error)
+            return
+        payload = node.payload(event, record, host_time)
+        if not self.publisher.publish(node.address, record.spec.name, payload):
+            node.lost_gateway += 1
+        if (node.stop_policy is not None and record.spec.code == 0xC4
+                and record.values[0] == 0):
+            node.stop_policy.stop_confirmed(time.monotonic())
+        self.scheduler.on_reply(node.address, event.command, Delivery(record, payload))
+
+    def _on_discovery(self, address: int) -> None:
+        node = self.nodes.get(address)
+        if node is None:
+            return
+        log.warning("node %s rebooted (discovery packet)", node.config.label)
+        node.rebooted()
+        self._arm(node)
+
+    def _on_link_state(self, up: bool) -> None:
+        self.scheduler.link_up = up
+        if up:
+            for node in self.nodes.values():
+                self._arm(node)
+        else:
+            self.scheduler.on_link_down()
+            for node in self.nodes.values():
+                node.state = "link down"
+        with contextlib.suppress(RuntimeError):  # no loop yet: nothing to publish to
+            asyncio.get_running_loop()
+            self.publisher.status(self.status())
+
+    def _arm(self, node: NodeState) -> None:
+        """(Re)start the node's configured stream in the background."""
+        if node.config.stream is None:
+            node.state = "polled"
+            return
+        old = self._arming.pop(node.address, None)
+        if old is not None:
+            old.cancel()
+        self._arming[node.address] = asyncio.get_running_loop().create_task(
+            self.ops.arm(node))
+
+    # -- status ---------------------------------------------------------------------------
+
+    async def _heartbeat(self) -> None:
+        while True:
+            await asyncio.sleep(self.config.publish.heartbeat_s)
+            self.publisher.status(self.status())
+
+    def status(self) -> dict[str, Any]:
+        now = time.time()
+        stats = self.decoder.stats
+        return {
+            "gateway": {"version": VERSION, "uptime": round(now - self.started, 3),
+                        "time": now, "publish_endpoint": self.config.publish.endpoint,
+                        "control_endpoint": self.config.control.endpoint,
+                        "published": self.publisher.sent,
+                        "publish_failures": self.publisher.failed,
+                        "control_requests": self.control.requests,
+                        "control_rejected": self.control.rejected},
+            "link": {"port": self.config.base_station.port,
+                     "state": "up" if self.link.up else "down", "since": self.link.since,
+                     "reconnects": self.link.reconnects, "bytes_read": self.link.bytes_read,
+                     "error": self.link.last_error,
+                     "discarded_bytes": stats.bytes_discarded,
+                     "discarded": {str(k): v for k, v in stats.discarded_bytes.items()},
+                     "unknown_node_packets": self.unknown_node_packets,
+                     "bad_records": self.bad_records,
+                     "retries": self.scheduler.stats.retries,
+                     "failures": self.scheduler.stats.failures},
+            "nodes": [node.status(now) for node in self.nodes.values()],
+        }

@@ -1,0 +1,201 @@
+"""The base station's serial port, read by the event loop: the one place bytes enter.
+
+Opened exclusively and raw (pyserial sets raw mode on a tty); each time the fd is
+readable, everything waiting is read in one call and stamped with the host time. A
+read error or end of file (the USB plug pulled) closes the port, and it is reopened
+with backoff in steps of at most 1 s until it comes back.
+
+``port: sim://`` runs gx2-sim in this process for the configured nodes, behind a pty
+with a stable path, so the daemon opens it exactly as it opens real hardware. Query
+parameters select faults: ``sim://?data_loss=0.05&garbage=0.01&stop_loss=0.5``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from urllib.parse import parse_qsl, urlsplit
+
+import serial
+from pydantic import ValidationError
+
+from .sim.config import LineConfig, NodeConfig, RadioConfig, SimConfig
+from .sim.server import Simulator
+from .yamlconfig import ConfigError, describe
+
+log = logging.getLogger("gx2.link")
+REOPEN_STEPS = (0.1, 0.2, 0.5, 1.0)
+"""Backoff between reopen attempts; it stays at the last step (1 s) until the port returns."""
+READ_SIZE = 65536
+
+_LINE_KEYS = set(LineConfig.model_fields)
+_RADIO_KEYS = set(RadioConfig.model_fields) - {"in_range", "lqi", "rssi"}
+
+
+def simulator_for(url: str, nodes: list[int], link: Path) -> Simulator:
+    """The embedded simulator a ``sim://`` port names; raises ConfigError for a bad query."""
+    parts = urlsplit(url)
+    if parts.netloc or parts.path not in ("", "/"):
+        raise ConfigError(f"base_station.port: {url!r}: sim:// takes only query "
+                          "parameters, e.g. sim://?data_loss=0.05")
+    line: dict[str, object] = {}
+    radio: dict[str, object] = {}
+    top: dict[str, object] = {}
+    out_of_range: set[int] = set()
+    for key, value in parse_qsl(parts.query, keep_blank_values=True):
+        if key in _LINE_KEYS:
+            line[key] = value
+        elif key in _RADIO_KEYS:
+            radio[key] = value
+        elif key in ("seed", "first_write_failure"):
+            top[key] = value
+        elif key == "out_of_range":
+            out_of_range.update(int(v) for v in value.split(",") if v.strip().isdigit())
+        else:
+            known = sorted(_LINE_KEYS | _RADIO_KEYS | {"seed", "first_write_failure",
+                                                        "out_of_range"})
+            raise ConfigError(f"base_station.port: unknown sim:// parameter {key!r}; "
+                              f"known: {', '.join(known)}")
+    try:
+        config = SimConfig(line=LineConfig(**line), **top, nodes=[  # type: ignore[arg-type]
+            NodeConfig(address=a, radio=RadioConfig(in_range=a not in out_of_range,
+                                                    **radio))  # type: ignore[arg-type]
+            for a in nodes])
+    except ValidationError as error:
+        raise ConfigError(describe(error, f"base_station.port {url}")) from None
+    from .sim.cli import simulator_from
+    return simulator_from(config, str(link))
+
+
+class SerialLink:
+    """Owns the port: open, read what is waiting, write, and reopen after a loss."""
+
+    def __init__(self, port: str, baudrate: int, on_data: Callable[[bytes, float], None],
+                 on_state: Callable[[bool], None]) -> None:
+        self.port = port
+        self.baudrate = baudrate
+        self._on_data = on_data
+        self._on_state = on_state
+        self._serial: serial.SerialBase | None = None
+        self._fd: int | None = None
+        self._poll_handle: asyncio.TimerHandle | None = None
+        self._reopen_task: asyncio.Task[None] | None = None
+        self.up = False
+        self.since = time.time()
+        self.reconnects = 0
+        self.bytes_read = 0
+        self.last_error = ""
+        self._closing = False
+
+    def open(self) -> None:
+        """Open now; raise OSError/SerialException if the port cannot be opened."""
+        is_device = "://" not in self.port
+        ser = serial.serial_for_url(self.port, self.baudrate, timeout=0, write_timeout=2,
+                                    exclusive=True if is_device else None)
+        self._serial = ser
+        loop = asyncio.get_running_loop()
+        try:
+            self._fd = ser.fileno()
+            loop.add_reader(self._fd, self._readable)
+        except (AttributeError, NotImplementedError, OSError, ValueError):
+            self._fd = None  # a URL handler without an fd (loop://): poll it instead
+            self._poll_handle = loop.call_later(0.005, self._poll_url)
+        self._set_up(True)
+
+    def start_reopening(self) -> None:
+        if self._reopen_task is None or self._reopen_task.done():
+            self._reopen_task = asyncio.get_running_loop().create_task(self._reopen())
+
+    async def _reopen(self) -> None:
+        attempt = 0
+        while not self._closing and not self.up:
+            await asyncio.sleep(REOPEN_STEPS[min(attempt, len(REOPEN_STEPS) - 1)])
+            attempt += 1
+            try:
+                self.open()
+            except (OSError, serial.SerialException) as error:
+                self.last_error = str(error)
+                log.debug("reopen %s failed: %s", self.port, error)
+                continue
+            self.reconnects += 1
+            log.info("base station %s is back after %d attempts", self.port, attempt)
+
+    def write(self, data: bytes) -> None:
+        if self._serial is None:
+            raise OSError("the base station is not connected")
+        try:
+            self._serial.write(data)
+        except (OSError, serial.SerialException) as error:
+            self._lost(f"write failed: {error}")
+            raise OSError(str(error)) from None
+
+    def _readable(self) -> None:
+        try:
+            data = os.read(self._fd, READ_SIZE)  # type: ignore[arg-type]
+        except BlockingIOError:
+            return
+        except OSError as error:
+            self._lost(f"read failed: {error.strerror or error}")
+            return
+        if not data:
+            self._lost("the port reported end of file")
+            return
+        self.bytes_read += len(data)
+        self._on_data(data, time.time())
+
+    def _poll_url(self) -> None:
+        try:
+            data = self._serial.read(READ_SIZE) if self._serial else b""  # type: ignore[union-attr]
+        except (OSError, serial.SerialException) as error:
+            self._lost(f"read failed: {error}")
+            return
+        if data:
+            self.bytes_read += len(data)
+            self._on_data(data, time.time())
+        self._poll_handle = asyncio.get_running_loop().call_later(0.005, self._poll_url)
+
+    def _lost(self, why: str) -> None:
+        if not self.up:
+            return
+        log.warning("base station %s lost: %s", self.port, why)
+        self.last_error = why
+        self._release()
+        self._set_up(False)
+        if not self._closing:
+            self.start_reopening()
+
+    def _release(self) -> None:
+        loop = asyncio.get_running_loop()
+        if self._fd is not None:
+            loop.remove_reader(self._fd)
+            self._fd = None
+        if self._poll_handle is not None:
+            self._poll_handle.cancel()
+            self._poll_handle = None
+        if self._serial is not None:
+            with contextlib.suppress(OSError, serial.SerialException):
+                self._serial.close()
+            self._serial = None
+
+    def _set_up(self, up: bool) -> None:
+        self.up = up
+        self.since = time.time()
+        self._on_state(up)
+
+    def close(self) -> None:
+        self._closing = True
+        if self._reopen_task is not None:
+            self._reopen_task.cancel()
+        self._release()
+        self.up = False
+
+
+def embedded_link_path() -> Path:
+    """A private path for the embedded simulator's pty symlink."""
+    return Path(tempfile.mkdtemp(prefix="gx2-sim-")) / "base-station"

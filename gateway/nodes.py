@@ -1,0 +1,129 @@
+"""Per-node state: what each configured node is doing, and the payload of every record
+it sends (seq, device time, link quality), built here once per record.
+
+This is on the per-record path: plain attributes and dicts, no pydantic, no copies.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from aspp.events import Reply
+from aspp.records import Record
+from aspp.stop import StopPolicy
+from aspp.timing import TICKS_PER_SECOND, TIMER_MODULUS, TimerUnwrapper
+
+from .config import NodeConfig
+
+DEFAULT_DIVIDER = 512
+RATE_WINDOW = 2.0
+"""Seconds over which the record rate is measured."""
+
+
+@dataclass(frozen=True)
+class Delivery:
+    """A reply as the operations see it: the decoded record and its published payload."""
+
+    record: Record
+    payload: dict[str, Any]
+
+
+class NodeState:
+    """One configured node."""
+
+    def __init__(self, config: NodeConfig) -> None:
+        self.config = config
+        self.address = config.address
+        self.name = config.name
+        self.state = "unknown"
+        self.record: str | None = None
+        """The record it streams, as far as the gateway knows."""
+        self.divider = DEFAULT_DIVIDER
+        self.seq = 0
+        self.packets = 0
+        self.lost_radio = 0
+        self.lost_gateway = 0
+        self.reboots = 0
+        self.lqi: int | None = None
+        self.rssi: int | None = None
+        self.last_seen: float | None = None
+        self.rate_hz = 0.0
+        self.stop_policy: StopPolicy | None = None
+        self._unwrapper = TimerUnwrapper()
+        self._last_stream_timer: int | None = None
+        self._window_start = 0.0
+        self._window_count = 0
+
+    @property
+    def period(self) -> float:
+        return self.divider / 51200
+
+    def payload(self, event: Reply, record: Record, host_time: float) -> dict[str, Any]:
+        """Count the record and build its published payload (CONTRACT section 4)."""
+        self.seq += 1
+        self.packets += 1
+        self.lqi = lqi = event.lqi
+        self.rssi = rssi = event.rssi
+        self.last_seen = host_time
+        self._measure_rate(host_time)
+        payload = record.as_dict()
+        payload["node"] = self.address
+        payload["record"] = record.spec.name
+        payload["command"] = record.spec.code
+        payload["seq"] = self.seq
+        payload["host_time"] = host_time
+        payload["lqi"] = lqi
+        payload["rssi"] = rssi
+        timer = payload.get("timer")
+        if timer is not None:
+            payload["device_time"] = self._unwrapper.update(timer, host_time)
+            if self._unwrapper.last_was_reset:
+                self.reboots += 1
+            if record.spec.name == self.record:
+                self._count_gaps(timer)
+        if self.stop_policy is not None and record.spec.streamable:
+            self.stop_policy.packet_seen(time.monotonic())
+        return payload
+
+    def _count_gaps(self, timer: int) -> None:
+        """Samples lost over the air, from the device timer: the stream's records are
+        exactly one period apart, so a longer step is records that never arrived."""
+        last, self._last_stream_timer = self._last_stream_timer, timer
+        if last is None:
+            return
+        step = self.divider * (TICKS_PER_SECOND // 51200)
+        missing = round(((timer - last) % TIMER_MODULUS) / step) - 1
+        if 0 < missing < 10_000:
+            self.lost_radio += missing
+
+    def _measure_rate(self, now: float) -> None:
+        self._window_count += 1
+        elapsed = now - self._window_start
+        if elapsed >= RATE_WINDOW:
+            self.rate_hz = self._window_count / elapsed if elapsed < 2 * RATE_WINDOW else 0.0
+            self._window_start, self._window_count = now, 0
+
+    def streaming(self, record: str | None) -> None:
+        """The node now streams ``record`` (None: polled mode)."""
+        self.record = record
+        self.state = "streaming" if record else "polled"
+        self._last_stream_timer = None
+
+    def rebooted(self) -> None:
+        """A discovery packet: the node lost power; whatever it streamed is gone."""
+        self.reboots += 1
+        self.record = None
+        self.state = "rebooted"
+        self._last_stream_timer = None
+
+    def status(self, now: float) -> dict[str, Any]:
+        if self.last_seen is not None and now - self.last_seen > 2 * RATE_WINDOW:
+            self.rate_hz = 0.0
+        return {"node": self.address, "name": self.name, "state": self.state,
+                "record": self.record, "rate_hz": round(self.rate_hz, 2),
+                "divider": self.divider, "packets": self.packets, "published": self.seq,
+                "lost_radio": self.lost_radio, "lost_gateway": self.lost_gateway,
+                "reboots": self.reboots, "lqi": self.lqi, "rssi": self.rssi,
+                "last_seen": self.last_seen, "seq": self.seq}
