@@ -20,8 +20,11 @@ How the bytes are read, in order of the stream:
 * ACK and SOP are the same byte. An 0xAA followed by another 0xAA is an ACK at once
   (no packet has delivery flags 0xAA). A trailing 0xAA waits for the next byte, or for
   :meth:`line_idle`, which makes it an ACK.
-* Between packets, 0x21 is a NACK and 0x02 a positive ping answer; any other byte is
-  garbage, reported in runs.
+* Between packets, a lone 0x21 is a NACK and a lone 0x02 a positive ping answer: the
+  base station sends them as single bytes between packets. Inside a longer run of
+  bytes that are not packets they are garbage like the rest of the run, so random
+  noise cannot answer a command or a ping. Whether a byte stands alone is known from
+  the next byte (or :meth:`line_idle`).
 
 Every decision depends only on the bytes, never on how they were split into chunks,
 so feeding a stream whole, halved or byte by byte gives exactly the same events. What
@@ -31,7 +34,6 @@ unfinished run of discarded bytes (at most ``MAX_DISCARD`` bytes).
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 
 from .events import (
@@ -62,7 +64,6 @@ _MIN_FRAME = REPLY_OVERHEAD - 1  # a packet whose length byte is 0
 _MAX_REPLY_LENGTH = MAX_COMMAND_BYTES + 2  # the unused byte, the echo, 100 data bytes
 _SIZE_FROM_LENGTH = REPLY_OVERHEAD - 1
 _SOP_BYTE = bytes((SOP,))
-_NOT_GARBAGE = re.compile(b"[" + re.escape(bytes((SOP, NACK, PING))) + b"]")
 
 
 @dataclass
@@ -91,10 +92,13 @@ class DecoderStats:
 class Decoder:
     """Turns the byte stream from a base station into :mod:`aspp.events`."""
 
-    __slots__ = ("_buf", "stats")
+    __slots__ = ("_buf", "_run_goes_on", "stats")
 
     def __init__(self) -> None:
         self._buf = bytearray()
+        self._run_goes_on = False
+        """The last discarded piece was cut at MAX_DISCARD: what follows it, up to the
+        next 0xAA, belongs to the same run, so a single byte there is not alone."""
         self.stats = DecoderStats()
 
     @property
@@ -126,6 +130,7 @@ class Decoder:
         while pos < n:
             byte = buf[pos]
             if byte == SOP:
+                self._run_goes_on = False
                 avail = n - pos
                 if avail >= 2 and buf[pos + 1] == SOP:
                     append(ACK_EVENT)
@@ -170,24 +175,26 @@ class Decoder:
                                 stats.frames += 1
                             pos += size
                             continue
-                end = self._run_end(pos, n, final, candidate=True)
+                end = self._run_end(pos, n, final)
                 if end is None:
                     break
                 append(self._discard(pos, end, reason))  # never a lone byte: see AA AA
+                self._run_goes_on = end - pos == MAX_DISCARD
                 pos = end
-            elif byte == NACK:
-                append(NACK_EVENT)
-                stats.nacks += 1
-                pos += 1
-            elif byte == PING:
-                append(PING_OK_EVENT)
-                stats.ping_oks += 1
-                pos += 1
             else:
-                end = self._run_end(pos, n, final, candidate=False)
+                end = self._run_end(pos, n, final)
                 if end is None:
                     break
-                append(self._discard(pos, end, DiscardReason.GARBAGE))
+                alone = end - pos == 1 and not self._run_goes_on
+                if alone and byte == NACK:
+                    append(NACK_EVENT)
+                    stats.nacks += 1
+                elif alone and byte == PING:
+                    append(PING_OK_EVENT)
+                    stats.ping_oks += 1
+                else:
+                    append(self._discard(pos, end, DiscardReason.GARBAGE))
+                self._run_goes_on = end - pos == MAX_DISCARD
                 pos = end
         if pos:
             del buf[:pos]
@@ -209,19 +216,13 @@ class Decoder:
             j = buf.find(_SOP_BYTE, j + 1, last_start)
         return False
 
-    def _run_end(self, pos: int, n: int, final: bool, candidate: bool) -> int | None:
-        """Where a discarded run that starts at ``pos`` ends, or None if not known yet.
-
-        A failed packet candidate runs to the next 0xAA (the next possible packet); a
-        garbage run stops at the next byte that means something between packets. A run
-        is cut at MAX_DISCARD bytes, so the decoder never holds more than that.
+    def _run_end(self, pos: int, n: int, final: bool) -> int | None:
+        """Where a run of bytes outside packets that starts at ``pos`` ends: at the next
+        0xAA (the next possible packet), or None if that is not known yet. A run is cut
+        at MAX_DISCARD bytes, so the decoder never holds more than that.
         """
         limit = min(n, pos + MAX_DISCARD)
-        if candidate:
-            end = self._buf.find(_SOP_BYTE, pos + 1, limit)
-        else:
-            match = _NOT_GARBAGE.search(self._buf, pos + 1, limit)
-            end = match.start() if match else -1
+        end = self._buf.find(_SOP_BYTE, pos + 1, limit)
         if end != -1:
             return end
         if limit == pos + MAX_DISCARD or final:

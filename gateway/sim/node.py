@@ -76,7 +76,7 @@ class SimNode:
     def power_up(self, now: float) -> None:
         """Power-on (or a reboot): timer restarts, RAM state is lost, EEPROM kept."""
         self.powered_at = now
-        self.cycle = 0
+        self._rebase(now)
         self.pending: deque[gx2.Command] = deque()
         self.accel_bias = (0.0, 0.0, 0.0)
         self.gyro_bias = (0.0, 0.0, 0.0)
@@ -91,13 +91,20 @@ class SimNode:
     def period(self) -> float:
         return self.divider / 51200
 
+    def _rebase(self, t: float) -> None:
+        """Count cycles from ``t`` at the current period (after power-up, or when the
+        divider changes: cycles already run keep the times they had)."""
+        self._cycles_from = t
+        self._cycle_period = self.period
+        self.cycle = 0
+
     @property
     def divider(self) -> int:
         value = self.eeprom.get(EEPROM_DIVIDER, 512)
         return value if gx2.MIN_DIVIDER <= value <= gx2.MAX_DIVIDER else 512
 
     def next_cycle_time(self) -> float:
-        return self.powered_at + (self.cycle + 1) * self.period
+        return self._cycles_from + (self.cycle + 1) * self._cycle_period
 
     def timer_at(self, now: float) -> int:
         seconds = self.settings.timer_start + (now - self.powered_at)
@@ -122,11 +129,11 @@ class SimNode:
         """Complete every calculation cycle due by ``now``; return (time, reply) pairs."""
         out: list[tuple[float, bytes]] = []
         if not (self.continuous or self.pending or self.capture_due):
-            self.cycle = max(self.cycle, int((now - self.powered_at) / self.period))
+            self.cycle = max(self.cycle, int((now - self._cycles_from) / self._cycle_period))
             return out  # idle cycles produce nothing: skip them
         while self.next_cycle_time() <= now:
             self.cycle += 1
-            t = self.powered_at + self.cycle * self.period
+            t = self._cycles_from + self.cycle * self._cycle_period
             if self.continuous:
                 out.append((t, self.record(self.continuous, t)))
                 self.log.continuous_sent += 1
@@ -162,7 +169,10 @@ class SimNode:
             quantity = args["quantity"]
             return encode(code, quantity=quantity if quantity in (1, 2) else 0xFFFF, timer=timer)
         if code == 0xE4:
-            return encode(code, value=self._write_eeprom(args["address"], args["value"]))
+            stored = self._write_eeprom(args["address"], args["value"])
+            if args["address"] == EEPROM_DIVIDER:
+                self._rebase(t)  # the new rate applies from this cycle on
+            return encode(code, value=stored)
         if code == 0xE5:
             return encode(code, value=self.eeprom.get(args["address"], 0))  # type: ignore[arg-type]
         if code == 0xE9:

@@ -6,11 +6,14 @@ byte, each followed by ``line_idle()``; all three must give exactly the expected
 are written out byte for byte with their reason, so these tests pin the rules in the
 module docstring of :mod:`aspp.decoder`, not just "something was dropped".
 
-Two rules from that docstring shape many expectations: a candidate with a plausible
+Three rules from that docstring shape many expectations: a candidate with a plausible
 reply header (flags 0x07, app type 0x00, unused byte 0x00, length 2..102, node
 1..65534) is decided by its checksum alone, so a cut reply waits for the bytes it
 claims; any other candidate gives way at once to a valid packet that starts inside it
-and completes first. A checksum-valid packet needs a node address of 1..65534.
+and completes first. A checksum-valid packet needs a node address of 1..65534. Between
+packets, 0x21 is a NACK and 0x02 a ping answer only when it stands alone: its run of
+non-packet bytes (which ends at the next 0xAA, or when the line goes idle) is that one
+byte. Inside a longer run they are garbage like the rest of it.
 """
 
 from __future__ import annotations
@@ -213,7 +216,10 @@ CASES: list[tuple[str, bytes, list[Event]]] = [
     ("lone ack", AA, [Ack()]),
     ("lone nack", NK, [Nack()]),
     ("ping answered", PG, [PingOk()]),
-    ("ping answers and nacks", PG + NK + PG, [PingOk(), Nack(), PingOk()]),
+    ("ping answers and nacks between packets", PG + ACCEL + NK + EULER + PG,
+     [PingOk(), Reply(ACCEL), Nack(), Reply(EULER), PingOk()]),
+    ("ping answers and nacks run together are garbage", PG + NK + PG,
+     [d(PG + NK + PG, GARBAGE)]),
     ("ping answer between replies", ACCEL + PG + EULER,
      [Reply(ACCEL), PingOk(), Reply(EULER)]),
     ("discovery frame between replies", ACCEL + DISCOVERY + EULER,
@@ -225,8 +231,23 @@ CASES: list[tuple[str, bytes, list[Event]]] = [
      [d(b"\x55\x66\x77", GARBAGE), Reply(ACCEL)]),
     ("garbage after a packet", ACCEL + b"\x55\x66",
      [Reply(ACCEL), d(b"\x55\x66", GARBAGE)]),
-    ("garbage runs stop at nack and ping bytes", b"\x55" + NK + b"\x66\x77" + PG + b"\x88",
-     [d(b"\x55", GARBAGE), Nack(), d(b"\x66\x77", GARBAGE), PingOk(), d(b"\x88", GARBAGE)]),
+    # A lone 0x21 or 0x02 is one whose run of non-packet bytes is that byte alone; a
+    # run ends only at the next 0xAA (or when the line goes idle).
+    ("garbage runs do not stop at nack and ping bytes",
+     b"\x55" + NK + b"\x66\x77" + PG + b"\x88",
+     [d(b"\x55" + NK + b"\x66\x77" + PG + b"\x88", GARBAGE)]),
+    ("nack inside garbage, then a packet", b"\x13\x21\x57" + ACCEL,
+     [d(b"\x13\x21\x57", GARBAGE), Reply(ACCEL)]),
+    ("lone nack between two packets", ACCEL + NK + EULER, [Reply(ACCEL), Nack(), Reply(EULER)]),
+    ("nack then a packet", NK + ACCEL, [Nack(), Reply(ACCEL)]),
+    ("nack then an ack then a packet", NK + AA + ACCEL, [Nack(), Ack(), Reply(ACCEL)]),
+    ("two nacks run together are garbage", NK + NK, [d(NK + NK, GARBAGE)]),
+    ("two ping answers run together are garbage", PG + PG + ACCEL,
+     [d(PG + PG, GARBAGE), Reply(ACCEL)]),
+    ("nack followed by garbage is garbage", NK + b"\x13", [d(NK + b"\x13", GARBAGE)]),
+    ("garbage then a ping answer is garbage", ACCEL + b"\x13" + PG + EULER,
+     [Reply(ACCEL), d(b"\x13" + PG, GARBAGE), Reply(EULER)]),
+    ("trailing lone ping answer", ACCEL + PG, [Reply(ACCEL), PingOk()]),
     ("corrupted data byte, then a good packet", CORRUPTED + EULER,
      [d(CORRUPTED, BAD_CHECKSUM), Reply(EULER)]),
     ("byte inserted inside a packet, then a good packet", INSERTED + EULER,
@@ -303,6 +324,10 @@ CASES: list[tuple[str, bytes, list[Event]]] = [
      [d(AA + b"\x55", BAD_CHECKSUM), Reply(ACCEL)]),
     ("garbage longer than MAX_DISCARD comes in pieces", b"\x55" * (MAX_DISCARD + 88),
      [d(b"\x55" * MAX_DISCARD, GARBAGE), d(b"\x55" * 88, GARBAGE)]),
+    ("garbage of nacks and ping answers longer than MAX_DISCARD comes in pieces",
+     (NK + PG) * 300 + ACCEL,
+     [d((NK + PG) * (MAX_DISCARD // 2), GARBAGE),
+      d((NK + PG) * (300 - MAX_DISCARD // 2), GARBAGE), Reply(ACCEL)]),
     ("a failed candidate's run is cut at MAX_DISCARD too",
      BAD_CK + b"\x55" * 500 + ACCEL,
      [d(BAD_CK + b"\x55" * (MAX_DISCARD - len(BAD_CK)), BAD_CHECKSUM),
@@ -406,11 +431,68 @@ def test_aa_then_aa_is_an_ack_at_once() -> None:
 
 
 def test_garbage_run_waits_for_its_end() -> None:
+    # A run of non-packet bytes ends at the next 0xAA: a NACK byte does not end it.
     decoder = Decoder()
     assert decoder.feed(b"\x55\x66") == []
     assert decoder.pending == 2
-    assert decoder.feed(NK) == [d(b"\x55\x66", GARBAGE), Nack()]
+    assert decoder.feed(NK) == []
+    assert decoder.pending == 3
+    assert decoder.feed(AA) == [d(b"\x55\x66" + NK, GARBAGE)]
+    assert decoder.pending == 1  # the 0xAA may be an SOP
+    assert decoder.feed(ACCEL[1:]) == [Reply(ACCEL)]
     assert decoder.pending == 0
+    assert decoder.stats.nacks == 0
+
+
+def test_garbage_run_ends_at_line_idle() -> None:
+    decoder = Decoder()
+    assert decoder.feed(b"\x55" + PG) == []
+    assert decoder.pending == 2
+    assert decoder.line_idle() == [d(b"\x55" + PG, GARBAGE)]
+    assert decoder.pending == 0
+    assert decoder.stats.ping_oks == 0
+
+
+def test_lone_nack_waits_for_the_next_byte() -> None:
+    decoder = Decoder()
+    assert decoder.feed(ACCEL + NK) == [Reply(ACCEL)]
+    assert decoder.pending == 1
+    assert decoder.feed(b"") == []
+    assert decoder.pending == 1
+    assert decoder.feed(AA) == [Nack()]
+    assert decoder.pending == 1  # the 0xAA may be an SOP
+    assert decoder.feed(EULER[1:]) == [Reply(EULER)]
+    assert decoder.pending == 0
+    assert decoder.stats.nacks == 1
+
+
+def test_nack_then_packet_comes_out_without_idle() -> None:
+    decoder = Decoder()
+    assert decoder.feed(NK + ACCEL) == [Nack(), Reply(ACCEL)]
+    assert decoder.pending == 0
+    assert decoder.line_idle() == []
+    assert decoder.stats.nacks == 1
+
+
+def test_trailing_lone_ping_answer_waits_for_line_idle() -> None:
+    decoder = Decoder()
+    assert decoder.feed(PG) == []
+    assert decoder.pending == 1
+    assert decoder.feed(b"") == []
+    assert decoder.line_idle() == [PingOk()]
+    assert decoder.pending == 0
+    assert decoder.stats.ping_oks == 1
+
+
+def test_nack_followed_by_any_other_byte_is_garbage() -> None:
+    for follower in (NK, PG, b"\x13", b"\x00"):
+        decoder = Decoder()
+        assert decoder.feed(NK) == []
+        assert decoder.feed(follower) == [], follower.hex()
+        assert decoder.pending == 2
+        assert decoder.line_idle() == [d(NK + follower, GARBAGE)], follower.hex()
+        assert decoder.pending == 0
+        assert (decoder.stats.nacks, decoder.stats.ping_oks) == (0, 0)
 
 
 def test_unfinished_packet_is_truncated_at_line_idle() -> None:
@@ -455,6 +537,15 @@ def test_pending_never_exceeds_max_discard() -> None:
     assert decoder.pending == 7
 
 
+def test_pending_never_exceeds_max_discard_in_a_run_of_nack_bytes() -> None:
+    decoder = Decoder()
+    assert decoder.feed(NK * (MAX_DISCARD - 1)) == []
+    assert decoder.pending == MAX_DISCARD - 1
+    assert decoder.feed(NK) == [d(NK * MAX_DISCARD, GARBAGE)]
+    assert decoder.pending == 0
+    assert decoder.stats.nacks == 0
+
+
 # --- stats ----------------------------------------------------------------------------
 
 def test_stats_for_a_mixed_stream() -> None:
@@ -477,12 +568,13 @@ def test_stats_for_a_mixed_stream() -> None:
 
 def test_stats_count_garbage_pieces_as_runs() -> None:
     decoder = Decoder()
-    decoder.feed(b"\x55" * (MAX_DISCARD + 1) + ACCEL + NK + NK)
+    # Two pieces of one long run, two lone NACKs, and a NACK pair that is a garbage run.
+    decoder.feed(b"\x55" * (MAX_DISCARD + 1) + ACCEL + NK + EULER + NK + FIRMWARE + NK + NK)
     decoder.line_idle()
-    assert decoder.stats.discarded_bytes[GARBAGE] == MAX_DISCARD + 1
-    assert decoder.stats.discarded_runs[GARBAGE] == 2
-    assert decoder.stats.replies == 1 and decoder.stats.nacks == 2
-    assert decoder.stats.bytes_discarded == MAX_DISCARD + 1
+    assert decoder.stats.discarded_bytes[GARBAGE] == MAX_DISCARD + 1 + 2
+    assert decoder.stats.discarded_runs[GARBAGE] == 3
+    assert decoder.stats.replies == 3 and decoder.stats.nacks == 2
+    assert decoder.stats.bytes_discarded == MAX_DISCARD + 1 + 2
 
 
 def test_stats_keep_running_across_line_idle() -> None:
@@ -527,11 +619,12 @@ def test_events_are_type_strict() -> None:
 
 @pytest.mark.parametrize("kind", [bytes, bytearray, memoryview])
 def test_feed_takes_any_bytes_like(kind: type) -> None:
-    stream = AA + ACCEL + NK
+    stream = AA + ACCEL + NK + EULER
     decoder = Decoder()
     events = decoder.feed(kind(stream))
-    assert events == [Ack(), Reply(ACCEL), Nack()]
-    assert type(events[1].raw) is bytes
+    assert events == [Ack(), Reply(ACCEL), Nack(), Reply(EULER)]
+    assert type(events[1].raw) is bytes and type(events[3].raw) is bytes
+    assert decoder.pending == 0
 
 
 def test_feed_keeps_no_reference_to_a_mutable_input() -> None:
@@ -552,3 +645,16 @@ def test_feed_of_non_bytes_raises_type_error(bad: object) -> None:
         decoder.feed(bad)  # type: ignore[arg-type]
     assert decoder.pending == 10  # nothing was taken in
     assert decoder.feed(ACCEL[10:]) == [Reply(ACCEL)]
+
+
+@pytest.mark.parametrize("tail", [b"\x21", b"\x02"])
+@pytest.mark.parametrize("chunk", [1, 7, 4096])
+def test_a_byte_left_after_a_cut_run_is_still_garbage(tail, chunk):
+    """A run longer than MAX_DISCARD comes out in pieces; a single 0x21 or 0x02 left at
+    its end belongs to the run, so it is garbage, not a NACK or ping answer."""
+    stream = b"\x55" * MAX_DISCARD + tail + ACCEL
+    decoder = Decoder()
+    events = [e for i in range(0, len(stream), chunk) for e in decoder.feed(stream[i:i + chunk])]
+    events += decoder.line_idle()
+    assert events == [Discarded(b"\x55" * MAX_DISCARD, DiscardReason.GARBAGE),
+                      Discarded(tail, DiscardReason.GARBAGE), Reply(ACCEL)]

@@ -560,8 +560,12 @@ def test_example_ack_then_reply_fed_byte_by_byte():
 
 
 def test_example_nack():
-    """The rejected request: the base station answers 0x21."""
-    assert Decoder().feed(b"\x21") == [Nack()]
+    """The rejected request: the base station answers 0x21, a lone byte: known as one
+    when the next packet starts or the line goes quiet."""
+    decoder = Decoder()
+    assert decoder.feed(b"\x21") == []
+    assert decoder.line_idle() == [Nack()]
+    assert Decoder().feed(b"\x21\xaa") == [Nack()]
 
 
 # --- 4. the raw wireless ping ---------------------------------------------------------
@@ -583,8 +587,10 @@ def test_raw_ping_bytes(node, expected):
     pytest.param(b"\x21", Nack(), id="0x21-no-answer"),
 ])
 def test_raw_ping_answer(answer, event):
-    """The base station's one-byte answer to a ping."""
-    assert Decoder().feed(answer) == [event]
+    """The base station's one-byte answer to a ping, alone on a quiet line."""
+    decoder = Decoder()
+    assert decoder.feed(answer) == []
+    assert decoder.line_idle() == [event]
 
 
 # --- 5. the 0xFB erratum, and records of the wrong length -----------------------------

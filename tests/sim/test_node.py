@@ -203,3 +203,15 @@ def test_continuous_mode_confirmation_bytes():
     ((_, reply),) = sim.run_until(T0 + sim.period)
     assert reply == bytes.fromhex("C4 CE") + (512 * 384).to_bytes(4, "big")
     assert sim.continuous == 0xCE
+
+
+def test_a_divider_change_long_after_power_up_keeps_the_stream_going():
+    """Found through the gateway: cycles were counted from power-up at the current
+    period, so a slower divider an hour in put the next cycle hours away."""
+    sim = node(stream="euler")
+    sim.run_until(T0 + 3600)
+    polled(sim, commands.set_divider(2048), at=T0 + 3600.02)
+    out = sim.run_until(T0 + 3601.02)
+    assert 24 <= len(out) <= 26  # 25 Hz from the change on
+    timers = [decode(reply).timer for _, reply in out]
+    assert {b - a for a, b in pairwise(timers)} == {2048 * 384}

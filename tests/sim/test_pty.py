@@ -719,7 +719,7 @@ def test_commands_are_acked_on_a_saturated_line(sims: Sims, clients: Clients,
         client.send(gx2.firmware_version().packet(79))
         seen += client.read_events(timeout=0.03)
     try:
-        client.read_events(lambda ev: (seen + ev).count(Ack()) >= 8, timeout=1.5)
+        client.read_events(lambda ev: (seen + ev).count(Ack()) >= 8, timeout=3.0)
     except TimeoutError:
         acked = [e for _, e in client.log].count(Ack())
         pytest.fail(f"8 commands sent, {acked} ACKs arrived (the station counted "

@@ -1,0 +1,70 @@
+"""Fixtures for the daemon tests; the helpers they use are in harness.py."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zmq
+from harness import STARTUP, RunningGateway, gateway_config, wait_for
+
+from gateway.sim.node import NodeSettings
+from gateway.sim.server import Simulator
+from gateway.sim.station import LineFaults, RadioLink
+
+
+@pytest.fixture
+def zmq_context() -> Iterator[zmq.Context]:
+    context = zmq.Context()
+    yield context
+    context.destroy(linger=0)
+
+
+@pytest.fixture
+def simulator(tmp_path: Path) -> Iterator[Callable[..., Simulator]]:
+    """``simulator(NodeSettings(76, ...), ..., radio=..., line=...)``: started, on a pty
+    behind ``tmp_path/gx2``; stopped (and checked for loop errors) afterwards."""
+    started: list[Simulator] = []
+
+    def start(*nodes: NodeSettings, radio: dict[int, RadioLink] | None = None,
+              line: LineFaults | None = None, **options: Any) -> Simulator:
+        sim = Simulator(list(nodes), link=tmp_path / "gx2", radio=radio, line=line,
+                        **options).start()
+        started.append(sim)
+        return sim
+
+    yield start
+    for sim in started:
+        sim.stop()
+        assert sim.error is None, sim.error
+
+
+@pytest.fixture
+def gateway(tmp_path: Path, zmq_context: zmq.Context) -> Iterator[Callable[..., RunningGateway]]:
+    """``gateway(port, nodes, **sections)``: gx2-gateway running on that port, ready
+    (its control endpoint answers and the base station is open)."""
+    started: list[RunningGateway] = []
+
+    def start(port: str, nodes: list[dict[str, Any]], **sections: Any) -> RunningGateway:
+        running = RunningGateway(gateway_config(port, nodes, **sections), tmp_path,
+                                 zmq_context)
+        started.append(running)
+
+        def link_up() -> bool:
+            if running.proc.poll() is not None:
+                raise AssertionError(f"gateway exited {running.proc.returncode}:\n"
+                                     f"{running.log()}")
+            try:
+                reply = running.control.call("status", timeout=0.5)
+            except AssertionError:  # not answering yet
+                return False
+            return bool(reply["ok"] and reply["result"]["link"]["state"] == "up")
+        wait_for(link_up, STARTUP, "the gateway to answer with its link up")
+        return running
+
+    yield start
+    for running in started:
+        running.close()
+
