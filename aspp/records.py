@@ -212,6 +212,19 @@ def lookup(record: str | int) -> CommandSpec:
         raise RecordError(f"0x{record:02X} is not a GX2 command with a record") from None
 
 
+def checked(record: str | int, *, streamable: bool = False,
+            pollable: bool = False) -> CommandSpec:
+    """:func:`lookup`, then check the record can be streamed in continuous mode or
+    polled with a bare command byte; RecordError (a ValueError) names what is wrong."""
+    spec = lookup(record)
+    if streamable and spec.code not in STREAMABLE:
+        raise RecordError(f"{spec.name} cannot be streamed in continuous mode")
+    if pollable and not spec.pollable:
+        raise RecordError(f"{spec.name} cannot be polled (it takes arguments or has no "
+                          "reply)")
+    return spec
+
+
 @dataclass(frozen=True, slots=True)
 class Record:
     """One decoded reply record: its command and its field values, in table order."""

@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from typing import NoReturn
 
 from aspp.errors import AsppError
 from aspp.frame import MAX_NODE, MIN_NODE
-from aspp.records import STREAMABLE, lookup
+from aspp.records import checked
 
 USAGE_ERROR = 2
 
@@ -52,11 +53,35 @@ def probability(text: str) -> float:
     return value
 
 
-def record_name(text: str) -> str:
-    """A record by name or ``0xNN``, returned as its name."""
+def record_arg(streamable: bool = False, pollable: bool = False) -> Callable[[str], str]:
+    """An argparse type: a record by name or ``0xNN`` (that can stream, or be polled),
+    returned as its name."""
+    def parse(text: str) -> str:
+        try:
+            return checked(text, streamable=streamable, pollable=pollable).name
+        except AsppError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+    return parse
+
+
+record_name = record_arg()
+streamable_record = record_arg(streamable=True)
+pollable_record = record_arg(pollable=True)
+
+
+def check_endpoint(value: str) -> str:
+    """A ZeroMQ endpoint the gateway can bind or a client connect; ValueError if not."""
+    scheme, sep, rest = value.partition("://")
+    if not sep or scheme not in ("tcp", "ipc", "inproc") or not rest:
+        raise ValueError(f"must be a ZeroMQ endpoint such as tcp://127.0.0.1:5556 or "
+                         f"ipc:///run/gx2-gateway/control, not {value!r}")
+    return value
+
+
+def endpoint(text: str) -> str:
     try:
-        return lookup(text).name
-    except AsppError as error:
+        return check_endpoint(text)
+    except ValueError as error:
         raise argparse.ArgumentTypeError(str(error)) from None
 
 
@@ -72,14 +97,6 @@ def bounded(kind: type[int] | type[float], low: float, high: float):
             raise argparse.ArgumentTypeError(f"{value} is out of range {low}..{high}")
         return value
     return parse
-
-
-def streamable_record(text: str) -> str:
-    """A record that can be streamed in continuous mode, by name or ``0xNN``."""
-    name = record_name(text)
-    if lookup(name).code not in STREAMABLE:
-        raise argparse.ArgumentTypeError(f"{name} cannot be streamed in continuous mode")
-    return name
 
 
 def fail(prog: str, message: str, status: int) -> NoReturn:

@@ -11,10 +11,10 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from aspp.errors import AsppError
 from aspp.frame import MAX_NODE, MIN_NODE
-from aspp.records import STREAMABLE, lookup
+from aspp.records import checked
 
+from .cli_args import check_endpoint
 from .yamlconfig import ConfigError, load_model
 
 __all__ = ["ConfigError", "GatewayConfig", "load_config"]
@@ -22,14 +22,6 @@ __all__ = ["ConfigError", "GatewayConfig", "load_config"]
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-def _endpoint(value: str) -> str:
-    scheme, sep, rest = value.partition("://")
-    if not sep or scheme not in ("tcp", "ipc", "inproc") or not rest:
-        raise ValueError(f"must be a ZeroMQ endpoint such as tcp://127.0.0.1:5555 or "
-                         f"ipc:///run/gx2-gateway/control, not {value!r}")
-    return value
 
 
 class BaseStationConfig(_Strict):
@@ -50,7 +42,7 @@ class PublishConfig(_Strict):
     @field_validator("endpoint")
     @classmethod
     def _check_endpoint(cls, value: str) -> str:
-        return _endpoint(value)
+        return check_endpoint(value)
 
 
 class ControlConfig(_Strict):
@@ -60,7 +52,7 @@ class ControlConfig(_Strict):
     @field_validator("endpoint")
     @classmethod
     def _check_endpoint(cls, value: str) -> str:
-        return _endpoint(value)
+        return check_endpoint(value)
 
 
 class ShutdownConfig(_Strict):
@@ -79,15 +71,7 @@ class NodeConfig(_Strict):
     @field_validator("stream")
     @classmethod
     def _streamable(cls, value: str | None) -> str | None:
-        if value is None:
-            return None
-        try:
-            spec = lookup(value)
-        except AsppError as error:
-            raise ValueError(str(error)) from None
-        if spec.code not in STREAMABLE:
-            raise ValueError(f"{spec.name} cannot be streamed in continuous mode")
-        return spec.name
+        return None if value is None else checked(value, streamable=True).name
 
     @property
     def label(self) -> str:

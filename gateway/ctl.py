@@ -21,9 +21,16 @@ import zmq
 
 from aspp.commands import divider_for_rate
 from aspp.errors import AsppError
-from aspp.records import lookup
 
-from .cli_args import ArgumentParser, fail, node_address, record_name, streamable_record
+from .cli_args import (
+    ArgumentParser,
+    bounded,
+    endpoint,
+    fail,
+    node_address,
+    pollable_record,
+    streamable_record,
+)
 from .ctl_client import (
     MAX_REPLY_BYTES,
     NODE_FAILED,
@@ -73,15 +80,6 @@ def word(text: str) -> int:
     return value
 
 
-def pollable_record(text: str) -> str:
-    """A record a bare command byte polls, by name or ``0xNN``."""
-    name = record_name(text)
-    if not lookup(name).pollable:
-        raise argparse.ArgumentTypeError(
-            f"{name} cannot be polled (it takes arguments or has no reply)")
-    return name
-
-
 def rate_hz(text: str) -> float:
     """A data rate whose divider 51200/HZ is within 170..51200."""
     try:
@@ -95,24 +93,6 @@ def rate_hz(text: str) -> float:
     return hz
 
 
-def seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
-    if not 0.01 <= value <= 86400:
-        raise argparse.ArgumentTypeError(f"{text} is out of range 0.01..86400 seconds")
-    return value
-
-
-def endpoint(text: str) -> str:
-    scheme, sep, rest = text.partition("://")
-    if not sep or scheme not in ("tcp", "ipc", "inproc") or not rest:
-        raise argparse.ArgumentTypeError(
-            f"{text!r} is not a ZeroMQ endpoint such as tcp://127.0.0.1:5556")
-    return text
-
-
 def build_parser() -> ArgumentParser:
     parser = ArgumentParser(
         prog=PROG, description="Control a running gx2-gateway. Exit status: 0 success, "
@@ -122,7 +102,8 @@ def build_parser() -> ArgumentParser:
                        help="the gateway's nodes.yaml: use its control and publish endpoints")
     where.add_argument("--control", type=endpoint, metavar="ENDPOINT",
                        help=f"the gateway's control endpoint (default {DEFAULT_CONTROL})")
-    parser.add_argument("--timeout", type=seconds, default=DEFAULT_TIMEOUT, metavar="SECONDS",
+    parser.add_argument("--timeout", type=bounded(float, 0.01, 86400), default=DEFAULT_TIMEOUT,
+                        metavar="SECONDS",
                         help=f"give up (exit 3) after this long (default {DEFAULT_TIMEOUT:g})")
     parser.add_argument("--json", action="store_true",
                         help="print each reply as one strict JSON object on one line "

@@ -24,9 +24,8 @@ from typing import Annotated, Any, Literal
 import msgpack
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
 
-from aspp.errors import AsppError
 from aspp.frame import MAX_NODE, MIN_NODE
-from aspp.records import STREAMABLE, lookup
+from aspp.records import checked
 
 MAX_REQUEST_BYTES = 4096
 """Largest control request accepted (ZMQ_MAXMSGSIZE on the socket as well)."""
@@ -44,15 +43,7 @@ class _Request(BaseModel):
 def _record(value: object, *, streamable: bool = False, pollable: bool = False) -> str:
     if isinstance(value, bool) or not isinstance(value, (str, int)):
         raise ValueError("must be a record name or command byte")
-    try:
-        spec = lookup(value)
-    except AsppError as error:
-        raise ValueError(str(error)) from None
-    if streamable and spec.code not in STREAMABLE:
-        raise ValueError(f"{spec.name} cannot be streamed in continuous mode")
-    if pollable and not spec.pollable:
-        raise ValueError(f"{spec.name} cannot be polled (it takes arguments or has no reply)")
-    return spec.name
+    return checked(value, streamable=streamable, pollable=pollable).name
 
 
 class PingRequest(_Request):

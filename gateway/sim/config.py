@@ -21,8 +21,7 @@ from __future__ import annotations
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from aspp.commands import MAX_DIVIDER, MIN_DIVIDER
-from aspp.errors import AsppError
-from aspp.records import STREAMABLE, lookup
+from aspp.records import checked
 
 from .node import GX2, INERTIA_LINK, NodeSettings
 from .station import LineFaults, RadioLink
@@ -76,15 +75,7 @@ class NodeConfig(_Strict):
     @field_validator("stream")
     @classmethod
     def _streamable(cls, value: str | None) -> str | None:
-        if value is None:
-            return None
-        try:
-            spec = lookup(value)
-        except AsppError as error:
-            raise ValueError(str(error)) from None
-        if spec.code not in STREAMABLE:
-            raise ValueError(f"{spec.name} cannot be streamed in continuous mode")
-        return spec.name
+        return None if value is None else checked(value, streamable=True).name
 
     def build(self) -> NodeSettings:
         return NodeSettings(address=self.address, model=self.model, stream=self.stream,
