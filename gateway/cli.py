@@ -35,7 +35,8 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as error:
         fail(PROG, str(error), 2)
     if args.check:
-        print(f"{args.config}: valid ({len(config.nodes)} nodes)")
+        count = len(config.nodes)
+        print(f"{args.config}: valid ({count} node{'s' if count != 1 else ''})")
         return 0
     under_systemd = "INVOCATION_ID" in os.environ or "JOURNAL_STREAM" in os.environ
     logging.basicConfig(
@@ -46,8 +47,6 @@ def main(argv: list[str] | None = None) -> int:
         return asyncio.run(_serve(config))
     except StartupError as error:
         fail(PROG, str(error), 1)
-    except ConfigError as error:
-        fail(PROG, f"{args.config}: {error}", 2)
 
 
 async def _serve(config: object) -> int:

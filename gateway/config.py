@@ -15,6 +15,7 @@ from aspp.frame import MAX_NODE, MIN_NODE
 from aspp.records import checked
 
 from .cli_args import check_endpoint
+from .sim.config import from_url
 from .yamlconfig import ConfigError, load_model
 
 __all__ = ["ConfigError", "GatewayConfig", "load_config"]
@@ -95,6 +96,11 @@ class GatewayConfig(_Strict):
             seen.add(node.address)
         if self.publish.endpoint == self.control.endpoint:
             raise ValueError("publish.endpoint and control.endpoint must differ")
+        if self.base_station.port.startswith("sim://"):
+            try:
+                from_url(self.base_station.port, [n.address for n in self.nodes])
+            except ValueError as error:
+                raise ValueError(f"base_station.port: {error}") from None
         return self
 
     def node(self, address: int) -> NodeConfig | None:

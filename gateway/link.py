@@ -20,57 +20,21 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from urllib.parse import parse_qsl, urlsplit
 
 import serial
-from pydantic import ValidationError
 
-from .sim.config import LineConfig, NodeConfig, RadioConfig, SimConfig
+from .sim.cli import simulator_from
+from .sim.config import from_url
 from .sim.server import Simulator
-from .yamlconfig import ConfigError, describe
 
 log = logging.getLogger("gx2.link")
 REOPEN_STEPS = (0.1, 0.2, 0.5, 1.0)
 """Backoff between reopen attempts; it stays at the last step (1 s) until the port returns."""
 READ_SIZE = 65536
 
-_LINE_KEYS = set(LineConfig.model_fields)
-_RADIO_KEYS = set(RadioConfig.model_fields) - {"in_range", "lqi", "rssi"}
-
-
 def simulator_for(url: str, nodes: list[int], link: Path) -> Simulator:
-    """The embedded simulator a ``sim://`` port names; raises ConfigError for a bad query."""
-    parts = urlsplit(url)
-    if parts.netloc or parts.path not in ("", "/"):
-        raise ConfigError(f"base_station.port: {url!r}: sim:// takes only query "
-                          "parameters, e.g. sim://?data_loss=0.05")
-    line: dict[str, object] = {}
-    radio: dict[str, object] = {}
-    top: dict[str, object] = {}
-    out_of_range: set[int] = set()
-    for key, value in parse_qsl(parts.query, keep_blank_values=True):
-        if key in _LINE_KEYS:
-            line[key] = value
-        elif key in _RADIO_KEYS:
-            radio[key] = value
-        elif key in ("seed", "first_write_failure"):
-            top[key] = value
-        elif key == "out_of_range":
-            out_of_range.update(int(v) for v in value.split(",") if v.strip().isdigit())
-        else:
-            known = sorted(_LINE_KEYS | _RADIO_KEYS | {"seed", "first_write_failure",
-                                                        "out_of_range"})
-            raise ConfigError(f"base_station.port: unknown sim:// parameter {key!r}; "
-                              f"known: {', '.join(known)}")
-    try:
-        config = SimConfig(line=LineConfig(**line), **top, nodes=[  # type: ignore[arg-type]
-            NodeConfig(address=a, radio=RadioConfig(in_range=a not in out_of_range,
-                                                    **radio))  # type: ignore[arg-type]
-            for a in nodes])
-    except ValidationError as error:
-        raise ConfigError(describe(error, f"base_station.port {url}")) from None
-    from .sim.cli import simulator_from
-    return simulator_from(config, str(link))
+    """The embedded simulator a ``sim://`` port names (validated with the config)."""
+    return simulator_from(from_url(url, nodes), str(link))
 
 
 class SerialLink:

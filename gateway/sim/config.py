@@ -18,10 +18,13 @@ nodes:
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from urllib.parse import parse_qsl, urlsplit
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from aspp.commands import MAX_DIVIDER, MIN_DIVIDER
 from aspp.records import checked
+from gateway.yamlconfig import key_path
 
 from .node import GX2, INERTIA_LINK, NodeSettings
 from .station import LineFaults, RadioLink
@@ -98,3 +101,45 @@ class SimConfig(_Strict):
                 raise ValueError(f"node address {node.address} appears twice")
             seen.add(node.address)
         return self
+
+
+_URL_KEYS = {"line": {"garbage", "bad_checksum", "false_header", "glue_ack", "nack"},
+             "radio": {"command_loss", "data_loss", "stop_loss"},
+             "top": {"seed", "first_write_failure"}}
+
+
+def from_url(url: str, nodes: list[int]) -> SimConfig:
+    """The simulator a gateway's ``port: sim://?...`` names, for ``nodes``; ValueError
+    with a one-line message for anything it cannot use. Nothing is started here, so
+    ``gx2-gateway --check`` runs the same validation as start-up."""
+    parts = urlsplit(url)
+    if parts.scheme != "sim" or parts.netloc or parts.path not in ("", "/"):
+        raise ValueError(f"{url!r}: sim:// takes only query parameters, "
+                         "e.g. sim://?data_loss=0.05")
+    groups: dict[str, dict[str, str]] = {"line": {}, "radio": {}, "top": {}}
+    out_of_range: set[int] = set()
+    for key, value in parse_qsl(parts.query, keep_blank_values=True):
+        if key == "out_of_range":
+            try:
+                out_of_range.update(int(v) for v in value.split(",") if v.strip())
+            except ValueError:
+                raise ValueError(f"sim:// out_of_range={value!r}: not a list of node "
+                                 "addresses") from None
+            continue
+        group = next((g for g, keys in _URL_KEYS.items() if key in keys), None)
+        if group is None:
+            known = sorted(set().union(*_URL_KEYS.values()) | {"out_of_range"})
+            raise ValueError(f"unknown sim:// parameter {key!r}; known: {', '.join(known)}")
+        groups[group][key] = value
+    if out_of_range - set(nodes):
+        raise ValueError(f"sim:// out_of_range names node {min(out_of_range - set(nodes))}, "
+                         "which is not configured")
+    try:
+        return SimConfig(line=LineConfig(**groups["line"]), **groups["top"], nodes=[
+            NodeConfig(address=a, radio=RadioConfig(in_range=a not in out_of_range,
+                                                    **groups["radio"]))
+            for a in nodes])
+    except ValidationError as error:
+        problem = error.errors(include_url=False)[0]
+        raise ValueError(f"sim:// {key_path(problem['loc'])}: "
+                         f"{problem['msg'].removeprefix('Value error, ')}") from None
