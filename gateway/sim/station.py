@@ -166,7 +166,9 @@ class BaseStation:
         for address, node in self.nodes.items():
             replies.extend((t + RADIO_LATENCY, address, reply)
                            for t, reply in node.run_until(now - RADIO_LATENCY))
-        for t, address, reply in sorted(replies):
+        # by time only: sorted() is stable, so a node's replies keep the order the node
+        # made them in (a cycle's continuous record before its polled reply)
+        for t, address, reply in sorted(replies, key=lambda item: item[0]):
             self._send_packet(address, reply, t)
         if self._held_ack_since is not None and now - self._held_ack_since >= GLUE_WAIT:
             self._queue(self._release_acks(), now, control=True)

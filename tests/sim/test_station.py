@@ -167,3 +167,13 @@ def test_nack_fault_refuses_good_packets_without_delivering_them():
     bench.send(commands.poll("euler").packet(76))
     assert bench.run(0.1) == [Nack()]
     assert bench.station.nodes[76].log.commands == []
+
+
+def test_a_cycles_replies_keep_their_order_on_the_line():
+    """The continuous record, then the polled reply: even when the polled reply's bytes
+    would sort first (C4 < CE), as the long-form stop's does."""
+    bench = Bench(NodeSettings(76, stream="euler"))
+    bench.run(0.05)
+    bench.send(commands.stop_continuous_long().packet(76))
+    names = [decode(r.payload).name for r in replies(bench.run(0.2))]
+    assert names[-2:] == ["euler", "continuous_mode"]
