@@ -16,7 +16,7 @@ from gateway.sim.node import GX2, NodeSettings
 from gateway.sim.station import LineFaults
 
 COMMON = {"node": int, "record": str, "command": int, "seq": int, "host_time": float,
-          "lqi": int, "rssi": int, "device_time": float}
+          "lqi": int, "rssi": int}
 
 
 def quiet_all(sim, gw, *nodes: int) -> None:
@@ -60,6 +60,9 @@ def test_payload_has_every_contract_field(simulator, gateway):
         assert topic == f"gx2/{node}/{record}"
         for field, kind in COMMON.items():
             assert isinstance(payload[field], kind), (field, payload)
+        # timed records carry device_time; untimed ones (the 0xE5 the gateway reads at
+        # start-up is published too) do not
+        assert isinstance(payload.get("device_time"), float) == ("timer" in payload), payload
         assert payload["rssi"] < 0 and 0 <= payload["lqi"] <= 255
         if "accel" in payload:  # the stream's records; the 0xC4 echo is published too
             assert len(payload["accel"]) == 3

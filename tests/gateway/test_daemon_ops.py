@@ -177,12 +177,13 @@ def test_stop_under_stop_loss(simulator, gateway):
             sub.drain(0.6)
             records = sub.records(76)
             late = [p for p in records if p["host_time"] > returned]
-            last = [(p["record"], p["seq"], round(p["host_time"] - returned, 3))
-                    for p in records[-len(late) - 3:]]
+            first_late = len(records) - len(late)
+            around = [(p["record"], p["seq"], round(p["host_time"] - returned, 3))
+                      for p in records[max(0, first_late - 3):first_late + 3]]
             assert streams == 0, (f"seed {seed}: 'stop' {result} returned, node 76 streams; "
-                                  f"the last (record, seq, s after): {last[-10:]}")
+                                  f"(record, seq, s after the return): {around}")
             assert late == [], (f"seed {seed}: {len(late)} records after the stop {result} "
-                                f"returned; the last (record, seq, s after): {last}")
+                                f"returned; (record, seq, s after the return): {around}")
             assert stop_accounting(sim, 76) - sent_before == result["attempts"], \
                 (seed, result, "attempts differ from the stop packets the node saw or lost")
             assert gw.node_status(76)["state"] != "streaming"
@@ -526,6 +527,8 @@ def test_demo_configuration_on_the_embedded_simulator(gateway):
     assert sub.records(95) == []
     states = {n["node"]: n["state"] for n in gw.status()["nodes"]}
     assert states[76] == states[77] == "streaming" != states[95], states
+    status, seconds = gw.terminate()  # a clean exit also removes the embedded pty's directory
+    assert status == 0 and seconds < EXIT
 
 
 # -- 10. status ------------------------------------------------------------------------------------
