@@ -24,6 +24,9 @@ from .scheduler import REPLY_TIMEOUT, Answer, NodeError, Scheduler
 
 log = logging.getLogger("gx2.ops")
 ARM_BACKOFF = (0.5, 1.0, 2.0, 5.0, 10.0, 30.0)
+STOP_MIN_SILENCE = 0.3
+"""Silence that proves a stop, at the least: longer than a USB or scheduling stall, so a
+stalled read is not taken for a stopped stream."""
 """Between attempts to start a configured stream on a node that does not answer."""
 
 
@@ -82,7 +85,7 @@ class Operations:
     async def stop(self, address: int) -> dict[str, Any]:
         """0xFA until the stream is silent (the long form in turn after a few tries)."""
         node = self.node(address)
-        policy = node.stop_policy = StopPolicy(node.period)
+        policy = node.stop_policy = StopPolicy(node.period, min_silence=STOP_MIN_SILENCE)
         node.state = "stopping"
         try:
             while True:
