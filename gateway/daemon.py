@@ -30,6 +30,7 @@ from .nodes import Delivery, NodeState
 from .operations import Operations
 from .publisher import Publisher
 from .scheduler import Scheduler
+from .sd_notify import Notifier
 from .sim.server import Simulator
 
 log = logging.getLogger("gx2.gateway")
@@ -57,6 +58,8 @@ class Gateway:
         self.simulator: Simulator | None = None
         self._idle: asyncio.TimerHandle | None = None
         self._arming: dict[int, asyncio.Task[None]] = {}
+        self.systemd = Notifier()
+        self._ready = False
         self._context = zmq.asyncio.Context()
         port = config.base_station.port
         if port.startswith("sim://"):
@@ -87,15 +90,18 @@ class Gateway:
         except OSError as error:
             log.warning("base station %s: %s; retrying", self.config.base_station.port, error)
             self.link.start_reopening()
-        serving = asyncio.get_running_loop().create_task(self.control.serve())
-        heartbeat = asyncio.get_running_loop().create_task(self._heartbeat())
+        loop = asyncio.get_running_loop()
+        tasks = [loop.create_task(self.control.serve()), loop.create_task(self._heartbeat())]
+        if self.systemd.watchdog_interval:
+            tasks.append(loop.create_task(self._watchdog(self.systemd.watchdog_interval)))
         log.info("publishing on %s, control on %s, %d nodes", self.config.publish.endpoint,
                  self.config.control.endpoint, len(self.nodes))
         try:
             await stop.wait()
         finally:
-            serving.cancel()
-            heartbeat.cancel()
+            self.systemd.stopping()
+            for task in tasks:
+                task.cancel()
             await self._shutdown()
 
     async def _shutdown(self) -> None:
@@ -175,6 +181,12 @@ class Gateway:
 
     def _on_link_state(self, up: bool) -> None:
         self.scheduler.link_up = up
+        if up and not self._ready:
+            # READY only now: the sockets were bound before the port could open
+            self._ready = True
+            self.systemd.ready(f"{len(self.nodes)} nodes on {self.config.base_station.port}")
+        self.systemd.status("base station " + ("connected" if up else "disconnected, "
+                                               "reconnecting"))
         if up:
             for node in self.nodes.values():
                 self._arm(node)
@@ -198,6 +210,14 @@ class Gateway:
             self.ops.arm(node))
 
     # -- status ---------------------------------------------------------------------------
+
+    async def _watchdog(self, interval: float) -> None:
+        """WATCHDOG=1 while the loop runs and the link is up or being reopened: a stuck
+        loop, or a reopen loop that died, stops the pings and systemd restarts us."""
+        while True:
+            if self.link.up or self.link.reopening:
+                self.systemd.watchdog()
+            await asyncio.sleep(interval)
 
     async def _heartbeat(self) -> None:
         while True:

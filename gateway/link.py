@@ -72,6 +72,11 @@ class SerialLink:
             self._poll_handle = loop.call_later(0.005, self._poll_url)
         self._set_up(True)
 
+    @property
+    def reopening(self) -> bool:
+        """The reopen loop is alive (it ends when the port is back)."""
+        return self._reopen_task is not None and not self._reopen_task.done()
+
     def start_reopening(self) -> None:
         if self._reopen_task is None or self._reopen_task.done():
             self._reopen_task = asyncio.get_running_loop().create_task(self._reopen())

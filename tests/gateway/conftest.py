@@ -44,23 +44,24 @@ def simulator(tmp_path: Path) -> Iterator[Callable[..., Simulator]]:
 @pytest.fixture
 def gateway(tmp_path: Path, zmq_context: zmq.Context) -> Iterator[Callable[..., RunningGateway]]:
     """``gateway(port, nodes, **sections)``: gx2-gateway running on that port, ready
-    (its control endpoint answers and the base station is open)."""
+    (its control endpoint answers and the base station is open); ``wait=False`` returns
+    at once, ``env`` replaces its environment."""
     started: list[RunningGateway] = []
 
-    def start(port: str, nodes: list[dict[str, Any]], **sections: Any) -> RunningGateway:
+    def start(port: str, nodes: list[dict[str, Any]], *, wait: bool = True,
+              env: dict[str, str] | None = None, **sections: Any) -> RunningGateway:
         running = RunningGateway(gateway_config(port, nodes, **sections), tmp_path,
-                                 zmq_context)
+                                 zmq_context, env)
         started.append(running)
+        if not wait:
+            return running
 
         def link_up() -> bool:
             if running.proc.poll() is not None:
                 raise AssertionError(f"gateway exited {running.proc.returncode}:\n"
                                      f"{running.log()}")
-            try:
-                reply = running.control.call("status", timeout=0.5)
-            except AssertionError:  # not answering yet
-                return False
-            return bool(reply["ok"] and reply["result"]["link"]["state"] == "up")
+            reply = running.control.try_call("status", timeout=0.5)
+            return bool(reply and reply["ok"] and reply["result"]["link"]["state"] == "up")
         wait_for(link_up, STARTUP, "the gateway to answer with its link up")
         return running
 

@@ -77,6 +77,13 @@ class Control:
                 return reply
         raise AssertionError(f"no reply to {op} within {timeout} s")
 
+    def try_call(self, op: str, timeout: float, **fields: Any) -> dict[str, Any] | None:
+        """Like :meth:`call`, but None if nothing answers in time (a gateway starting)."""
+        try:
+            return self.call(op, timeout, **fields)
+        except AssertionError:
+            return None
+
     def result(self, op: str, timeout: float = 10.0, **fields: Any) -> dict[str, Any]:
         reply = self.call(op, timeout, **fields)
         assert reply["ok"], reply
@@ -121,7 +128,8 @@ class Subscriber:
 
 
 class RunningGateway:
-    def __init__(self, config: dict[str, Any], directory: Path, context: zmq.Context) -> None:
+    def __init__(self, config: dict[str, Any], directory: Path, context: zmq.Context,
+                 env: dict[str, str] | None = None) -> None:
         self.config = config
         self.path = directory / "nodes.yaml"
         self.path.write_text(yaml.safe_dump(config))
@@ -130,7 +138,7 @@ class RunningGateway:
         self.proc = subprocess.Popen([script("gx2-gateway"), "--config", str(self.path),
                                       "--log-level", "DEBUG"],
                                      stdout=self._log, stderr=subprocess.STDOUT,
-                                     stdin=subprocess.DEVNULL)
+                                     stdin=subprocess.DEVNULL, env=env)
         self.context = context
         self.control_endpoint = config["control"]["endpoint"]
         self.publish_endpoint = config["publish"]["endpoint"]
