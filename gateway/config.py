@@ -49,6 +49,9 @@ class PublishConfig(_Strict):
 class ControlConfig(_Strict):
     endpoint: str = "tcp://127.0.0.1:5556"
     allow_eeprom_write: bool = False
+    allow_any_eeprom_address: bool = False
+    """Added: write EEPROM words other than the ones the reference documents (0xFCA2
+    data rate divider, 0xFCA6 auto-start); a wrong word can break a node's calibration."""
 
     @field_validator("endpoint")
     @classmethod

@@ -69,7 +69,8 @@ class Gateway:
         self.link = SerialLink(port, config.base_station.baudrate, self._on_data,
                                self._on_link_state)
         self.scheduler = Scheduler(self.link.write)
-        self.ops = Operations(self.scheduler, self.nodes, config.control.allow_eeprom_write)
+        self.ops = Operations(self.scheduler, self.nodes, config.control.allow_eeprom_write,
+                              config.control.allow_any_eeprom_address)
         try:
             self.publisher = Publisher(self._context, config.publish.endpoint,
                                        config.publish.high_water_mark)

@@ -13,7 +13,7 @@ import time
 from typing import Any
 
 from aspp import commands
-from aspp.commands import EEPROM_DIVIDER, Command
+from aspp.commands import DOCUMENTED_EEPROM, EEPROM_DIVIDER, Command
 from aspp.errors import AsppError
 from aspp.frame import encode_ping
 from aspp.records import lookup
@@ -40,10 +40,11 @@ class Refused(Exception):
 
 class Operations:
     def __init__(self, scheduler: Scheduler, nodes: dict[int, NodeState],
-                 allow_eeprom_write: bool) -> None:
+                 allow_eeprom_write: bool, allow_any_eeprom_address: bool = False) -> None:
         self.scheduler = scheduler
         self.nodes = nodes
         self.allow_eeprom_write = allow_eeprom_write
+        self.allow_any_eeprom_address = allow_any_eeprom_address
 
     def node(self, address: int) -> NodeState:
         state = self.nodes.get(address)
@@ -127,6 +128,11 @@ class Operations:
             raise Refused("EEPROM writes are disabled on this gateway; to allow them set "
                           "control.allow_eeprom_write: true in its configuration and "
                           "restart it")
+        if word not in DOCUMENTED_EEPROM and not self.allow_any_eeprom_address:
+            known = ", ".join(f"0x{a:04X} ({what})" for a, what in DOCUMENTED_EEPROM.items())
+            raise Refused(f"EEPROM 0x{word:04X} is not a word the reference documents "
+                          f"({known}); to write it anyway set "
+                          "control.allow_any_eeprom_address: true and restart the gateway")
         attempts = 0
         while True:
             attempts += 1

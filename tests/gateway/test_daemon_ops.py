@@ -578,3 +578,21 @@ def test_status_fields(simulator, gateway):
     assert polled["lost_radio"] == 0 and polled["lost_gateway"] == 0
     assert 147 <= polled["lqi"] <= 153 and -72 <= polled["rssi"] <= -68, polled
     assert now - 10 < polled["last_seen"] <= now + 1
+
+
+def test_eeprom_writes_only_to_documented_words_unless_overridden(simulator, gateway):
+    """Even with writes allowed, a word the reference does not document is refused (a
+    wrong word can break a node's calibration) until the override is configured."""
+    sim = simulator(NodeSettings(76))
+    gw = gateway(sim.path, [{"address": 76}], control={"allow_eeprom_write": True})
+    reply = gw.control.call("eeprom_write", node=76, address=0x0100, value=7)
+    assert reply["ok"] is False and reply["error"]["kind"] == "refused", reply
+    assert "allow_any_eeprom_address" in reply["error"]["message"]
+    assert not [c for c in sim.node(76).log.commands if c.code == 0xE4]
+    assert gw.control.result("eeprom_write", node=76, address=0xFCA6, value=0x80C2)
+    gw.terminate()
+    sim.stop()  # the next simulator takes the same link path
+    sim2 = simulator(NodeSettings(77))
+    gw2 = gateway(sim2.path, [{"address": 77}],
+                  control={"allow_eeprom_write": True, "allow_any_eeprom_address": True})
+    assert gw2.control.result("eeprom_write", node=77, address=0x0100, value=7)["value"] == 7
