@@ -72,7 +72,9 @@ pollable_record = record_arg(pollable=True)
 def check_endpoint(value: str) -> str:
     """A ZeroMQ endpoint the gateway can bind or a client connect; ValueError if not."""
     scheme, sep, rest = value.partition("://")
-    if not sep or scheme not in ("tcp", "ipc", "inproc") or not rest:
+    host, colon, port = rest.rpartition(":")
+    if (not sep or scheme not in ("tcp", "ipc", "inproc") or not rest
+            or (scheme == "tcp" and not (colon and host and (port.isdigit() or port == "*")))):
         raise ValueError(f"must be a ZeroMQ endpoint such as tcp://127.0.0.1:5556 or "
                          f"ipc:///run/gx2-gateway/control, not {value!r}")
     return value

@@ -9,7 +9,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+import serial
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from aspp.frame import MAX_NODE, MIN_NODE
 from aspp.records import checked
@@ -22,11 +23,27 @@ __all__ = ["ConfigError", "GatewayConfig", "load_config"]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # strict: a YAML "yes" or 1 is not a bool, "115200" not an int (ints pass as floats)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+
+
+Endpoint = Annotated[str, AfterValidator(check_endpoint)]
+
+
+def _openable_port(value: str) -> str:
+    """A device path, a pyserial URL whose scheme pyserial knows, or sim://."""
+    if value.startswith("sim://") or "://" not in value:
+        return value
+    try:
+        serial.serial_for_url(value, do_not_open=True)
+    except (ValueError, serial.SerialException) as error:
+        raise ValueError(f"{value!r} is not a device path, sim:// or a pyserial URL: "
+                         f"{error}") from None
+    return value
 
 
 class BaseStationConfig(_Strict):
-    port: Annotated[str, Field(min_length=1)]
+    port: Annotated[str, Field(min_length=1), AfterValidator(_openable_port)]
     """A device path, a pyserial URL, or sim:// (the built-in simulator)."""
     baudrate: Annotated[int, Field(ge=1200, le=4_000_000)] = 115200
     idle_ms: Annotated[float, Field(ge=1, le=1000)] = 30.0
@@ -34,29 +51,19 @@ class BaseStationConfig(_Strict):
 
 
 class PublishConfig(_Strict):
-    endpoint: str = "tcp://127.0.0.1:5555"
+    endpoint: Endpoint = "tcp://127.0.0.1:5555"
     heartbeat_s: Annotated[float, Field(gt=0, le=60)] = 1.0
     """Added: period of the gx2/gateway/status message."""
     high_water_mark: Annotated[int, Field(ge=100, le=10_000_000)] = 20_000
     """Added: messages queued per subscriber before the slowest one loses some."""
 
-    @field_validator("endpoint")
-    @classmethod
-    def _check_endpoint(cls, value: str) -> str:
-        return check_endpoint(value)
-
 
 class ControlConfig(_Strict):
-    endpoint: str = "tcp://127.0.0.1:5556"
+    endpoint: Endpoint = "tcp://127.0.0.1:5556"
     allow_eeprom_write: bool = False
     allow_any_eeprom_address: bool = False
     """Added: write EEPROM words other than the ones the reference documents (0xFCA2
     data rate divider, 0xFCA6 auto-start); a wrong word can break a node's calibration."""
-
-    @field_validator("endpoint")
-    @classmethod
-    def _check_endpoint(cls, value: str) -> str:
-        return check_endpoint(value)
 
 
 class ShutdownConfig(_Strict):
@@ -105,9 +112,6 @@ class GatewayConfig(_Strict):
             except ValueError as error:
                 raise ValueError(f"base_station.port: {error}") from None
         return self
-
-    def node(self, address: int) -> NodeConfig | None:
-        return next((n for n in self.nodes if n.address == address), None)
 
 
 def load_config(path: str | Path) -> GatewayConfig:

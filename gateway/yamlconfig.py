@@ -19,6 +19,21 @@ class ConfigError(Exception):
     """A configuration file cannot be used; ``str()`` is the one-line message."""
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """safe_load, except that a key given twice is an error: with PyYAML the last one
+    would win silently, and a typo'd copy of a key would hide the real one."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen: set[object] = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"key {key!r} appears twice", key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
 def key_path(location: tuple[int | str, ...]) -> str:
     path = ""
     for part in location:
@@ -51,7 +66,7 @@ def load_model(path: str | Path, model: type[M]) -> M:
     except UnicodeDecodeError:
         raise ConfigError(f"{source}: not a text file") from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_UniqueKeyLoader)  # a SafeLoader: no objects
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         where = f"line {mark.line + 1}: " if mark is not None else ""

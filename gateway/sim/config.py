@@ -33,7 +33,7 @@ Probability = Field(default=0.0, ge=0.0, le=1.0)
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
 
 class RadioConfig(_Strict):
@@ -135,10 +135,11 @@ def from_url(url: str, nodes: list[int]) -> SimConfig:
         raise ValueError(f"sim:// out_of_range names node {min(out_of_range - set(nodes))}, "
                          "which is not configured")
     try:
-        return SimConfig(line=LineConfig(**groups["line"]), **groups["top"], nodes=[
-            NodeConfig(address=a, radio=RadioConfig(in_range=a not in out_of_range,
-                                                    **groups["radio"]))
-            for a in nodes])
+        return SimConfig.model_validate({  # query values are text: convert them
+            "line": groups["line"], **groups["top"],
+            "nodes": [{"address": a, "radio": {"in_range": a not in out_of_range,
+                                               **groups["radio"]}} for a in nodes]},
+            strict=False)
     except ValidationError as error:
         problem = error.errors(include_url=False)[0]
         raise ValueError(f"sim:// {key_path(problem['loc'])}: "
