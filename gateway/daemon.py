@@ -61,24 +61,24 @@ class Gateway:
         self.systemd = Notifier()
         self._ready = False
         self._context = zmq.asyncio.Context()
-        port = config.base_station.port
-        if port.startswith("sim://"):
-            self._sim_link = embedded_link_path()
-            self.simulator = simulator_for(port, list(self.nodes), self._sim_link)
-            port = str(self._sim_link)
-        self.link = SerialLink(port, config.base_station.baudrate, self._on_data,
-                               self._on_link_state)
+        self.link = SerialLink(config.base_station.port, config.base_station.baudrate,
+                               self._on_data, self._on_link_state)
         self.scheduler = Scheduler(self.link.write)
         self.ops = Operations(self.scheduler, self.nodes, config.control.allow_eeprom_write,
                               config.control.allow_any_eeprom_address)
+        endpoint = config.publish.endpoint
         try:
-            self.publisher = Publisher(self._context, config.publish.endpoint,
-                                       config.publish.high_water_mark)
-            self.control = ControlServer(self._context, config.control.endpoint, self.ops,
-                                         self.status)
+            self.publisher = Publisher(self._context, endpoint, config.publish.high_water_mark)
+            endpoint = config.control.endpoint
+            self.control = ControlServer(self._context, endpoint, self.ops, self.status)
         except zmq.ZMQError as error:
             self._context.destroy(linger=0)
-            raise StartupError(f"cannot bind {error}") from None
+            raise StartupError(f"cannot bind {endpoint}: {error.strerror}") from None
+        if config.base_station.port.startswith("sim://"):  # only once nothing can fail
+            self._sim_link = embedded_link_path()
+            self.simulator = simulator_for(config.base_station.port, list(self.nodes),
+                                           self._sim_link)
+            self.link.port = str(self._sim_link)
 
     # -- running --------------------------------------------------------------------------
 
@@ -110,7 +110,8 @@ class Gateway:
             task.cancel()
         if self.config.shutdown.stop_streams and self.link.up:
             streaming = [n for n in self.nodes.values() if n.record]
-            stops = [self.ops.send(n, commands.stop_continuous()) for n in streaming]
+            stops = [self.ops.send(n, commands.stop_continuous(), wait_for_reply=False)
+                     for n in streaming]
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(asyncio.gather(*stops, return_exceptions=True),
                                        EXIT_BUDGET)
@@ -194,15 +195,13 @@ class Gateway:
         else:
             self.scheduler.on_link_down()
             for node in self.nodes.values():
-                node.state = "link down"
-        with contextlib.suppress(RuntimeError):  # no loop yet: nothing to publish to
-            asyncio.get_running_loop()
-            self.publisher.status(self.status())
+                node.link_lost()
+        self.publisher.status(self.status())
 
     def _arm(self, node: NodeState) -> None:
         """(Re)start the node's configured stream in the background."""
         if node.config.stream is None:
-            node.state = "polled"
+            node.state = "streaming" if node.record else "polled"  # a user's stream
             return
         old = self._arming.pop(node.address, None)
         if old is not None:

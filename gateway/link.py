@@ -60,7 +60,9 @@ class SerialLink:
     def open(self) -> None:
         """Open now; raise OSError/SerialException if the port cannot be opened."""
         is_device = "://" not in self.port
-        ser = serial.serial_for_url(self.port, self.baudrate, timeout=0, write_timeout=2,
+        # a write may stall the loop for at most 0.1 s (a command is at most 110 bytes;
+        # a port that cannot take that is as good as lost)
+        ser = serial.serial_for_url(self.port, self.baudrate, timeout=0, write_timeout=0.1,
                                     exclusive=True if is_device else None)
         self._serial = ser
         loop = asyncio.get_running_loop()

@@ -52,6 +52,7 @@ class NodeState:
         self.rate_hz = 0.0
         self.stop_policy: StopPolicy | None = None
         self._unwrapper = TimerUnwrapper()
+        self._reboot_announced = False
         self._last_stream_timer: int | None = None
         self._window_start = 0.0
         self._window_count = 0
@@ -80,7 +81,9 @@ class NodeState:
         if timer is not None:
             payload["device_time"] = self._unwrapper.update(timer, host_time)
             if self._unwrapper.last_was_reset:
-                self.reboots += 1
+                if not self._reboot_announced:  # a reboot seen only in the timer
+                    self.reboots += 1
+                self._reboot_announced = False
             if record.spec.name == self.record:
                 self._count_gaps(timer)
         if self.stop_policy is not None and record.spec.streamable:
@@ -114,8 +117,14 @@ class NodeState:
     def rebooted(self) -> None:
         """A discovery packet: the node lost power; whatever it streamed is gone."""
         self.reboots += 1
+        self._reboot_announced = True  # its timer going back is the same reboot
         self.record = None
         self.state = "rebooted"
+        self._last_stream_timer = None
+
+    def link_lost(self) -> None:
+        """The base station went away: what is missed now is not lost over the air."""
+        self.state = "link down"
         self._last_stream_timer = None
 
     def status(self, now: float) -> dict[str, Any]:

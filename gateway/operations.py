@@ -20,14 +20,14 @@ from aspp.records import lookup
 from aspp.stop import GaveUp, SendStop, Stopped, StopPolicy
 
 from .nodes import Delivery, NodeState
-from .scheduler import REPLY_TIMEOUT, Answer, NodeError, Scheduler
+from .scheduler import REPLY_TIMEOUT, Answer, LinkDown, NodeError, Scheduler
 
 log = logging.getLogger("gx2.ops")
 ARM_BACKOFF = (0.5, 1.0, 2.0, 5.0, 10.0, 30.0)
+"""Between attempts to start a configured stream on a node that does not answer."""
 STOP_MIN_SILENCE = 0.3
 """Silence that proves a stop, at the least: longer than a USB or scheduling stall, so a
 stalled read is not taken for a stopped stream."""
-"""Between attempts to start a configured stream on a node that does not answer."""
 
 
 class Invalid(Exception):
@@ -52,11 +52,12 @@ class Operations:
             raise Invalid(f"node {address} is not configured in this gateway")
         return state
 
-    async def send(self, node: NodeState, command: Command,
-                   reply_timeout: float | None = None) -> Answer:
-        """One command to one node; the reply's Delivery is in ``answer.reply``."""
-        timeout = reply_timeout or REPLY_TIMEOUT + 2 * node.period
-        expect = command.code if command.expects_reply else None
+    async def send(self, node: NodeState, command: Command, *,
+                   wait_for_reply: bool = True) -> Answer:
+        """One command to one node; the reply's Delivery is in ``answer.reply``. Without
+        ``wait_for_reply`` it is done once the base station ACKs it."""
+        timeout = REPLY_TIMEOUT + 2 * node.period
+        expect = command.code if command.expects_reply and wait_for_reply else None
         return await self.scheduler.command(node.address, command.packet(node.address),
                                             expect, command.name, reply_timeout=timeout)
 
@@ -68,10 +69,13 @@ class Operations:
     # -- one per control op ----------------------------------------------------------------
 
     async def ping(self, addresses: list[int]) -> dict[str, Any]:
-        answered = await asyncio.gather(*(self.scheduler.ping(a, encode_ping(a))
-                                          for a in addresses))
-        return {"nodes": [{"node": a, "answered": ok}
-                          for a, ok in zip(addresses, answered, strict=True)]}
+        results = await asyncio.gather(*(self.scheduler.ping(a, encode_ping(a))
+                                         for a in addresses), return_exceptions=True)
+        for result in results:  # a lost base station fails the request; a ping that
+            if isinstance(result, BaseException) and not isinstance(result, NodeError):
+                raise result    # got no answer byte at all is a node that did not answer
+        return {"nodes": [{"node": a, "answered": result is True}
+                          for a, result in zip(addresses, results, strict=True)]}
 
     async def start(self, address: int, record: str) -> dict[str, Any]:
         node = self.node(address)
@@ -86,14 +90,20 @@ class Operations:
     async def stop(self, address: int) -> dict[str, Any]:
         """0xFA until the stream is silent (the long form in turn after a few tries)."""
         node = self.node(address)
+        if node.stop_policy is not None:
+            raise NodeError(f"node {address}: a stop is already running")
         policy = node.stop_policy = StopPolicy(node.period, min_silence=STOP_MIN_SILENCE)
+        losses = self.scheduler.link_losses
         node.state = "stopping"
         try:
             while True:
+                if self.scheduler.link_losses != losses or not self.scheduler.link_up:
+                    raise LinkDown(f"node {address}: the base station was disconnected "
+                                   "during the stop; the stream may still be running")
                 action = policy.next_action(time.monotonic())
                 if isinstance(action, SendStop):
-                    try:
-                        await self.send(node, action.command, reply_timeout=0.0)
+                    try:  # the long form's reply is not awaited: silence decides
+                        await self.send(node, action.command, wait_for_reply=False)
                         policy.sent(time.monotonic())
                     except NodeError as error:  # not even ACKed: the policy tries again
                         log.info("%s", error)
@@ -161,8 +171,13 @@ class Operations:
     async def info(self, address: int) -> dict[str, Any]:
         node = self.node(address)
         version = (await self.ask(node, commands.firmware_version())).record["version"]
-        texts = [(await self.ask(node, commands.device_id(i))).record["text"]
-                 for i in range(4)]
+        texts = []
+        for selector in range(4):
+            record = (await self.ask(node, commands.device_id(selector))).record
+            if record["selector"] != selector:  # a late answer to an earlier request
+                raise NodeError(f"node {address}: asked for identifier {selector}, "
+                                f"got {record['selector']}")
+            texts.append(record["text"])
         return {"node": address, "firmware": version, "model_number": texts[0],
                 "serial_number": texts[1], "model_name": texts[2], "options": texts[3]}
 
@@ -184,6 +199,8 @@ class Operations:
                 log.info("node %s streams %s at %.1f Hz", node.config.label, record,
                          51200 / node.divider)
                 return
+            except LinkDown:
+                return  # re-armed when the base station is back
             except NodeError as error:
                 node.state = "unreachable"
                 delay = ARM_BACKOFF[min(attempt, len(ARM_BACKOFF) - 1)]

@@ -5,8 +5,14 @@ Rules, from the base station's behaviour:
   because those single bytes carry no address: only order tells whose they are.
 * Once ACKed, a command waits for its reply by node and echo byte while the next
   command goes out, so a slow node never holds up the others. A node has at most one
-  command awaiting a reply, so a reply is never ambiguous between two of its commands.
-* Nodes with work are served round-robin: one node's backlog cannot starve another.
+  command awaiting a reply. (A reply is still ambiguous in two cases the wire cannot
+  settle: a late reply to an attempt that timed out, and a poll of the record the node
+  is streaming; both are answered by the first matching record.)
+* A reply that arrives before its command's ACK completes the command, but the packet
+  stays in flight until that ACK arrives (or its deadline passes), so the ACK is never
+  credited to the next packet.
+* Of the nodes with work, the one served least recently goes next: one node's backlog
+  cannot starve another.
 * A NACK, a missing ACK or a missing reply is retried with exponential backoff a
   bounded number of times; then the request fails with the reason.
 
@@ -66,7 +72,14 @@ class _Request:
     attempts: int = 0
     not_before: float = 0.0
     deadline: float = 0.0
+    answered: bool = False
+    """Its reply came before its ACK: the ACK or NACK still to come belongs to it."""
     reasons: list[str] = field(default_factory=list)
+
+    @property
+    def settled(self) -> bool:
+        """Answered, failed, or abandoned by its caller: nothing more to do for it."""
+        return self.answered or self.future.done()
 
 
 @dataclass
@@ -76,7 +89,8 @@ class SchedulerStats:
     nacks: int = 0
     retries: int = 0
     failures: int = 0
-    unexpected_acks: int = 0
+    unexpected: int = 0
+    """ACK, NACK or ping answers with nothing in flight (line noise, late answers)."""
 
 
 class Scheduler:
@@ -85,11 +99,13 @@ class Scheduler:
         self._write = write
         self._clock = clock
         self._queues: dict[int, deque[_Request]] = {}
-        self._turns: deque[int] = deque()  # round-robin order of nodes with work
+        self._served: dict[int, int] = {}  # node -> when it last sent (a send count)
         self._in_flight: _Request | None = None
         self._awaiting: dict[int, _Request] = {}
         self._timer: asyncio.TimerHandle | None = None
         self.link_up = False
+        self.link_losses = 0
+        """How many times the link went down: an operation that spans a loss knows it."""
         self.stats = SchedulerStats()
 
     # -- what the operations ask for -----------------------------------------------------
@@ -112,10 +128,7 @@ class Scheduler:
     async def _submit(self, request: _Request) -> Any:
         if not self.link_up:
             raise LinkDown("the base station is not connected")
-        queue = self._queues.setdefault(request.node, deque())
-        queue.append(request)
-        if request.node not in self._turns:
-            self._turns.append(request.node)
+        self._queues.setdefault(request.node, deque()).append(request)
         self.service()
         return await request.future
 
@@ -124,10 +137,13 @@ class Scheduler:
     def on_ack(self) -> None:
         request = self._in_flight
         if request is None or request.is_ping:
-            self.stats.unexpected_acks += 1
+            self.stats.unexpected += 1
             return
         self.stats.acks += 1
         self._in_flight = None
+        if request.settled:  # answered already, or abandoned: the ACK just closes it
+            self.service()
+            return
         if request.expect is None:
             self._finish(request, None)
         else:
@@ -139,9 +155,12 @@ class Scheduler:
         """0x21: a NACK of the packet in flight, or 'no answer' to a raw ping."""
         request = self._in_flight
         if request is None:
-            self.stats.unexpected_acks += 1
+            self.stats.unexpected += 1
             return
         self._in_flight = None
+        if request.settled:
+            self.service()
+            return
         if request.is_ping:
             self._finish(request, False)
         else:
@@ -163,8 +182,9 @@ class Scheduler:
             del self._awaiting[node]
             self._finish(request, answer)
         elif (self._in_flight is not None and self._in_flight.node == node
-              and self._in_flight.expect == echo):
-            request, self._in_flight = self._in_flight, None  # its ACK was lost
+              and self._in_flight.expect == echo and not self._in_flight.settled):
+            request = self._in_flight  # answered before its ACK: keep it in flight so
+            request.answered = True   # that ACK is not taken for the next packet's
             self._finish(request, answer)
         else:
             return
@@ -173,12 +193,12 @@ class Scheduler:
     def on_link_down(self) -> None:
         """Fail everything queued or in flight: no answer can come now."""
         self.link_up = False
+        self.link_losses += 1
         requests = [r for q in self._queues.values() for r in q]
         requests += list(self._awaiting.values())
         if self._in_flight:
             requests.append(self._in_flight)
         self._queues.clear()
-        self._turns.clear()
         self._awaiting.clear()
         self._in_flight = None
         for request in requests:
@@ -193,9 +213,12 @@ class Scheduler:
         request = self._in_flight
         if request is not None and now >= request.deadline:
             self._in_flight = None
-            self._retry(request, "no ACK from the base station")
+            if not request.settled:
+                self._retry(request, "no ACK from the base station")
         for node, request in list(self._awaiting.items()):
-            if now >= request.deadline:
+            if request.future.done():  # its caller gave up: free the node
+                del self._awaiting[node]
+            elif now >= request.deadline:
                 del self._awaiting[node]
                 self._retry(request, "no reply from the node")
         if self._in_flight is None and self.link_up:
@@ -203,30 +226,29 @@ class Scheduler:
         self._arm_timer(now)
 
     def _send_next(self, now: float) -> None:
-        for _ in range(len(self._turns)):
-            node = self._turns[0]
-            self._turns.rotate(-1)
-            queue = self._queues.get(node)
+        ready = []
+        for node, queue in list(self._queues.items()):
+            while queue and queue[0].future.done():  # abandoned by its caller
+                queue.popleft()
             if not queue:
-                self._turns.remove(node)
-                continue
-            head = queue[0]
-            if node in self._awaiting or head.not_before > now:
-                continue
-            queue.popleft()
-            if not queue:
-                self._turns.remove(node)
-            if head.future.done():  # cancelled by its caller
-                continue
-            head.attempts += 1
-            head.deadline = now + ACK_TIMEOUT
-            self._in_flight = head
-            self.stats.sent += 1
-            try:
-                self._write(head.packet)
-            except OSError as error:
-                log.warning("write failed: %s", error)
+                del self._queues[node]
+            elif node not in self._awaiting and queue[0].not_before <= now:
+                ready.append(node)
+        if not ready:
             return
+        node = min(ready, key=lambda n: self._served.get(n, -1))
+        head = self._queues[node].popleft()
+        if not self._queues[node]:
+            del self._queues[node]
+        self._served[node] = self.stats.sent
+        head.attempts += 1
+        head.deadline = now + ACK_TIMEOUT
+        self._in_flight = head
+        self.stats.sent += 1
+        try:
+            self._write(head.packet)
+        except OSError as error:
+            log.warning("write failed: %s", error)
 
     def _retry(self, request: _Request, reason: str) -> None:
         request.reasons.append(reason)
@@ -241,10 +263,7 @@ class Scheduler:
         self.stats.retries += 1
         request.not_before = self._clock() + min(
             BACKOFF_MAX, BACKOFF_FIRST * 2 ** (request.attempts - 1))
-        queue = self._queues.setdefault(request.node, deque())
-        queue.appendleft(request)
-        if request.node not in self._turns:
-            self._turns.append(request.node)
+        self._queues.setdefault(request.node, deque()).appendleft(request)
 
     def _finish(self, request: _Request, answer: Any) -> None:
         if not request.future.done():
@@ -262,7 +281,3 @@ class Scheduler:
         if times:
             loop = asyncio.get_running_loop()
             self._timer = loop.call_later(max(0.0, min(times) - now), self.service)
-
-    @property
-    def busy(self) -> bool:
-        return bool(self._in_flight or self._awaiting or any(self._queues.values()))
