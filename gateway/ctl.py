@@ -33,6 +33,7 @@ from .cli_args import (
 )
 from .ctl_client import (
     MAX_REPLY_BYTES,
+    NO_ANSWER,
     NODE_FAILED,
     OK,
     USAGE,
@@ -233,7 +234,9 @@ class Stop:
 
 
 def run_tail(nodes: list[int], where: Endpoints, timeout: float) -> int:
-    """Print published records until a signal; malformed messages are warned about."""
+    """Print published records until a signal; malformed messages are warned about.
+    The gateway's heartbeat (gx2/gateway/status, not printed) proves it is alive even
+    when no node streams: nothing at all for ``timeout`` seconds exits 3."""
     found = where.publish
     if found is None:
         with Client(where.control, timeout) as client:
@@ -250,18 +253,24 @@ def run_tail(nodes: list[int], where: Endpoints, timeout: float) -> int:
         except zmq.ZMQError as error:
             raise CtlError(f"cannot use publish endpoint {address}: {error}", USAGE) from None
         unique = list(dict.fromkeys(nodes))
-        for prefix in [f"gx2/{node}/" for node in unique] or ["gx2/"]:
+        prefixes = [f"gx2/{node}/" for node in unique] or ["gx2/"]
+        for prefix in [*prefixes, "gx2/gateway/status"]:
             sub.setsockopt(zmq.SUBSCRIBE, prefix.encode())
+        heard = time.monotonic()
         while not stop.requested:
             if sub.poll(100, zmq.POLLIN):
-                _print_batch(sub, stop, nodes_only=not unique)
+                _print_batch(sub, stop)
+                heard = time.monotonic()
+            elif time.monotonic() - heard > timeout:
+                raise CtlError(f"the gateway at {address} published nothing for "
+                               f"{timeout:g} s (not even its heartbeat)", NO_ANSWER)
     finally:
         sub.close(linger=0)
         context.term()
     return OK
 
 
-def _print_batch(sub: zmq.Socket, stop: Stop, nodes_only: bool) -> None:
+def _print_batch(sub: zmq.Socket, stop: Stop) -> None:
     """Every message already queued, printed, then one flush."""
     while not stop.requested:
         try:
@@ -269,7 +278,7 @@ def _print_batch(sub: zmq.Socket, stop: Stop, nodes_only: bool) -> None:
         except zmq.Again:
             break
         try:
-            line = tail_line(frames, nodes_only)
+            line = tail_line(frames, nodes_only=True)
         except Malformed as problem:
             sys.stdout.flush()
             print(f"{PROG}: skipped a message {problem}", file=sys.stderr, flush=True)

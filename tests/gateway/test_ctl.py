@@ -621,3 +621,18 @@ def test_a_bind_address_becomes_one_to_connect_to(bound: str, near: str,
                                                   expected: str) -> None:
     assert connectable(bound, near) == expected
 
+
+
+def test_tail_on_a_dead_gateway_exits_3(tmp_path: Path) -> None:
+    """tail never hangs either: without even the gateway's heartbeat for --timeout
+    seconds, it exits 3 (found in review: with --config it waited forever)."""
+    config = tmp_path / "dead.yaml"
+    config.write_text("base_station: {port: x}\n"
+                      f"publish: {{endpoint: 'tcp://127.0.0.1:{free_port()}'}}\n"
+                      f"control: {{endpoint: 'tcp://127.0.0.1:{free_port()}'}}\n"
+                      "nodes: [{address: 76}]\n")
+    start = time.monotonic()
+    run = subprocess.run([gx2ctl(), "--config", str(config), "--timeout", "1", "tail"],
+                         capture_output=True, text=True, timeout=10)
+    assert run.returncode == 3 and time.monotonic() - start < 3
+    assert run.stderr.count("\n") == 1 and "published nothing" in run.stderr
