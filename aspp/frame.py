@@ -125,11 +125,6 @@ def decode_command_packet(packet: bytes) -> tuple[int, bytes]:
     return node, bytes(packet[HEADER_SIZE:end])
 
 
-def command_packet_size(length_byte: int) -> int:
-    """Total size of a command packet whose length byte is ``length_byte``."""
-    return length_byte - 1 + COMMAND_OVERHEAD
-
-
 def reply_packet_size(length_byte: int) -> int:
     """Total size of a packet from the base station whose length byte is ``length_byte``."""
     return length_byte - 1 + REPLY_OVERHEAD

@@ -54,6 +54,8 @@ class CommandSpec:
 
     reply_struct: struct.Struct = field(init=False, repr=False, compare=False)
     """The reply layout compiled: the echo byte, then every field, big-endian."""
+    field_names: tuple[str, ...] = field(init=False, repr=False, compare=False)
+    """The reply's field names in order (computed once: used for every record)."""
     request_struct: struct.Struct = field(init=False, repr=False, compare=False)
 
     def __repr__(self) -> str:
@@ -65,6 +67,7 @@ class CommandSpec:
                                 else item.type.code for item in self.request)
         object.__setattr__(self, "reply_struct", struct.Struct(">B" + reply_codes))
         object.__setattr__(self, "request_struct", struct.Struct(">B" + request_codes))
+        object.__setattr__(self, "field_names", tuple(f.name for f in self.reply or ()))
 
     @property
     def reply_size(self) -> int | None:
@@ -88,10 +91,6 @@ class CommandSpec:
     @property
     def timed(self) -> bool:
         return self.reply is not None and any(f.name == "timer" for f in self.reply)
-
-    @property
-    def field_names(self) -> tuple[str, ...]:
-        return tuple(f.name for f in self.reply or ())
 
 
 def _timed(*fields: Field) -> tuple[Field, ...]:
@@ -317,11 +316,6 @@ def encode(record: str | int, **fields: object) -> bytes:
             raise CommandError(f"{spec.name} needs a value for {f.name!r}")
         items.extend(f.type.flatten(f.name, fields[f.name]))
     return spec.reply_struct.pack(*items)
-
-
-def encode_record(rec: Record) -> bytes:
-    """The reply bytes of a decoded record (decode's inverse)."""
-    return encode(rec.command, **rec.as_dict())
 
 
 def markdown_table() -> str:

@@ -79,10 +79,6 @@ class StopPolicy:
         self._last_packet: float | None = None
         self._result: Stopped | GaveUp | None = None
 
-    @property
-    def done(self) -> bool:
-        return self._result is not None
-
     def packet_seen(self, now: float) -> None:
         """A streamed record from the node arrived at ``now``."""
         if self._last_packet is None or now > self._last_packet:

@@ -64,7 +64,6 @@ def record_arg(streamable: bool = False, pollable: bool = False) -> Callable[[st
     return parse
 
 
-record_name = record_arg()
 streamable_record = record_arg(streamable=True)
 pollable_record = record_arg(pollable=True)
 

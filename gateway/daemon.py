@@ -234,7 +234,8 @@ class Gateway:
                         "published": self.publisher.sent,
                         "publish_failures": self.publisher.failed,
                         "control_requests": self.control.requests,
-                        "control_rejected": self.control.rejected},
+                        "control_rejected": self.control.rejected,
+                        "control_dropped": self.control.dropped},
             "link": {"port": self.config.base_station.port,
                      "state": "up" if self.link.up else "down", "since": self.link.since,
                      "reconnects": self.link.reconnects, "bytes_read": self.link.bytes_read,
@@ -244,6 +245,7 @@ class Gateway:
                      "unknown_node_packets": self.unknown_node_packets,
                      "bad_records": self.bad_records,
                      "retries": self.scheduler.stats.retries,
-                     "failures": self.scheduler.stats.failures},
+                     "failures": self.scheduler.stats.failures,
+                     "unexpected_answers": self.scheduler.stats.unexpected},
             "nodes": [node.status(now) for node in self.nodes.values()],
         }

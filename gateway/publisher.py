@@ -36,7 +36,9 @@ class Publisher:
         self.failed = 0
 
     def publish(self, node: int, record: str, payload: dict[str, Any]) -> bool:
-        """Publish one record; False if it could not be sent (counted, never raised)."""
+        """Publish one record; False if ZeroMQ refused it (counted, never raised). A
+        subscriber past its high-water mark loses messages silently inside PUB: it sees
+        them as gaps in ``seq``."""
         key = (node, record)
         name = self._topics.get(key)
         if name is None:
@@ -48,8 +50,7 @@ class Publisher:
 
     def _send(self, name: bytes, payload: dict[str, Any]) -> bool:
         try:
-            self.socket.send_multipart((name, self._pack(payload)), flags=zmq.NOBLOCK,
-                                       copy=False)
+            self.socket.send_multipart((name, self._pack(payload)), flags=zmq.NOBLOCK)
         except zmq.ZMQError as error:
             self.failed += 1
             log.warning("publish on %s failed: %s", name.decode(), error)
