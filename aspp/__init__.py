@@ -7,7 +7,17 @@ clock or starts a thread: the gateway and the simulator do that at the edges.
 from .commands import Command
 from .decoder import Decoder, DecoderStats
 from .errors import AsppError, CommandError, PacketError, RecordError
-from .events import Ack, Discarded, DiscardReason, Event, Frame, Nack, PingOk, Reply
+from .events import (
+    Ack,
+    Discarded,
+    DiscardReason,
+    Event,
+    Frame,
+    Nack,
+    PingOk,
+    Reply,
+    stream_bytes,
+)
 from .frame import ACK, NACK, PING, SOP, checksum, encode_command_packet, encode_ping
 from .records import CommandSpec, Record, decode, encode, lookup
 from .stop import GaveUp, SendStop, Stopped, StopPolicy, WaitUntil
@@ -19,5 +29,5 @@ __all__ = [
     "DecoderStats", "DiscardReason", "Discarded", "Event", "Frame", "GaveUp", "Nack",
     "PacketError", "PingOk", "Record", "RecordError", "Reply", "SendStop", "StopPolicy",
     "Stopped", "TimerUnwrapper", "WaitUntil", "checksum", "decode", "encode",
-    "encode_command_packet", "encode_ping", "lookup",
+    "encode_command_packet", "encode_ping", "lookup", "stream_bytes",
 ]

@@ -169,3 +169,15 @@ NACK_EVENT = Nack()
 PING_OK_EVENT = PingOk()
 
 Event = Reply | Frame | Ack | Nack | PingOk | Discarded
+_CONTROL_BYTES = {Ack: b"\xaa", Nack: b"\x21", PingOk: b"\x02"}
+
+
+def stream_bytes(event: Event) -> bytes:
+    """The bytes of the stream that ``event`` stands for: the packet, the control byte
+    or the discarded run. Joined in order, they give back every byte fed to the decoder
+    (for capture and replay, or for logging exactly what was dropped)."""
+    if isinstance(event, (Reply, Frame)):
+        return event.raw
+    if isinstance(event, Discarded):
+        return event.data
+    return _CONTROL_BYTES[type(event)]

@@ -19,12 +19,12 @@ import resource
 import sys
 import time
 
-from aspp import Ack, Decoder, Discarded, Frame, Nack, PingOk, Reply
+from aspp import Decoder
 from aspp.decoder import MAX_DISCARD
+from aspp.events import stream_bytes
 from aspp.frame import encode_reply_packet
 
 MAX_PENDING = 265 + MAX_DISCARD
-BYTE_OF = {Ack: b"\xaa", Nack: b"\x21", PingOk: b"\x02"}
 
 
 def packet(rng: random.Random) -> bytes:
@@ -80,13 +80,6 @@ def generate(rng: random.Random) -> bytes:
     return bytes(rng.choice((0xAA, 0x21, 0x02, 0x07, 0x00)) for _ in range(rng.randrange(600)))
 
 
-def represented(event: object) -> bytes:
-    if type(event) in (Reply, Frame):
-        return event.raw  # type: ignore[attr-defined]
-    if type(event) is Discarded:
-        return event.data  # type: ignore[attr-defined]
-    return BYTE_OF[type(event)]
-
 
 def check(rng: random.Random, data: bytes) -> str | None:
     decoder = Decoder()
@@ -101,7 +94,7 @@ def check(rng: random.Random, data: bytes) -> str | None:
     events += decoder.line_idle()
     if decoder.pending:
         return f"{decoder.pending} bytes left after line_idle()"
-    if b"".join(represented(e) for e in events) != data:
+    if b"".join(stream_bytes(e) for e in events) != data:
         return "the events do not account for every byte exactly once"
     return None
 

@@ -33,9 +33,9 @@ from aspp.events import (
     Nack,
     PingOk,
     Reply,
+    stream_bytes,
 )
 from aspp.frame import (
-    ACK,
     FLAGS_DISCOVERY,
     NACK,
     PING,
@@ -166,20 +166,7 @@ def run(chunks: Iterable[bytes]) -> tuple[list[Event], Decoder]:
 
 def represented(events: Iterable[Event]) -> bytes:
     """The bytes the events stand for, in order."""
-    out = bytearray()
-    for event in events:
-        if isinstance(event, (Reply, Frame)):
-            out += event.raw
-        elif isinstance(event, Ack):
-            out.append(ACK)
-        elif isinstance(event, Nack):
-            out.append(NACK)
-        elif isinstance(event, PingOk):
-            out.append(PING)
-        else:
-            assert isinstance(event, Discarded)
-            out += event.data
-    return bytes(out)
+    return b"".join(stream_bytes(event) for event in events)
 
 
 def stats_for(events: Iterable[Event]) -> DecoderStats:

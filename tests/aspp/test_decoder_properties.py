@@ -17,7 +17,17 @@ from hypothesis import strategies as st
 
 from aspp import commands, records
 from aspp.decoder import MAX_DISCARD, Decoder, DecoderStats
-from aspp.events import Ack, Discarded, DiscardReason, Event, Frame, Nack, PingOk, Reply
+from aspp.events import (
+    Ack,
+    Discarded,
+    DiscardReason,
+    Event,
+    Frame,
+    Nack,
+    PingOk,
+    Reply,
+    stream_bytes,
+)
 from aspp.fields import Field
 from aspp.frame import (
     ACK,
@@ -65,20 +75,7 @@ def decode_chunks(chunks: Iterable[bytes]) -> tuple[list[Event], Decoder]:
 
 def represented(events: Iterable[Event]) -> bytes:
     """The bytes the events stand for, in order."""
-    out = bytearray()
-    for event in events:
-        if isinstance(event, (Reply, Frame)):
-            out += event.raw
-        elif isinstance(event, Ack):
-            out.append(ACK)
-        elif isinstance(event, Nack):
-            out.append(NACK)
-        elif isinstance(event, PingOk):
-            out.append(PING)
-        else:
-            assert isinstance(event, Discarded), event
-            out += event.data
-    return bytes(out)
+    return b"".join(stream_bytes(event) for event in events)
 
 
 def stats_for(events: Iterable[Event]) -> DecoderStats:
