@@ -4,6 +4,7 @@ installed gx2-gateway console script as a subprocess, real ZeroMQ sockets on loo
 
 from __future__ import annotations
 
+import errno
 import math
 import shutil
 import signal
@@ -30,6 +31,19 @@ def script(name: str) -> str:
     found = shutil.which(name, path=str(Path(sys.executable).parent))
     assert found, f"{name} is not installed beside {sys.executable}"
     return found
+
+
+def spawn_run(command: list[str], **options: Any) -> subprocess.CompletedProcess:
+    """subprocess.run, retried when the spawn itself fails with EFAULT: seen on this
+    sandbox when several threads start processes at once; the program never ran, so a
+    retry cannot hide a bug in it."""
+    for attempt in range(3):
+        try:
+            return subprocess.run(command, **options)
+        except OSError as error:
+            if error.errno != errno.EFAULT or attempt == 2:
+                raise
+    raise AssertionError("unreachable")
 
 
 def free_port() -> int:

@@ -26,6 +26,7 @@ from typing import Any
 import msgpack
 import pytest
 import zmq
+from harness import spawn_run
 
 from gateway import protocol
 from gateway.config import ControlConfig
@@ -204,8 +205,8 @@ class Run:
 
 def run(*args: str, limit: float = 30.0) -> Run:
     start = time.monotonic()
-    done = subprocess.run([gx2ctl(), *args], stdin=subprocess.DEVNULL, capture_output=True,
-                          text=True, timeout=limit, check=False)
+    done = spawn_run([gx2ctl(), *args], stdin=subprocess.DEVNULL, capture_output=True,
+                     text=True, timeout=limit, check=False)
     return Run(args, done.returncode, done.stdout, done.stderr, time.monotonic() - start)
 
 

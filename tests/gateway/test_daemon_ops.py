@@ -18,7 +18,7 @@ from typing import Any
 
 import msgpack
 import yaml
-from harness import EXIT, Control, free_port, is_nan, script, wait_for
+from harness import EXIT, Control, free_port, is_nan, script, spawn_run, wait_for
 
 from aspp.commands import EEPROM_DIVIDER
 from gateway.scheduler import MAX_ATTEMPTS, REPLY_TIMEOUT
@@ -403,8 +403,8 @@ def run_gateway(*args: str, env: dict[str, str] | None = None) -> subprocess.Com
     None (it took a bad configuration and started serving)."""
     command = [script("gx2-gateway"), *args]
     try:
-        return subprocess.run(command, capture_output=True, text=True, timeout=CLI_TIMEOUT,
-                              stdin=subprocess.DEVNULL, env=env)
+        return spawn_run(command, capture_output=True, text=True, timeout=CLI_TIMEOUT,
+                         stdin=subprocess.DEVNULL, env=env)
     except subprocess.TimeoutExpired as expired:
         return subprocess.CompletedProcess(command, None, expired.stdout or "",  # type: ignore[arg-type]
                                            expired.stderr or "")
