@@ -18,12 +18,14 @@ byte. Inside a longer run they are garbage like the rest of it.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 
 import pytest
+from decoding import decode_chunks as run
+from decoding import represented, stats_for
 
 from aspp import records
-from aspp.decoder import MAX_DISCARD, Decoder, DecoderStats
+from aspp.decoder import MAX_DISCARD, Decoder
 from aspp.events import (
     Ack,
     Discarded,
@@ -33,7 +35,6 @@ from aspp.events import (
     Nack,
     PingOk,
     Reply,
-    stream_bytes,
 )
 from aspp.frame import (
     FLAGS_DISCOVERY,
@@ -154,39 +155,6 @@ def test_fixture_packets_are_what_the_cases_assume() -> None:
 
 
 # --- helpers --------------------------------------------------------------------------
-
-def run(chunks: Iterable[bytes]) -> tuple[list[Event], Decoder]:
-    decoder = Decoder()
-    events: list[Event] = []
-    for chunk in chunks:
-        events += decoder.feed(chunk)
-    events += decoder.line_idle()
-    return events, decoder
-
-
-def represented(events: Iterable[Event]) -> bytes:
-    """The bytes the events stand for, in order."""
-    return b"".join(stream_bytes(event) for event in events)
-
-
-def stats_for(events: Iterable[Event]) -> DecoderStats:
-    expected = DecoderStats()
-    for event in events:
-        if isinstance(event, Reply):
-            expected.replies += 1
-        elif isinstance(event, Frame):
-            expected.frames += 1
-        elif isinstance(event, Ack):
-            expected.acks += 1
-        elif isinstance(event, Nack):
-            expected.nacks += 1
-        elif isinstance(event, PingOk):
-            expected.ping_oks += 1
-        else:
-            expected.discarded_bytes[event.reason] += len(event.data)
-            expected.discarded_runs[event.reason] += 1
-    return expected
-
 
 def d(data: bytes, reason: DiscardReason) -> Discarded:
     return Discarded(data, reason)

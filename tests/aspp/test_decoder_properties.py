@@ -8,15 +8,15 @@ through the codecs (and, for replies, through a packet and the decoder).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from itertools import pairwise
 
 import pytest
+from decoding import decode_chunks, represented, stats_for
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from aspp import commands, records
-from aspp.decoder import MAX_DISCARD, Decoder, DecoderStats
+from aspp.decoder import MAX_DISCARD, Decoder
 from aspp.events import (
     Ack,
     Discarded,
@@ -26,7 +26,6 @@ from aspp.events import (
     Nack,
     PingOk,
     Reply,
-    stream_bytes,
 )
 from aspp.fields import Field
 from aspp.frame import (
@@ -62,39 +61,6 @@ def fast(max_examples: int) -> settings:
 def split(data: bytes, cuts: list[int]) -> list[bytes]:
     bounds = [0, *sorted(cuts), len(data)]
     return [data[a:b] for a, b in pairwise(bounds)]
-
-
-def decode_chunks(chunks: Iterable[bytes]) -> tuple[list[Event], Decoder]:
-    decoder = Decoder()
-    events: list[Event] = []
-    for chunk in chunks:
-        events += decoder.feed(chunk)
-    events += decoder.line_idle()
-    return events, decoder
-
-
-def represented(events: Iterable[Event]) -> bytes:
-    """The bytes the events stand for, in order."""
-    return b"".join(stream_bytes(event) for event in events)
-
-
-def stats_for(events: Iterable[Event]) -> DecoderStats:
-    expected = DecoderStats()
-    for event in events:
-        if isinstance(event, Reply):
-            expected.replies += 1
-        elif isinstance(event, Frame):
-            expected.frames += 1
-        elif isinstance(event, Ack):
-            expected.acks += 1
-        elif isinstance(event, Nack):
-            expected.nacks += 1
-        elif isinstance(event, PingOk):
-            expected.ping_oks += 1
-        else:
-            expected.discarded_bytes[event.reason] += len(event.data)
-            expected.discarded_runs[event.reason] += 1
-    return expected
 
 
 def plausible_reply(raw: bytes) -> bool:
