@@ -19,10 +19,11 @@ base station is not connected; ``internal`` (1) a bug, logged by the gateway.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Annotated, Any, Literal
 
 import msgpack
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, TypeAdapter, ValidationError
 
 from aspp.frame import MAX_NODE, MIN_NODE
 from aspp.records import checked
@@ -46,6 +47,13 @@ def _record(value: object, *, streamable: bool = False, pollable: bool = False) 
     return checked(value, streamable=streamable, pollable=pollable).name
 
 
+StreamableRecord = Annotated[str, BeforeValidator(partial(_record, streamable=True))]
+"""A record name or command byte that can stream; validated to its name."""
+PollableRecord = Annotated[str, BeforeValidator(partial(_record, pollable=True))]
+Word = Annotated[int, Field(ge=0, le=0xFFFF, strict=True)]
+"""An EEPROM address or value: 16 bits."""
+
+
 class PingRequest(_Request):
     op: Literal["ping"]
     nodes: Annotated[list[Node], Field(min_length=1, max_length=64)]
@@ -58,12 +66,7 @@ class StatusRequest(_Request):
 class StartRequest(_Request):
     op: Literal["start"]
     node: Node
-    record: str | int
-
-    @field_validator("record")
-    @classmethod
-    def _streamable(cls, value: object) -> str:
-        return _record(value, streamable=True)
+    record: StreamableRecord
 
 
 class StopRequest(_Request):
@@ -74,25 +77,20 @@ class StopRequest(_Request):
 class PollRequest(_Request):
     op: Literal["poll"]
     node: Node
-    record: str | int
-
-    @field_validator("record")
-    @classmethod
-    def _pollable(cls, value: object) -> str:
-        return _record(value, pollable=True)
+    record: PollableRecord
 
 
 class EepromReadRequest(_Request):
     op: Literal["eeprom_read"]
     node: Node
-    address: Annotated[int, Field(ge=0, le=0xFFFF, strict=True)]
+    address: Word
 
 
 class EepromWriteRequest(_Request):
     op: Literal["eeprom_write"]
     node: Node
-    address: Annotated[int, Field(ge=0, le=0xFFFF, strict=True)]
-    value: Annotated[int, Field(ge=0, le=0xFFFF, strict=True)]
+    address: Word
+    value: Word
 
 
 class RateRequest(_Request):
