@@ -72,6 +72,9 @@ class StationStats:
     packets_dropped_full: int = 0
     bytes_sent: int = 0
     faults_injected: int = 0
+    line_idle: float = 0.0
+    """Seconds the UART had nothing to send between two chunks (model time, so it does
+    not depend on how promptly the simulator's thread runs)."""
 
 
 class BaseStation:
@@ -215,6 +218,8 @@ class BaseStation:
         backlog = (self._line_free_at - t) / self.byte_time
         if backlog + len(chunk) > BUFFER_BYTES and not control:
             return False
+        if t > self._line_free_at > 0.0:
+            self.stats.line_idle += t - self._line_free_at
         start = max(t, self._line_free_at)
         self._line_free_at = start + len(chunk) * self.byte_time
         self._out.append((self._line_free_at, chunk))

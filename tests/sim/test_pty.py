@@ -692,15 +692,16 @@ def test_a_saturated_line_is_paced_at_the_baud_rate(sims: Sims, clients: Clients
     assert offered > 5 * LINE_BYTES_PER_SECOND
     powered = min(sim.node(a).powered_at for a in (76, 77, 78))
     client = clients.open(sim.path)
-    opened = time.monotonic()
+    idle_before = sim.call(lambda station, now: station.stats.line_idle)
     client.read_events(timeout=1.2)
 
     last = client.reads[-1][0]
     received = sum(len(data) for _, data in client.reads)
     # no byte leaves the UART before its time: a hard bound since power-up
     assert received <= LINE_BYTES_PER_SECOND * (last - powered) * 1.01 + 100
-    # and the line is kept busy
-    assert received >= 0.85 * LINE_BYTES_PER_SECOND * (last - opened) - 500
+    # and the line is kept busy: its UART never waited for data while saturated
+    # (model time: how promptly the test's threads run does not enter into it)
+    assert sim.call(lambda station, now: station.stats.line_idle) == idle_before
     assert sim.station.stats.packets_dropped_full > 0
     assert sim.dropped_bytes == 0
     events = [e for _, e in client.log]
