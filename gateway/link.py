@@ -1,9 +1,13 @@
 """The base station's serial port, read by the event loop: the one place bytes enter.
 
 Opened exclusively and raw (pyserial sets raw mode on a tty); each time the fd is
-readable, everything waiting is read in one call and stamped with the host time. A
-read error or end of file (the USB plug pulled) closes the port, and it is reopened
-with backoff in steps of at most 1 s until it comes back.
+readable, everything waiting is read in one call and stamped with the host time.
+Writes go straight to the non-blocking fd; what it cannot take at once waits in a
+small buffer that is flushed when the fd becomes writable, so a busy host or a full
+driver buffer is never mistaken for a lost port (pyserial's own write timeout counts a
+scheduling stall as a timeout even after every byte was written). A read or write
+error, or end of file (the USB plug pulled), closes the port, and it is reopened with
+backoff in steps of at most 1 s until it comes back.
 
 ``port: sim://`` runs gx2-sim in this process for the configured nodes, behind a pty
 with a stable path, so the daemon opens it exactly as it opens real hardware. Query
@@ -31,6 +35,9 @@ log = logging.getLogger("gx2.link")
 REOPEN_STEPS = (0.1, 0.2, 0.5, 1.0)
 """Backoff between reopen attempts; it stays at the last step (1 s) until the port returns."""
 READ_SIZE = 65536
+MAX_UNSENT = 4096
+"""Bytes the port may leave untaken before it is declared lost: the scheduler has one
+packet of at most 110 bytes in flight, so this many means the port stopped taking any."""
 
 def simulator_for(url: str, nodes: list[int], link: Path) -> Simulator:
     """The embedded simulator a ``sim://`` port names (validated with the config)."""
@@ -49,6 +56,8 @@ class SerialLink:
         self._serial: serial.SerialBase | None = None
         self._fd: int | None = None
         self._poll_handle: asyncio.TimerHandle | None = None
+        self._unsent = bytearray()
+        self._writer_added = False
         self._reopen_task: asyncio.Task[None] | None = None
         self.up = False
         self.since = time.time()
@@ -60,8 +69,7 @@ class SerialLink:
     def open(self) -> None:
         """Open now; raise OSError/SerialException if the port cannot be opened."""
         is_device = "://" not in self.port
-        # a write may stall the loop for at most 0.1 s (a command is at most 110 bytes;
-        # a port that cannot take that is as good as lost)
+        # write_timeout applies only to URL handlers without an fd (loop://)
         ser = serial.serial_for_url(self.port, self.baudrate, timeout=0, write_timeout=0.1,
                                     exclusive=True if is_device else None)
         self._serial = ser
@@ -78,6 +86,11 @@ class SerialLink:
     def reopening(self) -> bool:
         """The reopen loop is alive (it ends when the port is back)."""
         return self._reopen_task is not None and not self._reopen_task.done()
+
+    @property
+    def unsent(self) -> int:
+        """Bytes written that the port has not taken yet."""
+        return len(self._unsent)
 
     def start_reopening(self) -> None:
         if self._reopen_task is None or self._reopen_task.done():
@@ -98,13 +111,44 @@ class SerialLink:
             log.info("base station %s is back after %d attempts", self.port, attempt)
 
     def write(self, data: bytes) -> None:
+        """Send ``data`` (now, or as soon as the port takes it); OSError if the port is
+        not open or fails."""
         if self._serial is None:
             raise OSError("the base station is not connected")
+        if self._fd is None:
+            try:
+                self._serial.write(data)
+            except (OSError, serial.SerialException) as error:
+                self._lost(f"write failed: {error}")
+                raise OSError(str(error)) from None
+            return
+        self._unsent += data
+        if len(self._unsent) > MAX_UNSENT:
+            self._lost(f"the port took nothing of the last {len(self._unsent)} bytes")
+            raise OSError("the base station stopped taking bytes")
+        if error := self._flush():
+            raise OSError(error)
+
+    def _flush(self) -> str | None:
+        """Write what the fd takes now; watch for writability while any is left. The
+        error that lost the port, if one did."""
         try:
-            self._serial.write(data)
-        except (OSError, serial.SerialException) as error:
-            self._lost(f"write failed: {error}")
-            raise OSError(str(error)) from None
+            while self._unsent:
+                del self._unsent[:os.write(self._fd, self._unsent)]  # type: ignore[arg-type]
+        except (BlockingIOError, InterruptedError):
+            pass
+        except OSError as error:
+            why = f"write failed: {error.strerror or error}"
+            self._lost(why)
+            return why
+        loop = asyncio.get_running_loop()
+        if self._unsent and not self._writer_added:
+            loop.add_writer(self._fd, self._flush)  # type: ignore[arg-type]
+            self._writer_added = True
+        elif not self._unsent and self._writer_added:
+            loop.remove_writer(self._fd)  # type: ignore[arg-type]
+            self._writer_added = False
+        return None
 
     def _readable(self) -> None:
         try:
@@ -145,7 +189,11 @@ class SerialLink:
         loop = asyncio.get_running_loop()
         if self._fd is not None:
             loop.remove_reader(self._fd)
+            if self._writer_added:
+                loop.remove_writer(self._fd)
             self._fd = None
+        self._unsent.clear()  # commands for a port that is gone; the scheduler retries
+        self._writer_added = False
         if self._poll_handle is not None:
             self._poll_handle.cancel()
             self._poll_handle = None

@@ -9,7 +9,7 @@ from itertools import pairwise
 
 import msgpack
 import pytest
-from harness import Control, is_nan, wait_for
+from harness import STARTUP, Control, is_nan, wait_for
 
 from aspp.timing import TICKS_PER_SECOND
 from gateway.sim.node import GX2, NodeSettings
@@ -94,13 +94,21 @@ def test_topic_prefix_isolation(simulator, gateway):
     assert all(t.startswith("gx2/76/") for t, _ in only_76.messages)
 
 
-def test_device_time_across_a_timer_wrap(simulator, gateway):
-    """The timer wraps 2^32 ticks (218.45 s) after power-up; device_time never goes back."""
-    sim = simulator(NodeSettings(76, timer_start=215.5))  # wraps 3 s after power-up
-    gw = gateway(sim.path, [{"address": 76, "stream": "accel_angrate"}])
+def test_device_time_across_a_timer_wrap(simulator, gateway, tmp_path):
+    """The timer wraps 2^32 ticks (218.45 s) after power-up; device_time never goes back.
+
+    The gateway runs first and the base station is plugged in afterwards, so the wrap,
+    3 s after power-up, cannot pass before the gateway is there to see it however long
+    the gateway takes to start."""
+    gw = gateway(str(tmp_path / "gx2"), [{"address": 76, "stream": "accel_angrate"}],
+                 wait=False)
+    wait_for(lambda: gw.control.try_call("status", timeout=0.5), STARTUP, "the control socket")
     sub = gw.subscribe("gx2/76/accel_angrate")
-    records = sub.until(lambda m: any(p["timer"] < 5 * TICKS_PER_SECOND for _, p in m[5:])
-                        and len(m) > 60, 15, "the timer to wrap")
+    simulator(NodeSettings(76, timer_start=215.5))  # plugged in; wraps 3 s from now
+    wrapped_at = 5 * TICKS_PER_SECOND
+    records = sub.until(lambda m: any(p["timer"] < wrapped_at for _, p in m[5:])
+                        and m[0][1]["timer"] > wrapped_at and len(m) > 60, 15,
+                        "the timer to wrap")
     records = [p for _, p in records]
     timers = [p["timer"] for p in records]
     assert any(b < a for a, b in pairwise(timers)), "the raw timer wrapped"
@@ -159,6 +167,9 @@ def test_line_faults_cost_no_valid_packet(simulator, gateway, faults):
     gw.wait_streaming(76)
     for _ in range(5):
         assert gw.control.call("poll", node=77, record="euler")["ok"]
+    if faults.garbage or faults.false_header:  # the test means nothing without faults
+        wait_for(lambda: sim.call(lambda station, now: station.stats.faults_injected) >= 10,
+                 10, "ten faults on the line")
     quiet_all(sim, gw, 76)
     assert_every_packet_published(sim, gw, 76, 77)
     if faults.garbage or faults.false_header:
