@@ -100,7 +100,8 @@ def _count(value: Any, unit: str) -> str:
 
 
 NODE_COLUMNS = ("node", "name", "state", "record", "rate Hz", "packets", "published",
-                "lost radio", "lost gateway", "LQI", "RSSI", "last seen")
+                "lost radio", "lost gateway", "reboots", "silences", "LQI", "RSSI",
+                "last seen")
 
 
 def status_lines(result: Mapping[str, Any], now: float) -> list[str]:
@@ -121,7 +122,8 @@ def status_lines(result: Mapping[str, Any], now: float) -> list[str]:
     rows = [[cell(node.get("node")), cell(node.get("name")), cell(node.get("state")),
              cell(node.get("record")), cell(node.get("rate_hz")), cell(node.get("packets")),
              cell(node.get("published")), cell(node.get("lost_radio")),
-             cell(node.get("lost_gateway")), cell(node.get("lqi")), cell(node.get("rssi")),
+             cell(node.get("lost_gateway")), cell(node.get("reboots")),
+             cell(node.get("silences")), cell(node.get("lqi")), cell(node.get("rssi")),
              ago(node.get("last_seen"), now)]
             for node in (nodes if isinstance(nodes, list) else []) if isinstance(node, Mapping)]
     if rows:

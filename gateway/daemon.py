@@ -36,6 +36,8 @@ from .sim.server import Simulator
 log = logging.getLogger("gx2.gateway")
 EXIT_BUDGET = 1.5
 """Seconds a shutdown may spend stopping streams, within the promised 2 s."""
+WATCH_INTERVAL = 0.25
+"""Seconds between looks for streams that fell silent."""
 
 try:
     VERSION = version("gx2-gateway")
@@ -92,7 +94,8 @@ class Gateway:
             log.warning("base station %s: %s; retrying", self.config.base_station.port, error)
             self.link.start_reopening()
         loop = asyncio.get_running_loop()
-        tasks = [loop.create_task(self.control.serve()), loop.create_task(self._heartbeat())]
+        tasks = [loop.create_task(self.control.serve()), loop.create_task(self._heartbeat()),
+                 loop.create_task(self._watch_streams())]
         if self.systemd.watchdog_interval:
             tasks.append(loop.create_task(self._watchdog(self.systemd.watchdog_interval)))
         log.info("publishing on %s, control on %s, %d nodes", self.config.publish.endpoint,
@@ -168,6 +171,12 @@ class Gateway:
         payload = node.payload(event, record, host_time)
         if not self.publisher.publish(node.address, record.spec.name, payload):
             node.lost_gateway += 1
+        if node.quiet_reboot:
+            node.quiet_reboot = False
+            log.warning("node %s rebooted (its timer went back)", node.config.label)
+            self._arm(node)
+        elif node.state == "unreachable" and record.spec.name == node.config.stream:
+            self._stream_resumed(node)
         if (node.stop_policy is not None and record.spec.code == 0xC4
                 and record.values[0] == 0):
             node.stop_policy.stop_confirmed(time.monotonic())
@@ -197,6 +206,30 @@ class Gateway:
             for node in self.nodes.values():
                 node.link_lost()
         self.publisher.status(self.status())
+
+    def _stream_resumed(self, node: NodeState) -> None:
+        """The configured stream is back while its re-arm waits out a backoff (the node
+        was out of range, not rebooted): the stream needs nothing more."""
+        task = self._arming.pop(node.address, None)
+        if task is not None:
+            task.cancel()
+        node.streaming(node.config.stream)
+        log.info("node %s: its stream came back by itself", node.config.label)
+
+    async def _watch_streams(self) -> None:
+        """A stream that fell silent (a reboot whose discovery packet was lost, or the
+        node out of range) is counted and its configured stream re-armed."""
+        while True:
+            await asyncio.sleep(WATCH_INTERVAL)
+            if not self.link.up:
+                continue
+            now = time.monotonic()
+            for node in self.nodes.values():
+                if node.fell_silent(now):
+                    log.warning("node %s: its %s stream fell silent", node.config.label,
+                                node.record)
+                    if node.config.stream is not None:
+                        self._arm(node)
 
     def _arm(self, node: NodeState) -> None:
         """(Re)start the node's configured stream in the background."""

@@ -20,6 +20,11 @@ from .config import NodeConfig
 DEFAULT_DIVIDER = 512
 RATE_WINDOW = 2.0
 """Seconds over which the record rate is measured."""
+SILENCE_MIN = 1.0
+SILENCE_PERIODS = 10
+"""A stream with no record for this many sample periods (and at least SILENCE_MIN
+seconds) has fallen silent: the node rebooted with its discovery packet lost, or went
+out of range."""
 
 
 @dataclass(frozen=True)
@@ -46,6 +51,10 @@ class NodeState:
         self.lost_radio = 0
         self.lost_gateway = 0
         self.reboots = 0
+        self.silences = 0
+        self.quiet_reboot = False
+        """A reboot seen only in the timer, while something other than the configured
+        stream was coming: the daemon re-arms the node."""
         self.lqi: int | None = None
         self.rssi: int | None = None
         self.last_seen: float | None = None
@@ -54,12 +63,18 @@ class NodeState:
         self._unwrapper = TimerUnwrapper()
         self._reboot_announced = False
         self._last_stream_timer: int | None = None
+        self._stream_seen = 0.0
+        """time.monotonic() of the last record of the stream (or of its start)."""
         self._window_start = 0.0
         self._window_count = 0
 
     @property
     def period(self) -> float:
         return self.divider / 51200
+
+    @property
+    def silence_limit(self) -> float:
+        return max(SILENCE_MIN, SILENCE_PERIODS * self.period)
 
     def payload(self, event: Reply, record: Record, host_time: float) -> dict[str, Any]:
         """Count the record and build its published payload (CONTRACT section 4)."""
@@ -83,9 +98,15 @@ class NodeState:
             if self._unwrapper.last_was_reset:
                 if not self._reboot_announced:  # a reboot seen only in the timer
                     self.reboots += 1
+                    self.quiet_reboot = record.spec.name != self.config.stream
                 self._reboot_announced = False
+                self._last_stream_timer = None  # no gap across a power-up
             if record.spec.name == self.record:
                 self._count_gaps(timer)
+        if record.spec.name == self.record:
+            self._stream_seen = time.monotonic()
+            if self.state == "silent":
+                self.state = "streaming"
         if self.stop_policy is not None and record.spec.streamable:
             self.stop_policy.packet_seen(time.monotonic())
         return payload
@@ -113,6 +134,17 @@ class NodeState:
         self.record = record
         self.state = "streaming" if record else "polled"
         self._last_stream_timer = None
+        self._stream_seen = time.monotonic()
+
+    def fell_silent(self, now: float) -> bool:
+        """Whether the stream just fell silent (checked against ``time.monotonic()``);
+        if so it is counted and the state says so."""
+        if (self.state != "streaming" or self.record is None or self.stop_policy is not None
+                or now - self._stream_seen <= self.silence_limit):
+            return False
+        self.silences += 1
+        self.state = "silent"  # (if the stream resumes, its timer gap is lost_radio)
+        return True
 
     def rebooted(self) -> None:
         """A discovery packet: the node lost power; whatever it streamed is gone."""
@@ -134,5 +166,6 @@ class NodeState:
                 "record": self.record, "rate_hz": round(self.rate_hz, 2),
                 "divider": self.divider, "packets": self.packets, "published": self.seq,
                 "lost_radio": self.lost_radio, "lost_gateway": self.lost_gateway,
-                "reboots": self.reboots, "lqi": self.lqi, "rssi": self.rssi,
+                "reboots": self.reboots, "silences": self.silences, "lqi": self.lqi,
+                "rssi": self.rssi,
                 "last_seen": self.last_seen, "seq": self.seq}

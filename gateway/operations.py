@@ -189,8 +189,8 @@ class Operations:
         record = node.config.stream
         assert record is not None
         attempt = 0
-        node.state = "arming"
         while True:
+            node.state = "arming"  # ("unreachable" only while waiting out a backoff)
             try:
                 divider = (await self.ask(node, commands.read_eeprom(EEPROM_DIVIDER)))
                 if 170 <= divider.record["value"] <= 51200:

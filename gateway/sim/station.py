@@ -225,6 +225,11 @@ class BaseStation:
         self._out.append((self._line_free_at, chunk))
         return True
 
+    @property
+    def backlog(self) -> int:
+        """Bytes queued on the UART, not yet sent."""
+        return sum(len(chunk) for _, chunk in self._out)
+
     def take_output(self, now: float) -> bytes:
         """The bytes whose last bit has left the UART by ``now``."""
         chunks = []

@@ -148,7 +148,8 @@ def status_result(publish: str) -> dict[str, Any]:
         "nodes": [
             {"node": 76, "name": "left-wing", "state": "streaming", "record": "accel_angrate",
              "rate_hz": 100.0, "packets": 5000, "published": 4990, "lost_radio": 3,
-             "lost_gateway": 0, "lqi": 255, "rssi": -44, "last_seen": now - 1.5, "seq": 4990},
+             "lost_gateway": 0, "reboots": 1, "silences": 2, "lqi": 255, "rssi": -44,
+             "last_seen": now - 1.5, "seq": 4990},
             {"node": 95, "name": None, "state": "unknown", "record": None, "rate_hz": NAN,
              "packets": 0, "lost_radio": 0, "lqi": None, "rssi": None, "last_seen": None,
              "future_key": {"a": 1}},
@@ -313,10 +314,10 @@ READABLE: dict[str, tuple[list[str], str]] = {
                r"link     sim:// up for 1 min 3\d s, reconnects 2, read 123456 bytes, "
                r"discarded 7 bytes\n\n"
                r"node +name +state +record +rate Hz +packets +published +lost radio +"
-               r"lost gateway +LQI +RSSI +last seen\n"
-               r"76 +left-wing +streaming +accel_angrate +100 +5000 +4990 +3 +0 +255 +-44 +"
-               r"1\.\d s ago\n"
-               r"95 +- +unknown +- +- +0 +- +0 +- +- +- +never\n"),
+               r"lost gateway +reboots +silences +LQI +RSSI +last seen\n"
+               r"76 +left-wing +streaming +accel_angrate +100 +5000 +4990 +3 +0 +1 +2 +255 +"
+               r"-44 +1\.\d s ago\n"
+               r"95 +- +unknown +- +- +0 +- +0 +- +- +- +- +- +never\n"),
 }
 
 

@@ -317,22 +317,23 @@ def stream_timing(client: Client, since: int, node: int, command: int
 
 
 def check_rate(times: list[float], timers: list[int], divider: int) -> None:
-    expected_hz = 51200 / divider
+    """Every record of the stream, one period apart in the node's own time, over most
+    of the second the test read for.
+
+    Arrival times are not checked: on a loaded machine a stalled reader gets a burst
+    later, and the rate they imply swings by 20%. The node's timer is the sim's clock,
+    and nothing is lost between it and the pty (the tests check no drops), so timer
+    steps of exactly one period are the rate."""
     period_ticks = round(divider / 51200 * TICKS_PER_SECOND)
     steps = [(b - a) % TIMER_MODULUS for a, b in itertools.pairwise(timers)]
     assert steps and all(abs(s - period_ticks) <= 1 for s in steps), \
         f"timer steps {sorted(set(steps))} are not all {period_ticks} (lost or repeated records)"
-    wall = times[-1] - times[0]
-    assert wall > 0.8
-    # the arrival rate as the slope of arrival time against sample index: a least-squares
-    # fit, so one read delayed by a loaded machine cannot swing it as the endpoints can
-    n = len(times)
-    mean_i, mean_t = (n - 1) / 2, sum(times) / n
-    slope = (sum((i - mean_i) * (t - mean_t) for i, t in enumerate(times))
-             / sum((i - mean_i) ** 2 for i in range(n)))
-    # (the timer steps above pin the node's rate to the tick; this checks the line keeps
-    # up with it, and 10% still tells any two dividers a test uses apart)
-    assert 1 / slope == pytest.approx(expected_hz, rel=0.10)
+    assert len(times) == len(timers)
+    assert sum(steps) / TICKS_PER_SECOND > 0.8, "a second's records, not a few"
+
+
+def has_records(node: int, command: int, count: int) -> Predicate:
+    return lambda events: len(replies(events, node, command)) >= count
 
 
 def test_two_streams_at_their_rates_and_a_poll_in_between(sims: Sims, clients: Clients) -> None:
@@ -344,12 +345,12 @@ def test_two_streams_at_their_rates_and_a_poll_in_between(sims: Sims, clients: C
     assert (sim.node(76).continuous, sim.node(77).continuous) == (0xC2, 0xCE)
     mark = len(client.log)
 
-    client.read_events(timeout=0.5)
+    client.read_events(has_records(77, 0xCE, 25), timeout=5)  # half a second
     events, reply = transact(client, 78, gx2.poll("accel_angrate_orientation"))
     assert events.count(Ack()) == 1
     assert replies(events, 78) == [reply]
     assert decode(reply.payload).name == "accel_angrate_orientation"
-    client.read_events(timeout=0.6)
+    client.read_events(has_records(77, 0xCE, 30), timeout=5)  # and 0.6 s more
 
     logged = [e for _, e in client.log[mark:]]
     assert replies(logged, 78) == [reply], "node 78 answered once and does not stream"
@@ -369,7 +370,7 @@ def test_rate_follows_an_eeprom_divider_write(sims: Sims, clients: Clients) -> N
     assert rec["value"] == 256
     start_streaming(client, 76, "accel_angrate")
     mark = len(client.log)
-    client.read_events(timeout=1.0)
+    client.read_events(has_records(76, 0xC2, 200), timeout=5)  # a second's worth
     check_rate(*stream_timing(client, mark, 76, 0xC2), divider=256)
 
 
@@ -532,21 +533,26 @@ def test_pipelined_commands_get_one_glued_ack_each(sims: Sims, clients: Clients)
 @pytest.mark.parametrize("bad_checksum", [0.0, 0.2], ids=["no-bad-checksums", "bad-checksums"])
 def test_valid_packets_survive_line_faults(sims: Sims, clients: Clients,
                                            bad_checksum: float) -> None:
-    sim = sims.start([NodeSettings(76, stream="accel_angrate")], seed=7,
+    sim = sims.start([NodeSettings(76)], seed=7,
                      line=LineFaults(garbage=0.2, bad_checksum=bad_checksum, false_header=0.2))
-    client = clients.open(sim.path)
-    client.read_events(timeout=1.0)
+    client = clients.open(sim.path)  # (opening a port flushes what was waiting in it)
+    start = gx2.set_continuous("accel_angrate")  # at the node, as if by auto-start
+    sim.call(lambda station, now: station.nodes[76].execute(start, now))
+    client.read_events(lambda ev: sim.station.stats.packets_sent.get(76, 0) >= 100, timeout=10)
     sim.call(lambda station, now: setattr(station.nodes[76], "continuous", 0))
-    # read until the line has been quiet for a while: everything sent has arrived
+    # read until all the station sent has arrived and it has nothing left to send (a
+    # byte lost in the pty never arrives, so this fails at its deadline)
     deadline = time.monotonic() + 10
-    while client.read_events(timeout=0.1):
-        assert time.monotonic() < deadline, "the stream never stopped"
+    while sim.call(lambda station, now: (station.backlog, station.stats.bytes_sent)) != (
+            0, sum(len(data) for _, data in client.reads)):
+        assert time.monotonic() < deadline, "the pty passes every byte, untouched"
+        client.read_events(timeout=0.05)
+    client.read_events(timeout=0.05)  # the line is idle: a lone trailing byte resolves
     events = [e for _, e in client.log]
     stats = sim.station.stats
 
     assert sim.dropped_bytes == 0 and stats.packets_dropped_full == 0
     received = sum(len(data) for _, data in client.reads)
-    assert received == stats.bytes_sent, "the pty passes every byte, untouched"
 
     good = replies(events, 76, 0xC2)
     for reply in good:
