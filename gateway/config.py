@@ -6,6 +6,7 @@ Strict: an unknown key is an error, so a typo never passes silently.
 
 from __future__ import annotations
 
+import ipaddress
 from pathlib import Path
 from typing import Annotated
 
@@ -15,6 +16,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validat
 from aspp.frame import MAX_NODE, MIN_NODE
 from aspp.records import checked
 
+from . import curve
 from .cli_args import check_endpoint
 from .sim.config import from_url
 from .yamlconfig import ConfigError, load_model
@@ -66,6 +68,54 @@ class ControlConfig(_Strict):
     data rate divider, 0xFCA6 auto-start); a wrong word can break a node's calibration."""
 
 
+class CurveConfig(_Strict):
+    """Added: CURVE encryption and authentication (keys from ``gx2ctl keygen``)."""
+
+    server_key: Annotated[str, Field(min_length=1)]
+    """The gateway's ``.key_secret`` file (not readable by every user)."""
+    clients: Annotated[list[str], Field(min_length=1)]
+    """The client public keys let in: 40-character Z85 keys or ``.key`` files."""
+    publish: bool = True
+    """Encrypt the publish socket too (subscribers then need an allowed key); false
+    leaves the data stream open to anyone who can reach it."""
+
+    @field_validator("server_key")
+    @classmethod
+    def _server_pair(cls, value: str) -> str:
+        curve.load_key_pair(value)  # (a CurveError is a ValueError: a config error)
+        return value
+
+    @field_validator("clients")
+    @classmethod
+    def _client_keys(cls, values: list[str]) -> list[str]:
+        for index, value in enumerate(values):
+            try:
+                curve.public_key(value)
+            except curve.CurveError as error:
+                raise ValueError(f"[{index}]: {error}") from None
+        return values
+
+    def server_pair(self) -> curve.KeyPair:
+        return curve.load_key_pair(self.server_key)
+
+    def allowed(self) -> frozenset[bytes]:
+        return frozenset(curve.public_key(value) for value in self.clients)
+
+
+def is_loopback_endpoint(endpoint: str) -> bool:
+    """ipc://, inproc://, or tcp:// on a loopback address: unreachable from elsewhere."""
+    scheme, _, rest = endpoint.partition("://")
+    if scheme != "tcp":
+        return True
+    host = rest.rpartition(":")[0].strip("[]")
+    if host in ("localhost", "lo"):
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False  # *, a host name or an interface name: possibly reachable
+
+
 class ShutdownConfig(_Strict):
     """Added: what the gateway does on SIGTERM/SIGINT (it exits within 2 s either way)."""
 
@@ -94,6 +144,7 @@ class GatewayConfig(_Strict):
     publish: PublishConfig = PublishConfig()
     control: ControlConfig = ControlConfig()
     shutdown: ShutdownConfig = ShutdownConfig()
+    curve: CurveConfig | None = None
     nodes: Annotated[list[NodeConfig], Field(min_length=1)]
 
     @model_validator(mode="after")
@@ -106,6 +157,11 @@ class GatewayConfig(_Strict):
             seen.add(node.address)
         if self.publish.endpoint == self.control.endpoint:
             raise ValueError("publish.endpoint and control.endpoint must differ")
+        if self.curve is None and not is_loopback_endpoint(self.control.endpoint):
+            raise ValueError(f"control.endpoint: {self.control.endpoint} may be reachable "
+                             "from other hosts, and control can write EEPROM and stop "
+                             "streams: bind it to 127.0.0.1 or an ipc:// path, or "
+                             "configure curve (see README)")
         if self.base_station.port.startswith("sim://"):
             try:
                 from_url(self.base_station.port, [n.address for n in self.nodes])

@@ -9,7 +9,9 @@ retries after a timeout gets the first run's answer instead of a second run.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
+import os
 import time
 from collections import OrderedDict
 from collections.abc import Awaitable, Callable
@@ -18,7 +20,7 @@ from typing import Any
 import zmq
 import zmq.asyncio
 
-from . import protocol
+from . import curve, protocol
 from .operations import Invalid, Operations, Refused
 from .protocol import RequestError
 from .scheduler import LinkDown, NodeError
@@ -26,16 +28,25 @@ from .scheduler import LinkDown, NodeError
 log = logging.getLogger("gx2.control")
 REMEMBER_SECONDS = 60.0
 REMEMBER_MAX = 2048
+IPC_MODE = 0o660
+"""An ipc:// control socket: its owner and group may connect (gx2ctl users join the
+gateway's group), nobody else."""
 
 
 class ControlServer:
     def __init__(self, context: zmq.asyncio.Context, endpoint: str, ops: Operations,
-                 status: Callable[[], dict[str, Any]]) -> None:
+                 status: Callable[[], dict[str, Any]],
+                 server: curve.KeyPair | None = None) -> None:
         self.socket = context.socket(zmq.ROUTER)
         self.socket.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_REQUEST_BYTES + 1024)
         self.socket.setsockopt(zmq.LINGER, 0)
         self.socket.setsockopt(zmq.ROUTER_MANDATORY, 0)
+        if server is not None:
+            curve.serve(self.socket, server)
         self.socket.bind(endpoint)
+        if endpoint.startswith("ipc://"):
+            with contextlib.suppress(OSError):  # (an abstract @name has no file)
+                os.chmod(endpoint[len("ipc://"):], IPC_MODE)
         self.endpoint = endpoint
         self.ops = ops
         self.status = status

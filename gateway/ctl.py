@@ -22,6 +22,7 @@ import zmq
 from aspp.commands import divider_for_rate
 from aspp.errors import AsppError
 
+from . import curve
 from .cli_args import (
     ArgumentParser,
     bounded,
@@ -38,6 +39,7 @@ from .ctl_client import (
     OK,
     USAGE,
     Client,
+    ClientKeys,
     CtlError,
     connectable,
 )
@@ -56,6 +58,7 @@ DEFAULT_CONTROL = "tcp://127.0.0.1:5556"
 """The config's control.endpoint default (not imported: gateway.config loads pydantic,
 which would slow every run; a test checks that the two agree)."""
 DEFAULT_TIMEOUT = 5.0
+CLIENT_KEY_ENV, SERVER_KEY_ENV = "GX2_CLIENT_KEY", "GX2_SERVER_KEY"
 MAX_PING_NODES = 64
 """The most nodes one ping request may name (gateway.protocol.PingRequest)."""
 
@@ -106,6 +109,13 @@ def build_parser() -> ArgumentParser:
     parser.add_argument("--timeout", type=bounded(float, 0.01, 86400), default=DEFAULT_TIMEOUT,
                         metavar="SECONDS",
                         help=f"give up (exit 3) after this long (default {DEFAULT_TIMEOUT:g})")
+    parser.add_argument("--client-key", metavar="FILE",
+                        help="CURVE: this client's .key_secret file (default: "
+                        f"${CLIENT_KEY_ENV})")
+    parser.add_argument("--server-key", metavar="KEY",
+                        help="CURVE: the gateway's public key, as Z85 text or a .key file "
+                        f"(default: ${SERVER_KEY_ENV}, or beside the server key --config "
+                        "names)")
     parser.add_argument("--json", action="store_true",
                         help="print each reply as one strict JSON object on one line "
                         "(NaN as null); poll and tail always print JSON")
@@ -141,6 +151,8 @@ def build_parser() -> ArgumentParser:
         "gx2/gateway/... messages are not printed). The publish endpoint comes from "
         "--config, or else from the gateway's status reply.").add_argument(
         "nodes", nargs="*", type=node_address, metavar="NODE")
+    add("keygen", help="write a new CURVE key pair: PREFIX.key (public, 0644) and "
+        "PREFIX.key_secret (0600); never overwrites").add_argument("prefix", metavar="PREFIX")
     return parser
 
 
@@ -151,18 +163,52 @@ class Endpoints:
     control: str
     publish: str | None
     """Known only from --config; otherwise asked of the gateway when needed."""
+    keys: ClientKeys | None = None
+    publish_secured: bool | None = None
+    """Whether the publish socket uses CURVE too (None: ask the gateway's status)."""
 
 
 def endpoints(args: argparse.Namespace) -> Endpoints:
-    """From --config (loaded here: its errors exit 2), --control, or the default."""
+    """From --config (loaded here: its errors exit 2), --control, or the default; CURVE
+    keys from the options, the environment, or the config."""
+    client_key = args.client_key or os.environ.get(CLIENT_KEY_ENV)
+    server_key = args.server_key or os.environ.get(SERVER_KEY_ENV)
     if args.config is None:
-        return Endpoints(args.control or DEFAULT_CONTROL, None)
+        keys = client_keys(client_key, server_key, None)
+        return Endpoints(args.control or DEFAULT_CONTROL, None, keys)
     from .config import ConfigError, load_config  # pydantic: only when a config is used
     try:
         config = load_config(args.config)
     except ConfigError as error:
         raise CtlError(str(error), USAGE) from None
-    return Endpoints(config.control.endpoint, config.publish.endpoint)
+    secured = config.curve is not None
+    if secured and server_key is None:
+        sibling = curve.public_sibling(config.curve.server_key)
+        server_key = str(sibling) if sibling.exists() else config.curve.server_key
+    keys = client_keys(client_key, server_key, args.config if secured else None)
+    return Endpoints(config.control.endpoint, config.publish.endpoint, keys,
+                     secured and config.curve.publish)
+
+
+def client_keys(client_key: str | None, server_key: str | None,
+                secured_by: str | None) -> ClientKeys | None:
+    """The CURVE keys to connect with, or None for a plain connection."""
+    if client_key is None and server_key is None and secured_by is None:
+        return None
+    if client_key is None:
+        why = f"{secured_by} configures curve" if secured_by else "--server-key is given"
+        raise CtlError(f"{why}: give this client's key pair with --client-key FILE or "
+                       f"${CLIENT_KEY_ENV} (make one with gx2ctl keygen)", USAGE)
+    if server_key is None:
+        raise CtlError(f"--client-key is given: give the gateway's public key with "
+                       f"--server-key KEY or ${SERVER_KEY_ENV}", USAGE)
+    try:
+        pair = curve.load_key_pair(client_key)
+        server = (curve.load_key_pair(server_key).public
+                  if server_key.endswith(curve.SECRET_SUFFIX) else curve.public_key(server_key))
+    except curve.CurveError as error:
+        raise CtlError(str(error), USAGE) from None
+    return ClientKeys(pair, server)
 
 
 # --- commands -------------------------------------------------------------------------
@@ -191,7 +237,7 @@ def request_of(args: argparse.Namespace) -> tuple[str, dict[str, Any]]:
 
 def run_request(args: argparse.Namespace, where: Endpoints) -> int:
     op, fields = request_of(args)
-    with Client(where.control, args.timeout) as client:
+    with Client(where.control, args.timeout, where.keys) as client:
         result = client.call(op, **fields)
     if op == "poll" or args.json:
         emit([json_line(result)])
@@ -237,10 +283,12 @@ def run_tail(nodes: list[int], where: Endpoints, timeout: float) -> int:
     """Print published records until a signal; malformed messages are warned about.
     The gateway's heartbeat (gx2/gateway/status, not printed) proves it is alive even
     when no node streams: nothing at all for ``timeout`` seconds exits 3."""
-    found = where.publish
+    found, secured = where.publish, where.publish_secured
     if found is None:
-        with Client(where.control, timeout) as client:
-            found = publish_endpoint(client.call("status"))
+        with Client(where.control, timeout, where.keys) as client:
+            status = client.call("status")
+        found = publish_endpoint(status)
+        secured = bool(status.get("gateway", {}).get("publish_curve"))
     address = connectable(found, where.control)
     stop = Stop()
     context = zmq.Context()
@@ -248,6 +296,8 @@ def run_tail(nodes: list[int], where: Endpoints, timeout: float) -> int:
     try:
         sub.setsockopt(zmq.LINGER, 0)
         sub.setsockopt(zmq.MAXMSGSIZE, MAX_REPLY_BYTES)  # records are far smaller
+        if secured and where.keys is not None:
+            curve.connect_as(sub, where.keys.client, where.keys.server_public)
         try:
             sub.connect(address)
         except zmq.ZMQError as error:
@@ -294,9 +344,21 @@ def emit(lines: list[str]) -> None:
     sys.stdout.flush()
 
 
+def run_keygen(prefix: str) -> int:
+    try:
+        public, secret = curve.generate(prefix)
+    except curve.CurveError as error:
+        raise CtlError(str(error), NODE_FAILED) from None
+    emit([f"public key  {public}  {curve.public_key(str(public)).decode()}",
+          f"key pair    {secret}  (mode 0600: keep it private)"])
+    return OK
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
+        if args.command == "keygen":
+            return run_keygen(args.prefix)
         where = endpoints(args)
         if args.command == "tail":
             return run_tail(args.nodes, where, args.timeout)

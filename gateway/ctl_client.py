@@ -8,10 +8,13 @@ import contextlib
 import math
 import time
 import uuid
+from dataclasses import dataclass
 from typing import Any
 
 import msgpack
 import zmq
+
+from . import curve
 
 MAX_REPLY_BYTES = 1 << 20
 """gateway.protocol.MAX_REPLY_BYTES (not imported: gateway.protocol loads pydantic, which
@@ -49,17 +52,28 @@ def connectable(address: str, near: str) -> str:
     return f"tcp://{concrete}:{address.rpartition(':')[2]}"
 
 
+@dataclass(frozen=True)
+class ClientKeys:
+    """CURVE: this client's pair and the gateway's public key."""
+
+    client: curve.KeyPair
+    server_public: bytes
+
+
 class Client:
     """Requests over one DEALER; a request lost on the way is sent once more, with the
     same id, at half the timeout (the gateway answers a repeated id from its memory)."""
 
-    def __init__(self, control: str, timeout: float) -> None:
+    def __init__(self, control: str, timeout: float, keys: ClientKeys | None = None) -> None:
         self.control = connectable(control, control)
         self.timeout = timeout
         self.context = zmq.Context()
         self.socket = self.context.socket(zmq.DEALER)
         self.socket.setsockopt(zmq.LINGER, 0)
         self.socket.setsockopt(zmq.MAXMSGSIZE, MAX_REPLY_BYTES)
+        self.secured = keys is not None
+        if keys is not None:
+            curve.connect_as(self.socket, keys.client, keys.server_public)
         # The gateway remembers requests by (client identity, id): a fixed identity keeps
         # a retry sent over a new connection (after a network blip) the same request.
         self.socket.setsockopt(zmq.ROUTING_ID, b"gx2ctl-" + uuid.uuid4().hex.encode())
@@ -97,7 +111,8 @@ class Client:
                 if reply is not None and reply.get("id") == request_id:
                     return _result(reply)
         raise CtlError(f"no answer from the gateway at {self.control} within "
-                       f"{self.timeout:g} s (is gx2-gateway running?)", NO_ANSWER)
+                       f"{self.timeout:g} s (is gx2-gateway running"
+                       f"{', and is this key allowed' if self.secured else ''}?)", NO_ANSWER)
 
     def _send(self, payload: bytes) -> None:
         with contextlib.suppress(zmq.Again):  # nowhere to send yet: the deadline decides

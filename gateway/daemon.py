@@ -19,12 +19,14 @@ from typing import Any
 
 import zmq
 import zmq.asyncio
+from zmq.auth.asyncio import AsyncioAuthenticator
 
 from aspp import Ack, Decoder, Frame, Nack, PingOk, Reply, commands, decode
 from aspp.errors import RecordError
 
 from .config import GatewayConfig
 from .control import ControlServer
+from .curve import AllowList, KeyPair
 from .link import SerialLink, embedded_link_path, simulator_for
 from .nodes import Delivery, NodeState
 from .operations import Operations
@@ -68,12 +70,25 @@ class Gateway:
         self.scheduler = Scheduler(self.link.write)
         self.ops = Operations(self.scheduler, self.nodes, config.control.allow_eeprom_write,
                               config.control.allow_any_eeprom_address)
+        server: KeyPair | None = None
+        self.allow_list: AllowList | None = None
+        self._auth: AsyncioAuthenticator | None = None
+        if config.curve is not None:  # ZAP first: no connection is ever let in unchecked
+            server = config.curve.server_pair()
+            self.allow_list = AllowList(config.curve.allowed())
+            self._auth = AsyncioAuthenticator(self._context)
+            self._auth.start()
+            self._auth.configure_curve_callback("*", self.allow_list)
         endpoint = config.publish.endpoint
         try:
-            self.publisher = Publisher(self._context, endpoint, config.publish.high_water_mark)
+            self.publisher = Publisher(self._context, endpoint, config.publish.high_water_mark,
+                                       server if config.curve and config.curve.publish
+                                       else None)
             endpoint = config.control.endpoint
-            self.control = ControlServer(self._context, endpoint, self.ops, self.status)
+            self.control = ControlServer(self._context, endpoint, self.ops, self.status,
+                                         server)
         except zmq.ZMQError as error:
+            self._stop_auth()
             self._context.destroy(linger=0)
             raise StartupError(f"cannot bind {endpoint}: {error.strerror}") from None
         if config.base_station.port.startswith("sim://"):  # only once nothing can fail
@@ -121,11 +136,17 @@ class Gateway:
         self.control.close()
         self.link.close()
         self.publisher.close()
+        self._stop_auth()
         self._context.destroy(linger=0)
         if self.simulator is not None:
             self.simulator.stop()
             shutil.rmtree(self._sim_link.parent, ignore_errors=True)
         log.info("stopped")
+
+    def _stop_auth(self) -> None:
+        if self._auth is not None:
+            self._auth.stop()
+            self._auth = None
 
     # -- the serial side ------------------------------------------------------------------
 
@@ -268,7 +289,10 @@ class Gateway:
                         "publish_failures": self.publisher.failed,
                         "control_requests": self.control.requests,
                         "control_rejected": self.control.rejected,
-                        "control_dropped": self.control.dropped},
+                        "control_dropped": self.control.dropped,
+                        "curve_denied": self.allow_list.denied if self.allow_list else 0,
+                        "publish_curve": bool(self.config.curve and
+                                              self.config.curve.publish)},
             "link": {"port": self.config.base_station.port,
                      "state": "up" if self.link.up else "down", "since": self.link.since,
                      "reconnects": self.link.reconnects, "bytes_read": self.link.bytes_read,

@@ -15,6 +15,8 @@ from typing import Any
 import msgpack
 import zmq
 
+from . import curve
+
 log = logging.getLogger("gx2.publish")
 STATUS_TOPIC = b"gx2/gateway/status"
 
@@ -24,10 +26,13 @@ def topic(node: int, record: str) -> bytes:
 
 
 class Publisher:
-    def __init__(self, context: zmq.Context, endpoint: str, high_water_mark: int) -> None:
+    def __init__(self, context: zmq.Context, endpoint: str, high_water_mark: int,
+                 server: curve.KeyPair | None = None) -> None:
         self.socket = context.socket(zmq.PUB)
         self.socket.setsockopt(zmq.SNDHWM, high_water_mark)
         self.socket.setsockopt(zmq.LINGER, 200)
+        if server is not None:
+            curve.serve(self.socket, server)
         self.socket.bind(endpoint)
         self.endpoint = endpoint
         self._topics: dict[tuple[int, str], bytes] = {}

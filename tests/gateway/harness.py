@@ -21,6 +21,9 @@ import msgpack
 import yaml
 import zmq
 
+from gateway import curve
+from gateway.ctl_client import ClientKeys
+
 STARTUP = 20.0
 """Seconds allowed for the daemon to import, bind and open the port (slow CI)."""
 EXIT = 2.0
@@ -67,9 +70,12 @@ def wait_for(condition: Callable[[], Any], timeout: float, what: str) -> Any:
 class Control:
     """A control client speaking the protocol directly (gx2ctl has its own tests)."""
 
-    def __init__(self, context: zmq.Context, endpoint: str) -> None:
+    def __init__(self, context: zmq.Context, endpoint: str,
+                 keys: ClientKeys | None = None) -> None:
         self.socket = context.socket(zmq.DEALER)
         self.socket.setsockopt(zmq.LINGER, 0)
+        if keys is not None:
+            curve.connect_as(self.socket, keys.client, keys.server_public)
         self.socket.connect(endpoint)
 
     def send_raw(self, *frames: bytes) -> None:
@@ -107,10 +113,13 @@ class Control:
 class Subscriber:
     """A SUB socket that collects [topic, payload] messages."""
 
-    def __init__(self, context: zmq.Context, endpoint: str, *prefixes: str) -> None:
+    def __init__(self, context: zmq.Context, endpoint: str, *prefixes: str,
+                 keys: ClientKeys | None = None) -> None:
         self.socket = context.socket(zmq.SUB)
         self.socket.setsockopt(zmq.LINGER, 0)
         self.socket.setsockopt(zmq.RCVHWM, 0)
+        if keys is not None:
+            curve.connect_as(self.socket, keys.client, keys.server_public)
         for prefix in prefixes or ("",):
             self.socket.setsockopt(zmq.SUBSCRIBE, prefix.encode())
         self.socket.connect(endpoint)

@@ -31,7 +31,7 @@ from harness import spawn_run
 from gateway import protocol
 from gateway.config import ControlConfig
 from gateway.ctl import DEFAULT_CONTROL, MAX_PING_NODES
-from gateway.ctl_client import MAX_REPLY_BYTES, connectable
+from gateway.ctl_client import MAX_REPLY_BYTES, Client, CtlError, connectable
 
 NAN = float("nan")
 PING_SILENT = 77
@@ -50,11 +50,12 @@ SILENT = 302
 """The fake never answers requests for this node."""
 MALFORMED = 303
 """The fake answers with our id but not the protocol's shape."""
-PROCESS_ALLOWANCE = 4.0
+PROCESS_ALLOWANCE = 8.0
 """Seconds allowed for a Python process to start and exit on a loaded CI machine (seen
-at 2.6 s): a bound that tells a hang from a deadline kept, not a measure of one."""
+at 5.4 s with the CPU contended): a bound that tells a hang from a deadline kept, not a
+measure of one; test_the_deadline_and_the_retry_are_kept_to_time measures that."""
 EXIT_ALLOWANCE = 0.6
-"""Seconds allowed between gx2ctl's deadline and its exit being seen (loaded machine)."""
+"""Seconds of scheduling noise allowed around a deadline kept in this process."""
 REFUSAL = ("EEPROM writes are disabled on this gateway: set control.allow_eeprom_write: "
            "true in nodes.yaml and restart gx2-gateway")
 
@@ -273,9 +274,23 @@ def test_a_silent_gateway_gets_one_retry_then_exit_3(fake: FakeGateway) -> None:
     assert_one_error_line(result, 3)
     copies = fake.arrived("info", SILENT)
     assert len(copies) == 2 and copies[0][0].id == copies[1][0].id, copies
-    (_, first), (_, second) = copies
-    assert 0.25 < second - first < 0.5 + EXIT_ALLOWANCE, "the retry comes at half the timeout"
-    assert 0.7 < result.ended - first < 1 + EXIT_ALLOWANCE, "the deadline is kept, once"
+    first = copies[0][1]
+    assert 0.7 < result.ended - first < 1 + PROCESS_ALLOWANCE, "the deadline is kept, once"
+
+
+def test_the_deadline_and_the_retry_are_kept_to_time(fake: FakeGateway) -> None:
+    """The same, timed in this process (a process's start and exit on a loaded machine
+    would swamp the figure): one retry at half the timeout, the end at the timeout."""
+    with Client(fake.control, 1.0) as client:
+        start = time.monotonic()
+        with pytest.raises(CtlError, match="no answer") as raised:
+            client.call("info", node=SILENT)
+        elapsed = time.monotonic() - start
+    assert raised.value.status == 3
+    assert 1.0 <= elapsed < 1.0 + EXIT_ALLOWANCE
+    copies = [t for request, t in fake.arrived("info", SILENT) if t >= start]
+    assert len(copies) == 2, copies
+    assert 0.5 - EXIT_ALLOWANCE < copies[1] - start < 0.5 + EXIT_ALLOWANCE
 
 
 def test_a_lost_request_is_retried_with_the_same_id(fake: FakeGateway) -> None:
@@ -655,6 +670,6 @@ def test_tail_on_a_dead_gateway_exits_3(tmp_path: Path) -> None:
                       "nodes: [{address: 76}]\n")
     start = time.monotonic()
     run = subprocess.run([gx2ctl(), "--config", str(config), "--timeout", "1", "tail"],
-                         capture_output=True, text=True, timeout=10)
+                         capture_output=True, text=True, timeout=30)
     assert run.returncode == 3 and time.monotonic() - start < 1 + PROCESS_ALLOWANCE
     assert run.stderr.count("\n") == 1 and "published nothing" in run.stderr
