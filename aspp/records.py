@@ -57,6 +57,9 @@ class CommandSpec:
     field_names: tuple[str, ...] = field(init=False, repr=False, compare=False)
     """The reply's field names in order (computed once: used for every record)."""
     request_struct: struct.Struct = field(init=False, repr=False, compare=False)
+    reply_slices: tuple[tuple[int, int, Field], ...] = field(init=False, repr=False,
+                                                            compare=False)
+    """Where each reply field's items sit in the unpacked tuple (computed once)."""
 
     def __repr__(self) -> str:
         return f"CommandSpec(0x{self.code:02X}, {self.name!r})"
@@ -68,6 +71,11 @@ class CommandSpec:
         object.__setattr__(self, "reply_struct", struct.Struct(">B" + reply_codes))
         object.__setattr__(self, "request_struct", struct.Struct(">B" + request_codes))
         object.__setattr__(self, "field_names", tuple(f.name for f in self.reply or ()))
+        slices, at = [], 1  # after the echo byte
+        for f in self.reply or ():
+            slices.append((at, at + f.type.items, f))
+            at += f.type.items
+        object.__setattr__(self, "reply_slices", tuple(slices))
 
     @property
     def reply_size(self) -> int | None:
@@ -287,13 +295,23 @@ def decode(payload: bytes | bytearray | memoryview) -> Record:
     return Record(spec, shape(spec, spec.reply_struct.unpack_from(payload)))
 
 
+_AS_SLICE = frozenset(("vector", "ints"))
+_AS_ITEM = frozenset(("int", "float"))
+
+
 def shape(spec: CommandSpec, items: tuple) -> tuple[Value, ...]:
-    """Group the flat struct items after the echo byte into the spec's field values."""
+    """Group the flat struct items after the echo byte into the spec's field values.
+    (On every record: the common shapes are done inline, a slice of a tuple being a
+    tuple; the others by their field type.)"""
     values = []
-    at = 1
-    for f in spec.reply or ():
-        values.append(f.type.shape_items(items[at:at + f.type.items]))
-        at += f.type.items
+    for start, stop, f in spec.reply_slices:
+        kind = f.type.shape
+        if kind in _AS_SLICE:
+            values.append(items[start:stop])
+        elif kind in _AS_ITEM:
+            values.append(items[start])
+        else:
+            values.append(f.type.shape_items(items[start:stop]))
     return tuple(values)
 
 

@@ -6,7 +6,10 @@ in order, consecutive readings less than one wrap apart unwrap exactly. A node s
 for longer (out of range, a lost stream) can hide whole wraps: given the host's clock
 at each reading, :class:`TimerUnwrapper` counts the wraps the elapsed host time needs,
 and when the timer cannot be reconciled with the host clock at all (the node rebooted
-and its timer restarted) it carries on from the host's elapsed time and says so.
+and its timer restarted) it carries on from the host's elapsed time and says so. A
+timer that advanced less than the host clock is data read late (a stalled reader), not
+a reboot; so a reboot is seen here only when the new timer is behind the old one (the
+node had been up longer than it has been back), and the gateway has other signs.
 """
 
 from __future__ import annotations
@@ -75,12 +78,15 @@ class TimerUnwrapper:
         return self._total_ticks / TICKS_PER_SECOND
 
     def _reconcile(self, delta: int, host_elapsed: float) -> int:
-        """Add the wraps ``host_elapsed`` needs; if no count of wraps fits, the timer
+        """Add the wraps ``host_elapsed`` needs. A timer that advanced less than the
+        host clock (with no wrap missed) was read late: a reader stalled and read a
+        backlog, and the timer is right. If no count of wraps fits otherwise, the timer
         restarted: advance by the host's elapsed time instead."""
         seconds = delta / TICKS_PER_SECOND
         wraps = max(0, round((host_elapsed - seconds) / WRAP_SECONDS))
         seconds += wraps * WRAP_SECONDS
-        if abs(seconds - host_elapsed) <= self.tolerance + 0.01 * host_elapsed:
+        slack = self.tolerance + 0.01 * host_elapsed
+        if abs(seconds - host_elapsed) <= slack or (wraps == 0 and seconds < host_elapsed):
             return delta + wraps * TIMER_MODULUS
         self.resets += 1
         self.last_was_reset = True

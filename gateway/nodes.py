@@ -7,8 +7,7 @@ This is on the per-record path: plain attributes and dicts, no pydantic, no copi
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from aspp.events import Reply
 from aspp.records import Record
@@ -27,9 +26,9 @@ seconds) has fallen silent: the node rebooted with its discovery packet lost, or
 out of range."""
 
 
-@dataclass(frozen=True)
-class Delivery:
-    """A reply as the operations see it: the decoded record and its published payload."""
+class Delivery(NamedTuple):
+    """A reply as the operations see it: the decoded record and its published payload
+    (made for every record: a NamedTuple is the cheapest immutable pair)."""
 
     record: Record
     payload: dict[str, Any]

@@ -57,6 +57,17 @@ def test_a_reboot_is_a_reset_not_a_wrap_and_time_still_goes_forward():
     assert not unwrap.last_was_reset
 
 
+def test_a_backlog_read_late_is_not_a_reboot():
+    """The reader stalled for 3 s, then read what had queued up: the records carry
+    their own times, 10 ms apart, though they all arrived at once."""
+    unwrap = TimerUnwrapper()
+    unwrap.update(seconds_to_ticks(40.0), host_time=100.0)
+    late = [unwrap.update(seconds_to_ticks(40.0 + 0.01 * i), host_time=103.0)
+            for i in range(1, 301)]
+    assert unwrap.resets == 0
+    assert late == pytest.approx([40.0 + 0.01 * i for i in range(1, 301)])
+
+
 def test_rejects_values_that_are_not_a_timer():
     with pytest.raises(ValueError):
         TimerUnwrapper().update(TIMER_MODULUS)
