@@ -240,11 +240,13 @@ class Gateway:
     async def _watch_streams(self) -> None:
         """A stream that fell silent (a reboot whose discovery packet was lost, or the
         node out of range) is counted and its configured stream re-armed."""
+        last = time.monotonic()
         while True:
             await asyncio.sleep(WATCH_INTERVAL)
-            if not self.link.up:
-                continue
             now = time.monotonic()
+            stalled, last = now - last > 2 * WATCH_INTERVAL, now
+            if stalled or not self.link.up:  # (after a stall of this process the bytes
+                continue                    # it has not read yet may hold the records)
             for node in self.nodes.values():
                 if node.fell_silent(now):
                     log.warning("node %s: its %s stream fell silent", node.config.label,
