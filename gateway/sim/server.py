@@ -6,15 +6,23 @@ opens /dev/ttyUSB0; an optional symlink gives it a stable name. Unplugging close
 pty (the gateway's reads fail as they would on a real unplug) and replugging makes a
 new one behind the same symlink. :class:`Simulator` runs the loop in a thread and gives
 tests a thread-safe handle on it.
+
+A pty holds only a few KiB, a host's serial driver far more, so what the pty does not
+take at once waits in the simulator (up to :data:`PORT_BUFFER`) until it does: a reader
+that is a moment late, or a simulator thread that was late and owes a burst, loses
+nothing. A host that flushes its input (opening the port does) discards that too.
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import logging
 import os
 import random
 import selectors
+import struct
+import termios
 import threading
 import time
 import tty
@@ -28,6 +36,10 @@ from .station import BaseStation, LineFaults, RadioLink
 log = logging.getLogger("gx2.sim")
 HOST_IDLE = 0.05
 """A host that stops mid-packet for this long gets a NACK for what it sent."""
+PORT_BUFFER = 64 * 1024
+"""Bytes kept for a host that is not reading, beyond what the pty itself holds (Linux
+buffers 64 KiB for a serial port): 5.7 s of a saturated line at 115200 baud. What
+arrives when it is full is lost, as on a port nobody reads."""
 T = TypeVar("T")
 
 
@@ -39,11 +51,16 @@ class PtyPort:
         self.master: int | None = None
         self._slave: int | None = None
         self.path = ""
+        self.generation = 0
+        """Counts opens: a replugged pty may get the old master's fd number back."""
 
     def open(self) -> None:
         master, slave = os.openpty()
+        self.generation += 1
         tty.setraw(slave)  # no echo, no line discipline: bytes pass untouched
         os.set_blocking(master, False)
+        # packet mode: the master also reads the host's flushes (see read)
+        fcntl.ioctl(master, termios.TIOCPKT, struct.pack("i", 1))
         self.master, self._slave, self.path = master, slave, os.ttyname(slave)
         if self.link:
             temporary = self.link.with_name(self.link.name + ".new")
@@ -66,13 +83,28 @@ class PtyPort:
         return self.master is not None
 
     def write(self, data: bytes) -> int:
-        """Write what the pty takes; a full pty (nobody reading) drops the rest, as a
-        USB serial adapter does when the port is not being read."""
+        """Write what the pty takes now; return how much that was."""
         assert self.master is not None
         try:
             return os.write(self.master, data)
         except BlockingIOError:
             return 0
+
+    def read(self) -> tuple[bytes, bool]:
+        """What the host wrote, and whether it flushed its input (discarding what it
+        had not read) since the last read."""
+        assert self.master is not None
+        try:
+            packet = os.read(self.master, 4097)
+        except (BlockingIOError, InterruptedError):
+            return b"", False
+        except OSError:  # EIO: no client holds the other end; nothing to read
+            return b"", False
+        if not packet:
+            return b"", False
+        if packet[0] == termios.TIOCPKT_DATA:
+            return packet[1:], False
+        return b"", bool(packet[0] & termios.TIOCPKT_FLUSHREAD)  # a status byte
 
 
 class Simulator:
@@ -90,6 +122,8 @@ class Simulator:
         self.station = BaseStation(sim_nodes, radio, line, baudrate, rng)
         self.port = PtyPort(link)
         self.dropped_bytes = 0
+        """Bytes lost because the host did not read them (:data:`PORT_BUFFER`)."""
+        self._unsent = bytearray()  # due to the host, not yet taken by the pty
         self._lock = threading.RLock()
         self._wake_r, self._wake_w = os.pipe()
         self._stop = threading.Event()
@@ -152,6 +186,7 @@ class Simulator:
         """Pull the USB plug; with ``duration``, plug it back in after that long."""
         with self._lock:
             self.port.close()
+            self._unsent.clear()  # what was on its way goes with the device
             self._replug_at = None if duration is None else time.monotonic() + duration
         self._wake()
 
@@ -172,7 +207,8 @@ class Simulator:
     def _run(self) -> None:
         selector = selectors.DefaultSelector()
         selector.register(self._wake_r, selectors.EVENT_READ)
-        registered: int | None = None
+        registered: tuple[int | None, int] | None = None  # (fd, the port's generation)
+        watching = 0  # the selector events the master is registered for
         last_host_byte: float | None = None
         self._ready.set()
         try:
@@ -183,12 +219,17 @@ class Simulator:
                         self.port.open()
                         self._replug_at = None
                     master = self.port.master
-                    if master != registered:
-                        if registered is not None:
-                            selector.unregister(registered)
+                    events = selectors.EVENT_READ | (selectors.EVENT_WRITE if self._unsent else 0)
+                    current = (master, self.port.generation)
+                    if current != registered:  # (by fd alone a replug that got the same
+                        if registered is not None and registered[0] is not None:  # number
+                            selector.unregister(registered[0])  # back would stay deaf)
                         if master is not None:
-                            selector.register(master, selectors.EVENT_READ)
-                        registered = master
+                            selector.register(master, events)
+                        registered, watching = current, events
+                    elif master is not None and events != watching:
+                        selector.modify(master, events)
+                        watching = events
                     due = self.station.next_due(now)
                     if self._replug_at is not None:
                         due = min(due, self._replug_at)
@@ -197,22 +238,27 @@ class Simulator:
                 ready = selector.select(max(0.0, due - time.monotonic()))
                 with self._lock:
                     now = time.monotonic()
-                    for key, _ in ready:
+                    data = b""
+                    for key, mask in ready:
                         if key.fd == self._wake_r:
                             os.read(self._wake_r, 4096)
-                        elif key.fd == self.port.master:
-                            data = self._read_master()
-                            if data:
-                                self.station.from_host(data, now)
-                                last_host_byte = now
+                        elif key.fd == self.port.master and mask & selectors.EVENT_READ:
+                            data, flushed = self.port.read()
+                            if flushed:
+                                self._unsent.clear()  # the host discarded it anyway
+                    # what fell due before now goes on the line before the answer to what
+                    # the host sent (a loop that ran late catches up in order, instead of
+                    # putting an ACK ahead of records the UART then has no room for)
+                    self.station.advance(now)
+                    if data:
+                        self.station.from_host(data, now)
+                        last_host_byte = now
                     if last_host_byte is not None and now - last_host_byte >= HOST_IDLE:
                         self.station.host_idle(now)
                         last_host_byte = None
-                    self.station.advance(now)
                     out = self.station.take_output(now)
-                    if out and self.port.is_open:
-                        written = self.port.write(out)
-                        self.dropped_bytes += len(out) - written
+                    if self.port.is_open:
+                        self._send(out)
         except BaseException as error:  # report, don't vanish: tests check sim.error
             self.error = error
             log.exception("simulator loop failed")
@@ -220,10 +266,13 @@ class Simulator:
         finally:
             selector.close()
 
-    def _read_master(self) -> bytes:
-        try:
-            return os.read(self.port.master, 4096)  # type: ignore[arg-type]
-        except (BlockingIOError, InterruptedError):
-            return b""
-        except OSError:  # EIO: no client holds the other end; nothing to read
-            return b""
+    def _send(self, data: bytes) -> None:
+        """Write ``data`` behind what the pty has not taken yet; keep what it does not
+        take now, up to PORT_BUFFER, and lose the rest (a host not reading)."""
+        self._unsent += data
+        if self._unsent:
+            del self._unsent[:self.port.write(self._unsent)]
+        excess = len(self._unsent) - PORT_BUFFER
+        if excess > 0:
+            del self._unsent[PORT_BUFFER:]
+            self.dropped_bytes += excess

@@ -156,25 +156,37 @@ class BaseStation:
                           flags=FLAGS_DISCOVERY)
 
     def advance(self, now: float) -> None:
-        """Everything due by ``now``: commands reach nodes, nodes finish cycles, replies
-        reach the serial line."""
-        while self._answers and self._answers[0][0] <= now:
-            due, _, byte = heapq.heappop(self._answers)
-            self._queue(byte, due, control=True)
-        while self._to_nodes and self._to_nodes[0][0] <= now:
-            _, _, address, command = heapq.heappop(self._to_nodes)
-            self.nodes[address].receive(command)
-            self.stats.commands_delivered += 1
-        replies = []
-        for address, node in self.nodes.items():
-            replies.extend((t + RADIO_LATENCY, address, reply)
-                           for t, reply in node.run_until(now - RADIO_LATENCY))
-        # by time only: sorted() is stable, so a node's replies keep the order the node
-        # made them in (a cycle's continuous record before its polled reply)
-        for t, address, reply in sorted(replies, key=lambda item: item[0]):
-            self._send_packet(address, reply, t)
+        """Everything due by ``now``, in time order: commands reach nodes, nodes finish
+        cycles, replies and answers reach the serial line. In order even when called
+        late: a command reaches a node after the cycles before it, and an answer goes on
+        the line behind the records that reached the base station first."""
+        while True:
+            heads = [queue[0][0] for queue in (self._answers, self._to_nodes) if queue]
+            if not heads or min(heads) > now:
+                break
+            due = min(heads)
+            self._replies_until(due)
+            if self._answers and self._answers[0][0] == due:
+                _, _, byte = heapq.heappop(self._answers)
+                self._queue(byte, due, control=True)
+            else:
+                _, _, address, command = heapq.heappop(self._to_nodes)
+                self.nodes[address].receive(command)
+                self.stats.commands_delivered += 1
+        self._replies_until(now)
         if self._held_ack_since is not None and now - self._held_ack_since >= GLUE_WAIT:
             self._queue(self._release_acks(), now, control=True)
+
+    def _replies_until(self, t: float) -> None:
+        """The replies of every cycle whose record reaches the base station by ``t``."""
+        replies = []
+        for address, node in self.nodes.items():
+            replies.extend((c + RADIO_LATENCY, address, reply)
+                           for c, reply in node.run_until(t - RADIO_LATENCY))
+        # by time only: sorted() is stable, so a node's replies keep the order the node
+        # made them in (a cycle's continuous record before its polled reply)
+        for c, address, reply in sorted(replies, key=lambda item: item[0]):
+            self._send_packet(address, reply, c)
 
     def _release_acks(self) -> bytes:
         acks = bytes((ACK,)) * self._held_acks

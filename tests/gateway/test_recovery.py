@@ -154,3 +154,19 @@ def test_a_node_out_of_range_comes_back_without_a_reboot(simulator, gateway):
     assert (node["reboots"], node["silences"], node["record"]) == (0, 1, "euler")
     assert node["lost_radio"] >= 100  # over a second at 100 Hz
     assert not timer_went_back(sub.messages), "the same power-up: the timer went on"
+
+
+def test_commands_still_reach_the_nodes_after_a_quick_replug(simulator, gateway):
+    """Pulled and plugged straight back: the new pty gets the old master's fd number,
+    and the simulator must still read it (watching the fd by number alone, it missed
+    that epoll had forgotten the closed one, and no command got its ACK)."""
+    sim = simulator(NodeSettings(76))
+    gw = gateway(sim.path, [{"address": 76}])
+    before = sim.port.master
+    sim.unplug()
+    sim.replug()  # before the simulator's loop has seen the port gone
+    assert sim.port.master == before, "the fd number was reused (the case under test)"
+    wait_for(lambda: gw.status()["link"]["reconnects"] == 1, 10, "the port to be reopened")
+    for _ in range(3):
+        reply = gw.control.call("poll", node=76, record="euler")
+        assert reply["ok"], reply

@@ -177,3 +177,24 @@ def test_a_cycles_replies_keep_their_order_on_the_line():
     bench.send(commands.stop_continuous_long().packet(76))
     names = [decode(r.payload).name for r in replies(bench.run(0.2))]
     assert names[-2:] == ["euler", "continuous_mode"]
+
+
+def test_a_station_that_runs_late_sends_what_a_prompt_one_would():
+    """The simulator's thread runs late on a loaded machine and catches up in one go. It
+    must put the same bytes on the line, in the same order, as a station that ran on
+    time: a ping answer due mid-way goes behind the records that reached the station
+    before it, and a command reaches its node after the cycles before it."""
+
+    def line(step: float) -> tuple[bytes, int]:
+        bench = Bench(NodeSettings(76, stream="accel_angrate"), NodeSettings(77, stream="euler"))
+        bench.run(0.5085, step)  # between cycles: records reach the station at .xx3 s
+        bench.send(commands.ping(77))  # answered at .5145, after the record at .513
+        bench.send(commands.poll("euler").packet(77))  # reaches 77 at .5115
+        bench.run(1.0, step)
+        return b"".join(bench.chunks), bench.station.stats.packets_dropped_full
+
+    (prompt, dropped_prompt), (late, dropped_late) = line(step=0.001), line(step=0.8)
+    events = Decoder().feed(prompt)
+    assert PingOk() in events and "euler" in [decode(r.payload).name for r in replies(events)]
+    assert dropped_prompt == dropped_late == 0
+    assert late == prompt
