@@ -154,7 +154,10 @@ def test_streams_polls_and_pings_interleaved_lose_nothing(simulator, gateway, zm
     for node in (76, 77, 78):
         assert_contiguous(sub.records(node))
     polled = [p for p in sub.records(79)]
-    assert len(polled) == 12  # every poll's reply was published too
+    # every poll's reply was published too (and, on a loaded machine, the second reply
+    # to a poll whose first came too late: all published, as assert_every_packet_published
+    # above checked against what the base station sent)
+    assert len(polled) >= 12
 
 
 @pytest.mark.parametrize("faults", [
