@@ -1,0 +1,353 @@
+#!/usr/bin/env python3
+"""Performance, measured: one command, one table (issue 6). Run by hand, not in CI:
+
+    python bench/perf.py            # about 4 minutes on a 2-core machine
+
+1. decoder: packets/s on one core over the mixed stream of decoder_throughput.py,
+   next to a naive decoder in the shape of typical drivers, in the same run;
+2. pipeline: records/s through everything after the serial read (the daemon's own
+   _on_data: decoder, record, payload, msgpack, PUB) to a SUB in another process;
+3. latency: from the simulator writing a packet's last byte into the pty to a
+   subscriber holding its message, through the installed gx2-gateway: at a saturated
+   115200-baud line (3 nodes of 0xC2 at 96 Hz) and in an unpaced burst;
+4. cost at the saturated line: gateway CPU (% of one core) and RSS over 60 s;
+5. scale: the same cost with 100 configured nodes (3 streaming) and with 10 subscribers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import multiprocessing
+import os
+import platform
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import msgpack
+import yaml
+import zmq
+from decoder_throughput import mixed_stream
+
+from aspp import Decoder, Reply, decode
+from gateway.sim.node import NodeSettings
+from gateway.sim.server import Simulator
+
+TICKS = os.sysconf("SC_CLK_TCK")
+Row = tuple[str, str, str]
+"""(what, figure, target)"""
+
+
+# --- 1. decoder ---------------------------------------------------------------------------
+
+class NaiveDecoder:
+    """The usual driver, fed the same reads: append to a buffer, find 0xAA, read the
+    fixed header and length, check the sum, cut the packet off; on a bad sum step one
+    byte. (No look-ahead: an ACK glued to a SOP costs it one resync step.)"""
+
+    def __init__(self) -> None:
+        self.buffer = bytearray()
+
+    def feed(self, chunk: bytes) -> list[bytes]:
+        data = self.buffer
+        data += chunk
+        packets, i = [], 0
+        while True:
+            i = data.find(b"\xaa", i)
+            if i < 0 or i + 7 > len(data):
+                break
+            if data[i + 1] != 0x07:
+                i += 1
+                continue
+            size = 7 + data[i + 5] - 1 + 4
+            if i + size > len(data):
+                break
+            body_end = i + size - 4
+            if sum(data[i + 1:body_end]) & 0xFFFF == (data[body_end + 2] << 8) | \
+                    data[body_end + 3]:
+                packets.append(bytes(data[i + 6:body_end]))
+                i += size
+            else:
+                i += 1
+        del data[:i if i >= 0 else len(data)]
+        return packets
+
+
+def decoder_rows(packets: int = 200_000) -> list[Row]:
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    stream = mixed_stream(packets)
+    chunks = [stream[o:o + 4096] for o in range(0, len(stream), 4096)]
+    ours, naive = math.inf, math.inf
+    for _ in range(3):
+        decoder, replies = Decoder(), 0
+        start = time.perf_counter()
+        for chunk in chunks:
+            for event in decoder.feed(chunk):
+                if type(event) is Reply:
+                    replies += 1
+        ours = min(ours, time.perf_counter() - start)
+        assert replies == packets, f"decoded {replies} of {packets}"
+        naive_decoder, found = NaiveDecoder(), 0
+        start = time.perf_counter()
+        for chunk in chunks:
+            found += len(naive_decoder.feed(chunk))
+        naive = min(naive, time.perf_counter() - start)
+        assert found >= packets * 0.99, f"the naive decoder found {found} of {packets}"
+    os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))
+    return [("decoder, packets/s on one core (mixed stream, 1% garbage)",
+             f"{packets / ours:,.0f}", ">= 200,000"),
+            ("naive decoder (find 0xAA, fixed length, sum), same stream",
+             f"{packets / naive:,.0f}", ""),
+            ("decoder / naive", f"{naive / ours:.2f}x", ">= 2x")]
+
+
+# --- 2. pipeline --------------------------------------------------------------------------
+
+def count_messages(endpoint: str, expected: int, ready, result) -> None:
+    context = zmq.Context()
+    sub = context.socket(zmq.SUB)
+    sub.setsockopt(zmq.RCVHWM, 0)
+    for prefix in (b"gx2/76/", b"gx2/77/", b"gx2/95/"):  # the nodes, not the heartbeat
+        sub.setsockopt(zmq.SUBSCRIBE, prefix)
+    sub.connect(endpoint)
+    ready.set()
+    got = 0
+    while got < expected and sub.poll(10_000):
+        sub.recv_multipart()
+        got += 1
+    result.put((got, time.perf_counter()))
+    context.destroy(linger=0)
+
+
+def pipeline_rows(packets: int = 150_000) -> list[Row]:
+    from gateway.config import GatewayConfig
+    from gateway.daemon import Gateway
+    stream = mixed_stream(packets)
+    chunks = [stream[o:o + 4096] for o in range(0, len(stream), 4096)]
+    endpoint = f"tcp://127.0.0.1:{free_port()}"
+    config = GatewayConfig.model_validate({
+        "base_station": {"port": "loop://"},
+        "publish": {"endpoint": endpoint, "high_water_mark": 10_000_000},
+        "control": {"endpoint": f"tcp://127.0.0.1:{free_port()}"},
+        "nodes": [{"address": a} for a in (76, 77, 95)]})
+    ready, result = multiprocessing.Event(), multiprocessing.Queue()
+    counter = multiprocessing.Process(target=count_messages,
+                                      args=(endpoint, packets, ready, result))
+
+    async def run() -> float:
+        gateway = Gateway(config)
+        counter.start()
+        ready.wait(10)
+        time.sleep(0.5)  # the subscription reaches the PUB (ZeroMQ's slow joiner)
+        start = time.perf_counter()
+        for chunk in chunks:
+            gateway._on_data(chunk, time.time())
+        gateway.publisher.close()
+        gateway._context.destroy(linger=5000)
+        return start
+    start = asyncio.run(run())
+    got, end = result.get(timeout=60)
+    counter.join(10)
+    assert got == packets, f"the subscriber got {got} of {packets}"
+    return [("pipeline, records/s (decode, payload, msgpack, PUB -> SUB in another process)",
+             f"{packets / (end - start):,.0f}", ">= 50,000")]
+
+
+# --- 3-5. the installed gateway on a simulator ------------------------------------------
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@dataclass
+class Written:
+    """When the simulator wrote each packet's last byte, by (node, timer)."""
+
+    decoder: Decoder = field(default_factory=Decoder)
+    at: dict[tuple[int, int], float] = field(default_factory=dict)
+
+    def tap(self, sim: Simulator) -> None:
+        write = sim.port.write
+
+        def tapped(data: bytes) -> int:
+            written = write(data)
+            now = time.monotonic()
+            for event in self.decoder.feed(data[:written]):
+                if type(event) is Reply and event.command == 0xC2:
+                    self.at[(event.node, decode(event.payload)["timer"])] = now
+            return written
+        sim.port.write = tapped  # type: ignore[method-assign]
+
+
+class Bench:
+    """gx2-sim in this process, the installed gx2-gateway as a subprocess."""
+
+    def __init__(self, nodes: list[NodeSettings], streaming: list[int], *,
+                 baudrate: int = 115200, configured: list[int] | None = None) -> None:
+        self.work = Path(tempfile.mkdtemp(prefix="gx2-perf-"))
+        self.sim = Simulator(nodes, link=self.work / "gx2", baudrate=baudrate).start()
+        self.written = Written()
+        self.written.tap(self.sim)
+        self.publish = f"tcp://127.0.0.1:{free_port()}"
+        self.control = f"tcp://127.0.0.1:{free_port()}"
+        addresses = configured or [n.address for n in nodes]
+        (self.work / "nodes.yaml").write_text(yaml.safe_dump({
+            "base_station": {"port": str(self.work / "gx2"), "baudrate": baudrate},
+            "publish": {"endpoint": self.publish},
+            "control": {"endpoint": self.control},
+            "nodes": [{"address": a, **({"stream": "accel_angrate"} if a in streaming else {})}
+                      for a in addresses]}))
+        script = shutil.which("gx2-gateway", path=str(Path(sys.executable).parent))
+        self.proc = subprocess.Popen([script or "gx2-gateway", "--config",
+                                      str(self.work / "nodes.yaml"), "--log-level", "WARNING"],
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        self.context = zmq.Context()
+        self.subs: list[zmq.Socket] = []
+
+    def subscribe(self) -> zmq.Socket:
+        sub = self.context.socket(zmq.SUB)
+        sub.setsockopt(zmq.RCVHWM, 0)
+        sub.setsockopt(zmq.SUBSCRIBE, b"gx2/")
+        sub.connect(self.publish)
+        self.subs.append(sub)
+        return sub
+
+    def receive(self, seconds: float, latencies: list[float] | None = None) -> int:
+        """Read every subscriber for ``seconds``; the first one's latencies."""
+        poller = zmq.Poller()
+        for sub in self.subs:
+            poller.register(sub, zmq.POLLIN)
+        got, deadline = 0, time.monotonic() + seconds
+        while (left := deadline - time.monotonic()) > 0:
+            for sub, _ in poller.poll(max(1, int(left * 1000))):
+                while True:
+                    try:
+                        topic, payload = sub.recv_multipart(zmq.NOBLOCK)
+                    except zmq.Again:
+                        break
+                    now = time.monotonic()
+                    got += 1
+                    if latencies is not None and sub is self.subs[0] and \
+                            topic.endswith(b"/accel_angrate"):
+                        message = msgpack.unpackb(payload)
+                        written = self.written.at.pop((message["node"], message["timer"]),
+                                                      None)
+                        if written is not None:
+                            latencies.append(now - written)
+        return got
+
+    def cpu_seconds(self) -> float:
+        fields = Path(f"/proc/{self.proc.pid}/stat").read_text().rpartition(")")[2].split()
+        return (int(fields[11]) + int(fields[12])) / TICKS
+
+    def rss_mib(self) -> float:
+        for line in Path(f"/proc/{self.proc.pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+        return math.nan
+
+    def close(self) -> None:
+        self.proc.terminate()
+        self.proc.wait(10)
+        self.sim.stop()
+        self.context.destroy(linger=0)
+        shutil.rmtree(self.work, ignore_errors=True)
+
+
+def percentiles(values: list[float]) -> str:
+    values = sorted(values)
+    if not values:
+        return "no samples"
+    def at(q: float) -> float:
+        return values[min(len(values) - 1, int(q * len(values)))] * 1000
+    return (f"p50 {at(0.5):.2f} / p99 {at(0.99):.2f} / max {values[-1] * 1000:.2f} ms "
+            f"({len(values):,} records)")
+
+
+SATURATING = [NodeSettings(a, divider=533) for a in (76, 77, 78)]  # 3 x 96 Hz x 40 bytes
+
+
+def latency_and_cost_rows(seconds: float) -> list[Row]:
+    rows: list[Row] = []
+    bench = Bench(SATURATING, [76, 77, 78])
+    try:
+        bench.subscribe()
+        bench.receive(8.0)  # started, armed, settled
+        bench.written.at.clear()
+        latencies: list[float] = []
+        cpu0, rss0, t0 = bench.cpu_seconds(), bench.rss_mib(), time.monotonic()
+        got = bench.receive(seconds, latencies)
+        cpu = (bench.cpu_seconds() - cpu0) / (time.monotonic() - t0)
+        rss1 = bench.rss_mib()
+        rows += [("latency, saturated 115200 line (3 x 96 Hz 0xC2), write -> SUB",
+                  percentiles(latencies), "p99 <= 2 ms"),
+                 (f"gateway CPU at the saturated line ({got / seconds:.0f} records/s)",
+                  f"{cpu:.1%} of one core", "<= 2%"),
+                 (f"gateway RSS over {seconds:.0f} s", f"{rss0:.1f} -> {rss1:.1f} MiB "
+                  f"({(rss1 - rss0) * 1024:+.0f} KiB)", "growth < 1 MB")]
+    finally:
+        bench.close()
+
+    burst = Bench([NodeSettings(a, divider=170) for a in range(76, 86)],
+                  list(range(76, 86)), baudrate=4_000_000)
+    try:
+        burst.subscribe()
+        burst.receive(8.0)
+        burst.written.at.clear()
+        latencies = []
+        got = burst.receive(15.0, latencies)
+        rows.append((f"latency, unpaced burst (10 x 301 Hz, {got / 15:.0f} records/s)",
+                     percentiles(latencies), ""))
+    finally:
+        burst.close()
+    return rows
+
+
+def scale_rows(seconds: float) -> list[Row]:
+    rows: list[Row] = []
+    cases = [("100 configured nodes, 3 streaming", list(range(76, 176)), 1),
+             ("3 nodes, 10 subscribers", [76, 77, 78], 10)]
+    for name, configured, subscribers in cases:
+        bench = Bench(SATURATING, [76, 77, 78], configured=configured)
+        try:
+            for _ in range(subscribers):
+                bench.subscribe()
+            bench.receive(8.0)
+            cpu0, rss0, t0 = bench.cpu_seconds(), bench.rss_mib(), time.monotonic()
+            bench.receive(seconds)
+            cpu = (bench.cpu_seconds() - cpu0) / (time.monotonic() - t0)
+            rows.append((f"scale: {name}", f"CPU {cpu:.1%}, RSS {rss0:.1f} -> "
+                         f"{bench.rss_mib():.1f} MiB", ""))
+        finally:
+            bench.close()
+    return rows
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=60.0,
+                        help="how long the saturated-line cost is measured")
+    args = parser.parse_args()
+    rows = decoder_rows() + pipeline_rows() + latency_and_cost_rows(args.seconds) + \
+        scale_rows(min(args.seconds, 30.0))
+    print(f"\n{platform.node()}: {platform.processor() or platform.machine()}, "
+          f"{os.cpu_count()} cores, Python {platform.python_version()}, "
+          f"{time.strftime('%Y-%m-%d')}")
+    print("| measure | figure | target |\n|---|---|---|")
+    for what, figure, target in rows:
+        print(f"| {what} | {figure} | {target} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
