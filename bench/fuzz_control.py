@@ -17,7 +17,6 @@ import argparse
 import random
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -28,6 +27,7 @@ from pathlib import Path
 import msgpack
 import yaml
 import zmq
+from benchutil import free_port
 
 from gateway.protocol import MAX_REQUEST_BYTES
 from gateway.sim.node import NodeSettings
@@ -40,12 +40,6 @@ VALUES = [None, True, -1, 0, 76, 65535, 70000, 2 ** 63 - 1, -(2 ** 63), 1.5, flo
 
 
 MAXMSGSIZE = MAX_REQUEST_BYTES + 1024  # what gateway/control.py sets on the socket
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
 
 
 def malformed(rng: random.Random) -> tuple[list[bytes], bool]:

@@ -23,7 +23,6 @@ import multiprocessing
 import os
 import platform
 import shutil
-import socket
 import subprocess
 import sys
 import tempfile
@@ -34,6 +33,7 @@ from pathlib import Path
 import msgpack
 import yaml
 import zmq
+from benchutil import free_port, rss_kib, tap_writes
 from decoder_throughput import mixed_stream
 
 from aspp import Decoder, Reply, decode
@@ -163,30 +163,17 @@ def pipeline_rows(packets: int = 150_000) -> list[Row]:
 
 # --- 3-5. the installed gateway on a simulator ------------------------------------------
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @dataclass
 class Written:
-    """When the simulator wrote each packet's last byte, by (node, timer)."""
+    """When the simulator wrote each 0xC2 packet's last byte, by (node, timer)."""
 
-    decoder: Decoder = field(default_factory=Decoder)
     at: dict[tuple[int, int], float] = field(default_factory=dict)
 
     def tap(self, sim: Simulator) -> None:
-        write = sim.port.write
-
-        def tapped(data: bytes) -> int:
-            written = write(data)
-            now = time.monotonic()
-            for event in self.decoder.feed(data[:written]):
-                if type(event) is Reply and event.command == 0xC2:
-                    self.at[(event.node, decode(event.payload)["timer"])] = now
-            return written
-        sim.port.write = tapped  # type: ignore[method-assign]
+        def seen(reply: Reply, now: float) -> None:
+            if reply.command == 0xC2:
+                self.at[(reply.node, decode(reply.payload)["timer"])] = now
+        tap_writes(sim, seen)
 
 
 class Bench:
@@ -251,10 +238,7 @@ class Bench:
         return (int(fields[11]) + int(fields[12])) / TICKS
 
     def rss_mib(self) -> float:
-        for line in Path(f"/proc/{self.proc.pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-        return math.nan
+        return rss_kib(self.proc.pid) / 1024
 
     def close(self) -> None:
         self.proc.terminate()

@@ -32,8 +32,8 @@ from typing import Any
 import msgpack
 import yaml
 import zmq
+from benchutil import free_port, rss_kib, tap_writes
 
-from aspp import Decoder, Reply
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
 from gateway.sim.station import LineFaults, RadioLink
@@ -44,35 +44,12 @@ WARM_UP = 10.0
 """Seconds before the first RSS sample: imports, arming and buffers settled."""
 
 
-def free_port() -> int:
-    import socket
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def rss_kib(pid: int) -> int:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1])
-    raise RuntimeError("no VmRSS")
-
-
 class Tap:
-    """Decodes what the simulator really wrote into the pty (its own thread calls it)."""
+    """Counts the reply packets the simulator really wrote into the pty, per node."""
 
     def __init__(self, sim: Simulator) -> None:
-        self.decoder = Decoder()
         self.replies: Counter[int] = Counter()
-        write = sim.port.write
-
-        def tapped(data: bytes) -> int:
-            written = write(data)
-            for event in self.decoder.feed(data[:written]):
-                if type(event) is Reply:
-                    self.replies[event.node] += 1
-            return written
-        sim.port.write = tapped  # type: ignore[method-assign]
+        tap_writes(sim, lambda reply, now: self.replies.update((reply.node,)))
 
 
 class Watcher:
