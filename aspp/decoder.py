@@ -34,6 +34,8 @@ unfinished run of discarded bytes (at most ``MAX_DISCARD`` bytes).
 
 from __future__ import annotations
 
+import struct
+import zlib
 from dataclasses import dataclass, field
 
 from .events import (
@@ -64,6 +66,13 @@ _MIN_FRAME = REPLY_OVERHEAD - 1  # a packet whose length byte is 0
 _MAX_REPLY_LENGTH = MAX_COMMAND_BYTES + 2  # the unused byte, the echo, 100 data bytes
 _SIZE_FROM_LENGTH = REPLY_OVERHEAD - 1
 _SOP_BYTE = bytes((SOP,))
+_HEADER = struct.Struct(">HBHBB")
+"""SOP and delivery flags together, app data type, node, length, the unused byte."""
+_REPLY_START = (SOP << 8) | FLAGS_REPLY
+_REPLY_SIZE = tuple(length + _SIZE_FROM_LENGTH if 2 <= length <= _MAX_REPLY_LENGTH else 0
+                    for length in range(256))
+"""A reply packet's size by its length byte; 0 where no reply has that length."""
+_new_tuple = tuple.__new__  # builds a Reply without NamedTuple's Python-level __new__
 
 
 @dataclass
@@ -95,7 +104,8 @@ class Decoder:
     __slots__ = ("_buf", "_run_goes_on", "stats")
 
     def __init__(self) -> None:
-        self._buf = bytearray()
+        self._buf = b""
+        """What is held between calls; bytes, so a packet is cut out with one copy."""
         self._run_goes_on = False
         """The last discarded piece was cut at MAX_DISCARD: what follows it, up to the
         next 0xAA, belongs to the same run, so a single byte there is not alone."""
@@ -110,7 +120,7 @@ class Decoder:
         """Add bytes read from the line; return every event they complete."""
         if not isinstance(data, (bytes, bytearray, memoryview)):
             raise TypeError(f"feed() takes bytes, not {type(data).__name__}")
-        self._buf += data
+        self._buf = self._buf + data if self._buf else bytes(data)
         return self._decode(final=False)
 
     def line_idle(self) -> list[Event]:
@@ -127,65 +137,56 @@ class Decoder:
         out: list[Event] = []
         append = out.append
         stats = self.stats
+        view = memoryview(buf)
+        unpack_header = _HEADER.unpack_from
+        adler32 = zlib.adler32
+        reply_size, reply_start, new_tuple = _REPLY_SIZE, _REPLY_START, _new_tuple
+        replies = 0
+        run_goes_on = self._run_goes_on
+        last_header = n - HEADER_SIZE
         while pos < n:
+            if pos <= last_header:
+                # the common case first, in as few steps as Python allows: a whole reply
+                # whose checksum holds. Its sum is below 65521 (at most 107 bytes of
+                # 255), so Adler-32's low half is exactly 1 + the sum, computed in C
+                # rather than a byte at a time
+                start_flags, app, node, length, unused = unpack_header(buf, pos)
+                end = pos + reply_size[length]
+                if (start_flags == reply_start and not app and not unused
+                        and 0 < node < 0xFFFF and pos < end <= n
+                        and adler32(view[pos + 1:end - 4]) & 0xFFFF
+                        == ((buf[end - 2] << 8) | buf[end - 1]) + 1):
+                    append(new_tuple(Reply, (buf[pos:end],)))
+                    replies += 1
+                    run_goes_on = False
+                    pos = end
+                    continue
             byte = buf[pos]
             if byte == SOP:
-                self._run_goes_on = False
-                avail = n - pos
-                if avail >= 2 and buf[pos + 1] == SOP:
+                run_goes_on = False
+                if pos + 1 < n and buf[pos + 1] == SOP:  # no packet has flags 0xAA
                     append(ACK_EVENT)
                     stats.acks += 1
                     pos += 1
                     continue
-                if avail < HEADER_SIZE:
-                    if not final:
-                        break
-                    if avail == 1:
-                        append(ACK_EVENT)
-                        stats.acks += 1
-                        pos += 1
-                        continue
-                    reason = DiscardReason.TRUNCATED
-                else:
-                    length = buf[pos + 5]
-                    size = length + _SIZE_FROM_LENGTH
-                    node = (buf[pos + 3] << 8) | buf[pos + 4]
-                    trusted = (buf[pos + 1] == FLAGS_REPLY and buf[pos + 2] == APP_DATA_TYPE
-                               and buf[pos + 6] == 0 and 2 <= length <= _MAX_REPLY_LENGTH
-                               and 0 < node < 0xFFFF)
-                    if avail < size:
-                        if not (final or (not trusted and self._frame_within(pos + 1, n))):
-                            break
-                        reason = DiscardReason.TRUNCATED
-                    elif not trusted and self._frame_within(pos + 1, pos + size - 1):
-                        reason = DiscardReason.TRUNCATED
-                    else:
-                        ck = pos + size - 2
-                        if (sum(buf[pos + 1:ck - 2]) & 0xFFFF) != ((buf[ck] << 8) | buf[ck + 1]):
-                            reason = DiscardReason.BAD_CHECKSUM
-                        elif not 0 < node < 0xFFFF:
-                            reason = DiscardReason.BAD_ADDRESS
-                        else:
-                            raw = bytes(buf[pos:pos + size])
-                            if trusted:
-                                append(Reply(raw))
-                                stats.replies += 1
-                            else:
-                                append(Frame(raw))
-                                stats.frames += 1
-                            pos += size
-                            continue
+                candidate = self._failed_candidate(pos, n, final)
+                if candidate is None:
+                    break
+                if type(candidate) is not DiscardReason:  # an ACK, a Frame or a Reply
+                    append(candidate)
+                    pos += 1 if candidate is ACK_EVENT else len(candidate[0])
+                    continue
                 end = self._run_end(pos, n, final)
                 if end is None:
                     break
-                append(self._discard(pos, end, reason))  # never a lone byte: see AA AA
-                self._run_goes_on = end - pos == MAX_DISCARD
+                append(self._discard(pos, end, candidate))  # never a lone byte: see AA AA
+                run_goes_on = end - pos == MAX_DISCARD
                 pos = end
             else:
                 end = self._run_end(pos, n, final)
                 if end is None:
                     break
-                alone = end - pos == 1 and not self._run_goes_on
+                alone = end - pos == 1 and not run_goes_on
                 if alone and byte == NACK:
                     append(NACK_EVENT)
                     stats.nacks += 1
@@ -194,11 +195,52 @@ class Decoder:
                     stats.ping_oks += 1
                 else:
                     append(self._discard(pos, end, DiscardReason.GARBAGE))
-                self._run_goes_on = end - pos == MAX_DISCARD
+                run_goes_on = end - pos == MAX_DISCARD
                 pos = end
-        if pos:
-            del buf[:pos]
+        view.release()
+        self._run_goes_on = run_goes_on
+        stats.replies += replies
+        self._buf = buf[pos:] if pos else buf
         return out
+
+    def _failed_candidate(self, pos: int, n: int,
+                          final: bool) -> Event | DiscardReason | None:
+        """The 0xAA at ``pos`` did not start a whole reply with a good checksum (the fast
+        path) nor an ACK before another 0xAA: what it is instead. An event (an ACK at
+        the end of the line, a Frame, or a Reply after all), the reason the bytes from
+        ``pos`` are discarded, or None if that waits for more bytes."""
+        buf = self._buf
+        avail = n - pos
+        if avail < HEADER_SIZE:
+            if not final:
+                return None
+            if avail == 1:
+                self.stats.acks += 1
+                return ACK_EVENT
+            return DiscardReason.TRUNCATED
+        length = buf[pos + 5]
+        size = length + _SIZE_FROM_LENGTH
+        node = (buf[pos + 3] << 8) | buf[pos + 4]
+        trusted = (buf[pos + 1] == FLAGS_REPLY and buf[pos + 2] == APP_DATA_TYPE
+                   and buf[pos + 6] == 0 and 2 <= length <= _MAX_REPLY_LENGTH
+                   and 0 < node < 0xFFFF)
+        if avail < size:
+            if not (final or (not trusted and self._frame_within(pos + 1, n))):
+                return None
+            return DiscardReason.TRUNCATED
+        if not trusted and self._frame_within(pos + 1, pos + size - 1):
+            return DiscardReason.TRUNCATED
+        ck = pos + size - 2
+        if (sum(buf[pos + 1:ck - 2]) & 0xFFFF) != ((buf[ck] << 8) | buf[ck + 1]):
+            return DiscardReason.BAD_CHECKSUM
+        if not 0 < node < 0xFFFF:
+            return DiscardReason.BAD_ADDRESS
+        raw = buf[pos:pos + size]
+        if trusted:
+            self.stats.replies += 1
+            return Reply(raw)
+        self.stats.frames += 1
+        return Frame(raw)
 
     def _frame_within(self, start: int, limit: int) -> bool:
         """Is there a valid packet starting at or after ``start`` and ending by ``limit``?"""
@@ -232,4 +274,4 @@ class Decoder:
     def _discard(self, start: int, end: int, reason: DiscardReason) -> Discarded:
         self.stats.discarded_bytes[reason] += end - start
         self.stats.discarded_runs[reason] += 1
-        return Discarded(bytes(self._buf[start:end]), reason)
+        return _new_tuple(Discarded, (self._buf[start:end], reason))
