@@ -613,3 +613,26 @@ def test_a_byte_left_after_a_cut_run_is_still_garbage(tail, chunk):
     events += decoder.line_idle()
     assert events == [Discarded(b"\x55" * MAX_DISCARD, DiscardReason.GARBAGE),
                       Discarded(tail, DiscardReason.GARBAGE), Reply(ACCEL)]
+
+
+# --- the fast path's checksum -----------------------------------------------------------
+
+HEAVIEST_REPLY = pkt(b"\xff" * (MAX_REPLY_LENGTH - 1), node=0xFFFE)  # the largest sum
+
+
+@pytest.mark.parametrize("chunking", ["whole", "bytes"])
+def test_heaviest_reply_passes_the_fast_checksum(chunking: str) -> None:
+    """The fast path checks a reply's sum with Adler-32, whose low half is 1 + the sum
+    only while the sum stays below 65521: the largest sum a plausible reply can have
+    must still come out, and the same packet one off must not."""
+    assert checksum(HEAVIEST_REPLY[1:-4]) > 0x6000
+    def chunks(data: bytes) -> list[bytes]:
+        return [data] if chunking == "whole" else [bytes((b,)) for b in data]
+
+    events, _ = run(chunks(HEAVIEST_REPLY + ACCEL))
+    assert events == [Reply(HEAVIEST_REPLY), Reply(ACCEL)]
+    for wrong in (1, -1, 65521 & 0xFFFF, 0x8000):
+        bad = HEAVIEST_REPLY[:-2] + ((checksum(HEAVIEST_REPLY[1:-4]) + wrong) & 0xFFFF
+                                     ).to_bytes(2, "big")
+        events, _ = run(chunks(bad + ACCEL))
+        assert events == [Discarded(bad, BAD_CHECKSUM), Reply(ACCEL)], hex(wrong)
