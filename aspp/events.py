@@ -12,10 +12,14 @@ an event is exactly as trustworthy as the bytes it was decoded from.
 
 from __future__ import annotations
 
+import struct
 from enum import StrEnum
 from typing import NamedTuple
 
 from .frame import HEADER_SIZE
+
+LINK_QUALITY = struct.Struct(">Bb")
+"""LQI and RSSI (dBm, signed), the two bytes before a packet's checksum."""
 
 
 def _same_type_eq(self: tuple, other: object) -> bool:
@@ -61,8 +65,7 @@ class Reply(NamedTuple):
     @property
     def rssi(self) -> int:
         """Received signal strength in dBm (a signed byte)."""
-        value = self.raw[-3]
-        return value - 256 if value > 127 else value
+        return LINK_QUALITY.unpack_from(self.raw, len(self.raw) - 4)[1]  # type: ignore[no-any-return]
 
     __eq__ = _same_type_eq
     __ne__ = _same_type_ne
@@ -99,8 +102,7 @@ class Frame(NamedTuple):
 
     @property
     def rssi(self) -> int:
-        value = self.raw[-3]
-        return value - 256 if value > 127 else value
+        return LINK_QUALITY.unpack_from(self.raw, len(self.raw) - 4)[1]  # type: ignore[no-any-return]
 
     @property
     def is_discovery(self) -> bool:

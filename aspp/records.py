@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from operator import itemgetter
+from typing import NamedTuple
 
 from .errors import CommandError, RecordError
 from .fields import (
@@ -34,6 +36,11 @@ from .fields import (
     in_range,
     one_of,
 )
+
+_AS_SLICE = frozenset(("vector", "ints"))
+"""Field shapes whose value is a slice of the unpacked items (a slice of a tuple is a
+tuple); a value of an _AS_ITEM shape is a single item."""
+_AS_ITEM = frozenset(("int", "float"))
 
 CONFIRM = Const(b"\xC1\x29")
 """The confirmation bytes most state-changing commands need."""
@@ -60,6 +67,11 @@ class CommandSpec:
     reply_slices: tuple[tuple[int, int, Field], ...] = field(init=False, repr=False,
                                                             compare=False)
     """Where each reply field's items sit in the unpacked tuple (computed once)."""
+    reply_getter: Callable[[tuple], tuple] | None = field(init=False, repr=False,
+                                                          compare=False)
+    """Groups the unpacked items into the field values in one C call, for a layout of
+    two or more fields that are all scalars or flat tuples (every streamed record but
+    those holding a matrix); None: :func:`shape` groups them field by field."""
 
     def __repr__(self) -> str:
         return f"CommandSpec(0x{self.code:02X}, {self.name!r})"
@@ -76,6 +88,11 @@ class CommandSpec:
             slices.append((at, at + f.type.items, f))
             at += f.type.items
         object.__setattr__(self, "reply_slices", tuple(slices))
+        flat = len(slices) >= 2 and all(f.type.shape in _AS_SLICE | _AS_ITEM
+                                        for _, _, f in slices)
+        object.__setattr__(self, "reply_getter", itemgetter(*(
+            slice(start, stop) if f.type.shape in _AS_SLICE else start
+            for start, stop, f in slices)) if flat else None)
 
     @property
     def reply_size(self) -> int | None:
@@ -232,9 +249,13 @@ def checked(record: str | int, *, streamable: bool = False,
     return spec
 
 
-@dataclass(frozen=True, slots=True)
-class Record:
-    """One decoded reply record: its command and its field values, in table order."""
+class Record(NamedTuple):
+    """One decoded reply record: its command and its field values, in table order.
+
+    A NamedTuple rather than a frozen dataclass for the events' reason: one is made
+    for every record, and a tuple is several times cheaper to build. ``record["timer"]``
+    reads a field by name.
+    """
 
     spec: CommandSpec
     values: tuple[Value, ...]
@@ -255,7 +276,9 @@ class Record:
     def timer(self) -> int | None:
         return self["timer"] if self.spec.timed else None  # type: ignore[return-value]
 
-    def __getitem__(self, field_name: str) -> Value:
+    def __getitem__(self, field_name: str) -> Value:  # type: ignore[override]
+        if type(field_name) is not str:  # the tuple's own indexing, for its own use
+            return tuple.__getitem__(self, field_name)  # type: ignore[return-value]
         try:
             return self.values[self.spec.field_names.index(field_name)]
         except ValueError:
@@ -292,17 +315,19 @@ def decode(payload: bytes | bytearray | memoryview) -> Record:
     if len(payload) != size and not (spec.reply_may_run_long and len(payload) > size):
         raise RecordError(f"0x{spec.code:02X} {spec.name}: {len(payload)} bytes, "
                           f"its layout needs {size}")
-    return Record(spec, shape(spec, spec.reply_struct.unpack_from(payload)))
+    return _new_tuple(Record, (spec, shape(spec, spec.reply_struct.unpack_from(payload))))
 
 
-_AS_SLICE = frozenset(("vector", "ints"))
-_AS_ITEM = frozenset(("int", "float"))
+_new_tuple = tuple.__new__  # a Record without NamedTuple's Python-level __new__
 
 
 def shape(spec: CommandSpec, items: tuple) -> tuple[Value, ...]:
     """Group the flat struct items after the echo byte into the spec's field values.
-    (On every record: the common shapes are done inline, a slice of a tuple being a
-    tuple; the others by their field type.)"""
+    (On every record: by the spec's one-call getter where it has one; else the common
+    shapes inline, the others by their field type.)"""
+    getter = spec.reply_getter
+    if getter is not None:
+        return getter(items)
     values = []
     for start, stop, f in spec.reply_slices:
         kind = f.type.shape

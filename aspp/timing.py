@@ -19,6 +19,7 @@ from typing import Final
 TICKS_PER_SECOND: Final = 19_660_800
 TIMER_MODULUS: Final = 1 << 32
 WRAP_SECONDS: Final = TIMER_MODULUS / TICKS_PER_SECOND  # 218.45 s
+_HALF_WRAP_SECONDS: Final = WRAP_SECONDS / 2
 
 
 def ticks_to_seconds(ticks: int) -> float:
@@ -70,7 +71,13 @@ class TimerUnwrapper:
         else:
             delta = (ticks - self._last_ticks) % TIMER_MODULUS
             if host_time is not None and self._last_host is not None:
-                delta = self._reconcile(delta, host_time - self._last_host)
+                elapsed = host_time - self._last_host
+                # the usual reading (one sample period on): no wrap can hide in less
+                # than half a wrap of host time, and a timer no further ahead of the
+                # host clock than the tolerance is what _reconcile accepts as it is
+                if not (elapsed < _HALF_WRAP_SECONDS
+                        and delta <= (elapsed + self.tolerance) * TICKS_PER_SECOND):
+                    delta = self._reconcile(delta, elapsed)
             self._total_ticks += delta
         self._last_ticks = ticks
         if host_time is not None:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import time
 from typing import Any, NamedTuple
 
-from aspp.events import Reply
+from aspp.events import LINK_QUALITY, Reply
 from aspp.records import Record
 from aspp.stop import StopPolicy
 from aspp.timing import TICKS_PER_SECOND, TIMER_MODULUS, TimerUnwrapper
@@ -79,14 +79,15 @@ class NodeState:
         """Count the record and build its published payload (CONTRACT section 4)."""
         self.seq += 1
         self.packets += 1
-        self.lqi = lqi = event.lqi
-        self.rssi = rssi = event.rssi
+        raw = event.raw
+        self.lqi, self.rssi = lqi, rssi = LINK_QUALITY.unpack_from(raw, len(raw) - 4)
         self.last_seen = host_time
         self._measure_rate(host_time)
-        payload = record.as_dict()
+        spec = record.spec
+        payload = dict(zip(spec.field_names, record.values, strict=False))  # (equal: decode)
         payload["node"] = self.address
-        payload["record"] = record.spec.name
-        payload["command"] = record.spec.code
+        payload["record"] = spec.name
+        payload["command"] = spec.code
         payload["seq"] = self.seq
         payload["host_time"] = host_time
         payload["lqi"] = lqi

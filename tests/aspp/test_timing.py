@@ -90,3 +90,23 @@ def test_unwrapped_time_tracks_true_elapsed_time(start, steps, jitter):
         device = unwrap.update(seconds_to_ticks(true + elapsed), host_time=elapsed + jitter)
         assert device - first == pytest.approx(elapsed, abs=1e-6)
     assert unwrap.resets == 0
+
+
+@settings(max_examples=300, deadline=None)
+@given(readings=st.lists(st.tuples(st.integers(0, TIMER_MODULUS - 1),
+                                   st.floats(-5.0, 400.0)), min_size=2, max_size=30))
+def test_the_fast_path_agrees_with_reconciling_every_reading(readings):
+    """update() skips _reconcile for the usual reading; for any readings at all (reboots,
+    stalls, missed wraps, a host clock that steps back) it must give exactly what
+    reconciling every reading gives."""
+    def run() -> tuple[list[float], int]:
+        unwrap, host, times = TimerUnwrapper(), 0.0, []
+        for ticks, step in readings:
+            host += step
+            times.append(unwrap.update(ticks, host_time=host))
+        return times, unwrap.resets
+
+    fast = run()
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("aspp.timing._HALF_WRAP_SECONDS", -1.0)  # the fast path never taken
+        assert run() == fast
