@@ -315,7 +315,10 @@ def decode(payload: bytes | bytearray | memoryview) -> Record:
     if len(payload) != size and not (spec.reply_may_run_long and len(payload) > size):
         raise RecordError(f"0x{spec.code:02X} {spec.name}: {len(payload)} bytes, "
                           f"its layout needs {size}")
-    return _new_tuple(Record, (spec, shape(spec, spec.reply_struct.unpack_from(payload))))
+    items = spec.reply_struct.unpack_from(payload)
+    getter = spec.reply_getter  # (shape()'s first step, inline: this runs per record)
+    return _new_tuple(Record, (spec, getter(items) if getter is not None
+                               else shape(spec, items)))
 
 
 _new_tuple = tuple.__new__  # a Record without NamedTuple's Python-level __new__

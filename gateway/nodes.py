@@ -82,7 +82,9 @@ class NodeState:
         raw = event.raw
         self.lqi, self.rssi = lqi, rssi = LINK_QUALITY.unpack_from(raw, len(raw) - 4)
         self.last_seen = host_time
-        self._measure_rate(host_time)
+        self._window_count += 1  # the record rate, measured over RATE_WINDOW
+        if host_time - self._window_start >= RATE_WINDOW:
+            self._close_rate_window(host_time)
         spec = record.spec
         payload = dict(zip(spec.field_names, record.values, strict=False))  # (equal: decode)
         payload["node"] = self.address
@@ -122,12 +124,10 @@ class NodeState:
         if 0 < missing < 10_000:
             self.lost_radio += missing
 
-    def _measure_rate(self, now: float) -> None:
-        self._window_count += 1
+    def _close_rate_window(self, now: float) -> None:
         elapsed = now - self._window_start
-        if elapsed >= RATE_WINDOW:
-            self.rate_hz = self._window_count / elapsed if elapsed < 2 * RATE_WINDOW else 0.0
-            self._window_start, self._window_count = now, 0
+        self.rate_hz = self._window_count / elapsed if elapsed < 2 * RATE_WINDOW else 0.0
+        self._window_start, self._window_count = now, 0
 
     def streaming(self, record: str | None) -> None:
         """The node now streams ``record`` (None: polled mode)."""
