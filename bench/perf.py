@@ -231,11 +231,15 @@ def pipeline_rows(packets: int = 150_000, rounds: int = 3) -> list[Row]:
 
 # --- 3-5. the installed gateway on a simulator ------------------------------------------
 
+Key = tuple[int, int]
+"""A 0xC2 record by (node, timer): unique within a run."""
+
+
 @dataclass
 class Written:
-    """When the simulator wrote each 0xC2 packet's last byte, by (node, timer)."""
+    """When the simulator wrote each 0xC2 packet's last byte (time.monotonic())."""
 
-    at: dict[tuple[int, int], float] = field(default_factory=dict)
+    at: dict[Key, float] = field(default_factory=dict)
 
     def tap(self, sim: Simulator) -> None:
         def seen(reply: Reply, now: float) -> None:
@@ -244,62 +248,102 @@ class Written:
         tap_writes(sim, seen)
 
 
-class Bench:
-    """gx2-sim in this process, the installed gx2-gateway as a subprocess."""
+def subscribe(endpoint: str, subscribers: int, settle: float, seconds: float,
+              measuring, result) -> None:
+    """In a process of its own, so that the simulator's thread never holds its GIL:
+    ``subscribers`` SUB sockets; after ``settle`` s, count every message for ``seconds``
+    and time each 0xC2 record the first one gets (time.monotonic(), one clock for every
+    process on the machine)."""
+    context = zmq.Context()
+    subs = []
+    for _ in range(subscribers):
+        sub = context.socket(zmq.SUB)
+        sub.setsockopt(zmq.RCVHWM, 0)
+        sub.setsockopt(zmq.SUBSCRIBE, b"gx2/")
+        sub.connect(endpoint)
+        subs.append(sub)
+    poller = zmq.Poller()
+    for sub in subs:
+        poller.register(sub, zmq.POLLIN)
+    got, received, counting = 0, {}, False
+    start = time.monotonic()
+    deadline = start + settle
+    while (left := deadline - time.monotonic()) > 0 or not counting:
+        if left <= 0:
+            counting, deadline = True, time.monotonic() + seconds
+            measuring.set()
+            continue
+        for sub, _ in poller.poll(max(1, int(left * 1000))):
+            while True:
+                try:
+                    topic, payload = sub.recv_multipart(zmq.NOBLOCK)
+                except zmq.Again:
+                    break
+                now = time.monotonic()
+                if not counting:
+                    continue
+                got += 1
+                if sub is subs[0] and topic.endswith(b"/accel_angrate"):
+                    message = msgpack.unpackb(payload)
+                    received[(message["node"], message["timer"])] = now
+    result.put((got, received))
+    context.destroy(linger=0)
 
-    def __init__(self, nodes: list[NodeSettings], streaming: list[int], *,
-                 baudrate: int = 115200, configured: list[int] | None = None) -> None:
+
+@dataclass
+class Measured:
+    records_per_s: float
+    latencies: list[float]
+    cpu: float
+    """Of one core."""
+    rss_mib: tuple[float, float]
+
+
+class Bench:
+    """gx2-sim in this process; the installed gx2-gateway, or the floor relay, as a
+    subprocess; subscribers in another."""
+
+    def __init__(self, nodes: list[NodeSettings], *, baudrate: int = 115200,
+                 configured: list[int] | None = None, relay: bool = False) -> None:
         self.work = Path(tempfile.mkdtemp(prefix="gx2-perf-"))
         self.sim = Simulator(nodes, link=self.work / "gx2", baudrate=baudrate).start()
         self.written = Written()
         self.written.tap(self.sim)
         self.publish = f"tcp://127.0.0.1:{free_port()}"
-        self.control = f"tcp://127.0.0.1:{free_port()}"
-        addresses = configured or [n.address for n in nodes]
+        streaming = {n.address for n in nodes if n.stream}
         (self.work / "nodes.yaml").write_text(yaml.safe_dump({
             "base_station": {"port": str(self.work / "gx2"), "baudrate": baudrate},
             "publish": {"endpoint": self.publish},
-            "control": {"endpoint": self.control},
+            "control": {"endpoint": f"tcp://127.0.0.1:{free_port()}"},
             "nodes": [{"address": a, **({"stream": "accel_angrate"} if a in streaming else {})}
-                      for a in addresses]}))
-        script = shutil.which("gx2-gateway", path=str(Path(sys.executable).parent))
-        self.proc = subprocess.Popen([script or "gx2-gateway", "--config",
-                                      str(self.work / "nodes.yaml"), "--log-level", "WARNING"],
-                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        self.context = zmq.Context()
-        self.subs: list[zmq.Socket] = []
+                      for a in configured or sorted(n.address for n in nodes)]}))
+        if relay:
+            command = [sys.executable, str(Path(__file__).with_name("relay.py")),
+                       str(self.work / "gx2"), self.publish]
+        else:
+            script = shutil.which("gx2-gateway", path=str(Path(sys.executable).parent))
+            command = [script or "gx2-gateway", "--config", str(self.work / "nodes.yaml"),
+                       "--log-level", "WARNING"]
+        self.proc = subprocess.Popen(command, stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.DEVNULL)
 
-    def subscribe(self) -> zmq.Socket:
-        sub = self.context.socket(zmq.SUB)
-        sub.setsockopt(zmq.RCVHWM, 0)
-        sub.setsockopt(zmq.SUBSCRIBE, b"gx2/")
-        sub.connect(self.publish)
-        self.subs.append(sub)
-        return sub
-
-    def receive(self, seconds: float, latencies: list[float] | None = None) -> int:
-        """Read every subscriber for ``seconds``; the first one's latencies."""
-        poller = zmq.Poller()
-        for sub in self.subs:
-            poller.register(sub, zmq.POLLIN)
-        got, deadline = 0, time.monotonic() + seconds
-        while (left := deadline - time.monotonic()) > 0:
-            for sub, _ in poller.poll(max(1, int(left * 1000))):
-                while True:
-                    try:
-                        topic, payload = sub.recv_multipart(zmq.NOBLOCK)
-                    except zmq.Again:
-                        break
-                    now = time.monotonic()
-                    got += 1
-                    if latencies is not None and sub is self.subs[0] and \
-                            topic.endswith(b"/accel_angrate"):
-                        message = msgpack.unpackb(payload)
-                        written = self.written.at.pop((message["node"], message["timer"]),
-                                                      None)
-                        if written is not None:
-                            latencies.append(now - written)
-        return got
+    def measure(self, seconds: float, subscribers: int = 1, settle: float = 8.0) -> Measured:
+        """Settle (started, armed, subscribers joined), then measure for ``seconds``."""
+        measuring, result = multiprocessing.Event(), multiprocessing.Queue()
+        process = multiprocessing.Process(target=subscribe, args=(
+            self.publish, subscribers, settle, seconds, measuring, result))
+        process.start()
+        if not measuring.wait(settle + 30):
+            raise RuntimeError("the subscribers never started measuring")
+        self.written.at.clear()
+        cpu0, rss0, t0 = self.cpu_seconds(), self.rss_mib(), time.monotonic()
+        got, received = result.get(timeout=seconds + 60)
+        elapsed = time.monotonic() - t0
+        cpu, rss1 = (self.cpu_seconds() - cpu0) / elapsed, self.rss_mib()
+        process.join(10)
+        written = dict(self.written.at)
+        latencies = [at - written[key] for key, at in received.items() if key in written]
+        return Measured(got / seconds / subscribers, latencies, cpu, (rss0, rss1))
 
     def cpu_seconds(self) -> float:
         fields = Path(f"/proc/{self.proc.pid}/stat").read_text().rpartition(")")[2].split()
@@ -312,77 +356,75 @@ class Bench:
         self.proc.terminate()
         self.proc.wait(10)
         self.sim.stop()
-        self.context.destroy(linger=0)
         shutil.rmtree(self.work, ignore_errors=True)
+
+
+def measure(nodes: list[NodeSettings], seconds: float, *, subscribers: int = 1,
+            baudrate: int = 115200, configured: list[int] | None = None,
+            relay: bool = False) -> Measured:
+    bench = Bench(nodes, baudrate=baudrate, configured=configured, relay=relay)
+    try:
+        return bench.measure(seconds, subscribers)
+    finally:
+        bench.close()
 
 
 def percentiles(values: list[float]) -> str:
     values = sorted(values)
     if not values:
         return "no samples"
+
     def at(q: float) -> float:
         return values[min(len(values) - 1, int(q * len(values)))] * 1000
     return (f"p50 {at(0.5):.2f} / p99 {at(0.99):.2f} / max {values[-1] * 1000:.2f} ms "
             f"({len(values):,} records)")
 
 
-SATURATING = [NodeSettings(a, divider=533) for a in (76, 77, 78)]  # 3 x 96 Hz x 40 bytes
+SATURATING = [NodeSettings(a, divider=533, stream="accel_angrate") for a in (76, 77, 78)]
+"""3 nodes streaming 0xC2 at 96 Hz: 3 x 96 x 40 bytes fill a 115200-baud line."""
+BURST = [NodeSettings(a, divider=170, stream="accel_angrate") for a in range(76, 86)]
+"""10 nodes at 301 Hz on a 4 Mbaud line: the simulator writes as fast as it can."""
 
 
 def latency_and_cost_rows(seconds: float) -> list[Row]:
-    rows: list[Row] = []
-    bench = Bench(SATURATING, [76, 77, 78])
-    try:
-        bench.subscribe()
-        bench.receive(8.0)  # started, armed, settled
-        bench.written.at.clear()
-        latencies: list[float] = []
-        cpu0, rss0, t0 = bench.cpu_seconds(), bench.rss_mib(), time.monotonic()
-        got = bench.receive(seconds, latencies)
-        cpu = (bench.cpu_seconds() - cpu0) / (time.monotonic() - t0)
-        rss1 = bench.rss_mib()
-        rows += [("latency, saturated 115200 line (3 x 96 Hz 0xC2), write -> SUB",
-                  percentiles(latencies), "p99 <= 2 ms"),
-                 (f"gateway CPU at the saturated line ({got / seconds:.0f} records/s)",
-                  f"{cpu:.1%} of one core", "<= 2%"),
-                 (f"gateway RSS over {seconds:.0f} s", f"{rss0:.1f} -> {rss1:.1f} MiB "
-                  f"({(rss1 - rss0) * 1024:+.0f} KiB)", "growth < 1 MB")]
-    finally:
-        bench.close()
-
-    burst = Bench([NodeSettings(a, divider=170) for a in range(76, 86)],
-                  list(range(76, 86)), baudrate=4_000_000)
-    try:
-        burst.subscribe()
-        burst.receive(8.0)
-        burst.written.at.clear()
-        latencies = []
-        got = burst.receive(15.0, latencies)
-        rows.append((f"latency, unpaced burst (10 x 301 Hz, {got / 15:.0f} records/s)",
-                     percentiles(latencies), ""))
-    finally:
-        burst.close()
-    return rows
+    gateway = measure(SATURATING, seconds)
+    floor = measure(SATURATING, min(seconds, 30.0), relay=True)
+    burst = measure(BURST, 15.0, baudrate=4_000_000)
+    rss0, rss1 = gateway.rss_mib
+    return [
+        ("latency, saturated 115200 line (3 x 96 Hz 0xC2), write -> SUB",
+         percentiles(gateway.latencies), "p99 <= 2 ms"),
+        ("(floor: the relay, which only cuts and publishes, on the same line)",
+         percentiles(floor.latencies), ""),
+        (f"gateway CPU at the saturated line ({gateway.records_per_s:.0f} records/s)",
+         f"{gateway.cpu:.1%} of one core", "<= 2%"),
+        ("(floor: the relay's CPU on the same line)", f"{floor.cpu:.1%} of one core", ""),
+        (f"gateway RSS over {seconds:.0f} s", f"{rss0:.1f} -> {rss1:.1f} MiB "
+         f"({(rss1 - rss0) * 1024:+.0f} KiB)", "growth < 1 MB"),
+        (f"latency, unpaced burst (10 x 301 Hz, {burst.records_per_s:.0f} records/s)",
+         percentiles(burst.latencies), ""),
+    ]
 
 
 def scale_rows(seconds: float) -> list[Row]:
     rows: list[Row] = []
-    cases = [("100 configured nodes, 3 streaming", list(range(76, 176)), 1),
-             ("3 nodes, 10 subscribers", [76, 77, 78], 10)]
-    for name, configured, subscribers in cases:
-        bench = Bench(SATURATING, [76, 77, 78], configured=configured)
-        try:
-            for _ in range(subscribers):
-                bench.subscribe()
-            bench.receive(8.0)
-            cpu0, rss0, t0 = bench.cpu_seconds(), bench.rss_mib(), time.monotonic()
-            bench.receive(seconds)
-            cpu = (bench.cpu_seconds() - cpu0) / (time.monotonic() - t0)
-            rows.append((f"scale: {name}", f"CPU {cpu:.1%}, RSS {rss0:.1f} -> "
-                         f"{bench.rss_mib():.1f} MiB", ""))
-        finally:
-            bench.close()
+    cases = [("100 configured nodes, 3 streaming",
+              measure(SATURATING, seconds, configured=list(range(76, 176)))),
+             ("3 nodes, 10 subscribers", measure(SATURATING, seconds, subscribers=10))]
+    for name, result in cases:
+        rows.append((f"scale: {name}", f"CPU {result.cpu:.1%}, RSS {result.rss_mib[0]:.1f}"
+                     f" -> {result.rss_mib[1]:.1f} MiB", ""))
     return rows
+
+
+def cpu_steal(since: tuple[int, int] | None = None) -> float | tuple[int, int]:
+    """(steal, total) jiffies of all CPUs from /proc/stat; given an earlier reading,
+    the share stolen since (a virtual machine's neighbours taking its cores)."""
+    fields = [int(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    now = (fields[7] if len(fields) > 7 else 0, sum(fields[:8]))
+    if since is None:
+        return now
+    return (now[0] - since[0]) / max(1, now[1] - since[1])
 
 
 def main() -> int:
@@ -390,11 +432,13 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=60.0,
                         help="how long the saturated-line cost is measured")
     args = parser.parse_args()
+    steal0 = cpu_steal()
     rows = decoder_rows() + pipeline_rows() + latency_and_cost_rows(args.seconds) + \
-        scale_rows(min(args.seconds, 30.0))
+        scale_rows(min(args.seconds, 20.0))
     print(f"\n{platform.node()}: {platform.processor() or platform.machine()}, "
           f"{os.cpu_count()} cores, Python {platform.python_version()}, "
-          f"{time.strftime('%Y-%m-%d')}")
+          f"{time.strftime('%Y-%m-%d')}; CPU time stolen by the hypervisor during the "
+          f"run: {cpu_steal(steal0):.0%}")
     print("| measure | figure | target |\n|---|---|---|")
     for what, figure, target in rows:
         print(f"| {what} | {figure} | {target} |")
