@@ -77,7 +77,7 @@ class NodeState:
 
     def payload(self, event: Reply, record: Record, host_time: float) -> dict[str, Any]:
         """Count the record and build its published payload (CONTRACT section 4)."""
-        self.seq += 1
+        self.seq = seq = self.seq + 1
         self.packets += 1
         raw = event.raw
         self.lqi, self.rssi = lqi, rssi = LINK_QUALITY.unpack_from(raw, len(raw) - 4)
@@ -86,30 +86,31 @@ class NodeState:
         if host_time - self._window_start >= RATE_WINDOW:
             self._close_rate_window(host_time)
         spec = record.spec
-        payload = dict(zip(spec.field_names, record.values, strict=False))  # (equal: decode)
-        payload["node"] = self.address
-        payload["record"] = spec.name
-        payload["command"] = spec.code
-        payload["seq"] = self.seq
-        payload["host_time"] = host_time
-        payload["lqi"] = lqi
-        payload["rssi"] = rssi
+        name = spec.name
+        # a dict display, then the fields: several times cheaper than building it item
+        # by item (and zip without strict=: the keyword alone costs a third more; the
+        # lengths are equal by decode())
+        payload = {"node": self.address, "record": name, "command": spec.code, "seq": seq,
+                   "host_time": host_time, "lqi": lqi, "rssi": rssi}
+        payload.update(zip(spec.field_names, record.values))  # noqa: B905
+        is_stream = name == self.record
         timer = payload.get("timer")
         if timer is not None:
-            payload["device_time"] = self._unwrapper.update(timer, host_time)
-            if self._unwrapper.last_was_reset:
+            unwrapper = self._unwrapper
+            payload["device_time"] = unwrapper.update(timer, host_time)
+            if unwrapper.last_was_reset:
                 if not self._reboot_announced:  # a reboot seen only in the timer
                     self.reboots += 1
-                    self.quiet_reboot = record.spec.name != self.config.stream
+                    self.quiet_reboot = name != self.config.stream
                 self._reboot_announced = False
                 self._last_stream_timer = None  # no gap across a power-up
-            if record.spec.name == self.record:
+            if is_stream:
                 self._count_gaps(timer)
-        if record.spec.name == self.record:
+        if is_stream:
             self._stream_seen = time.monotonic()
             if self.state == "silent":
                 self.state = "streaming"
-        if self.stop_policy is not None and record.spec.streamable:
+        if self.stop_policy is not None and spec.streamable:
             self.stop_policy.packet_seen(time.monotonic())
         return payload
 
