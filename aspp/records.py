@@ -300,22 +300,25 @@ def _flat(values: object) -> tuple:
     return (values,)
 
 
-def decode(payload: bytes | bytearray | memoryview) -> Record:
-    """Decode reply bytes (echo byte first, no checksum) into a :class:`Record`.
+def decode(data: bytes | bytearray | memoryview, start: int = 0,
+           stop: int | None = None) -> Record:
+    """Decode reply bytes (echo byte first, no checksum) into a :class:`Record`: all of
+    ``data``, or ``data[start:stop]`` read in place (a packet's record without a copy).
 
     Raises :class:`RecordError` for an unknown echo byte or a length that does not
     match the layout; a record is never decoded from the wrong number of bytes.
     """
-    if not payload:
+    length = (len(data) if stop is None else stop) - start
+    if length <= 0:
         raise RecordError("an empty reply has no echo byte")
-    spec = BY_CODE.get(payload[0])
+    spec = BY_CODE.get(data[start])
     if spec is None or spec.reply is None:
-        raise RecordError(f"0x{payload[0]:02X} is not a GX2 reply record")
+        raise RecordError(f"0x{data[start]:02X} is not a GX2 reply record")
     size = spec.reply_struct.size
-    if len(payload) != size and not (spec.reply_may_run_long and len(payload) > size):
-        raise RecordError(f"0x{spec.code:02X} {spec.name}: {len(payload)} bytes, "
+    if length != size and not (spec.reply_may_run_long and length > size):
+        raise RecordError(f"0x{spec.code:02X} {spec.name}: {length} bytes, "
                           f"its layout needs {size}")
-    items = spec.reply_struct.unpack_from(payload)
+    items = spec.reply_struct.unpack_from(data, start)
     getter = spec.reply_getter  # (shape()'s first step, inline: this runs per record)
     return _new_tuple(Record, (spec, getter(items) if getter is not None
                                else shape(spec, items)))

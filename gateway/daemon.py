@@ -23,6 +23,7 @@ from zmq.auth.asyncio import AsyncioAuthenticator
 
 from aspp import Ack, Decoder, Frame, Nack, PingOk, Reply, commands, decode
 from aspp.errors import RecordError
+from aspp.frame import HEADER_SIZE
 
 from .config import GatewayConfig
 from .control import ControlServer
@@ -186,8 +187,9 @@ class Gateway:
         if node is None:
             self.unknown_node_packets += 1
             return
+        raw = event.raw
         try:
-            record = decode(event.payload)
+            record = decode(raw, HEADER_SIZE, len(raw) - 4)  # (event.payload, in place)
         except RecordError as error:
             self.bad_records += 1
             log.debug("node %d: %s", event.node, error)

@@ -73,6 +73,23 @@ def test_decode_refuses_the_wrong_bytes(payload):
         decode(payload)
 
 
+@pytest.mark.parametrize("payload", [
+    b"", b"\x42", b"\xfa", b"\xc2" + bytes(27), b"\xc2" + bytes(29), b"\xe5\x00",
+], ids=["empty", "unknown", "no-reply", "short", "long", "eeprom-short"])
+def test_decode_in_place_refuses_the_same_bytes(payload):
+    """decode(data, start, stop) reads data[start:stop] and nothing around it."""
+    framed = b"\xc2" * 7 + payload + b"\xc2" * 4
+    with pytest.raises(RecordError):
+        decode(framed, 7, 7 + len(payload))
+
+
+def test_decode_in_place_is_decode_of_the_slice():
+    payload = encode("accel_angrate_orientation", accel=(0.5, 0, -1), ang_rate=(0, 0.1, 0),
+                     orientation=((1, 0, 0), (0, 1, 0), (0, 0, 1)), timer=77)
+    framed = b"\xaa\x07\x00\x00\x4c" + payload + b"\x01\x02"
+    assert decode(framed, 5, 5 + len(payload)) == decode(payload)
+
+
 def test_built_in_test_reply_may_run_long():
     assert decode(b"\xfb\x10")["test_config"] == 0x10
     assert decode(b"\xfb\x10\x00\x00\x00\x00")["test_config"] == 0x10
