@@ -153,14 +153,17 @@ class Decoder:
                 start_flags, app, node, length, unused = unpack_header(buf, pos)
                 end = pos + reply_size[length]
                 if (start_flags == reply_start and not app and not unused
-                        and 0 < node < 0xFFFF and pos < end <= n
-                        and adler32(view[pos + 1:end - 4]) & 0xFFFF
-                        == ((buf[end - 2] << 8) | buf[end - 1]) + 1):
-                    append(new_tuple(Reply, (buf[pos:end],)))
-                    replies += 1
-                    run_goes_on = False
-                    pos = end
-                    continue
+                        and 0 < node < 0xFFFF and pos < end):
+                    if end > n:
+                        if not final:
+                            break  # a reply the read cut short: wait for the rest
+                    elif adler32(view[pos + 1:end - 4]) & 0xFFFF == (
+                            (buf[end - 2] << 8) | buf[end - 1]) + 1:
+                        append(new_tuple(Reply, (buf[pos:end],)))
+                        replies += 1
+                        run_goes_on = False
+                        pos = end
+                        continue
             byte = buf[pos]
             if byte == SOP:
                 run_goes_on = False
@@ -169,6 +172,8 @@ class Decoder:
                     stats.acks += 1
                     pos += 1
                     continue
+                if pos > last_header and not final:
+                    break  # a header the read cut short
                 candidate = self._failed_candidate(pos, n, final)
                 if candidate is None:
                     break
