@@ -55,13 +55,7 @@ class Publisher:
         name = self._topics.get(key)
         if name is None:
             name = self._topics[key] = topic(node, record)
-        try:  # (as _send does, inline: this runs per record)
-            self._socket_send(name, _MORE)
-            self._socket_send(self._pack(payload), _LAST)
-        except zmq.ZMQError as error:
-            return self._failed(name, error)
-        self.sent += 1
-        return True
+        return self._send(name, payload)
 
     def status(self, payload: dict[str, Any]) -> bool:
         return self._send(STATUS_TOPIC, payload)
@@ -71,14 +65,11 @@ class Publisher:
             self._socket_send(name, _MORE)
             self._socket_send(self._pack(payload), _LAST)
         except zmq.ZMQError as error:
-            return self._failed(name, error)
+            self.failed += 1
+            log.warning("publish on %s failed: %s", name.decode(), error)
+            return False
         self.sent += 1
         return True
-
-    def _failed(self, name: bytes, error: zmq.ZMQError) -> bool:
-        self.failed += 1
-        log.warning("publish on %s failed: %s", name.decode(), error)
-        return False
 
     def close(self) -> None:
         self.socket.close()
