@@ -120,7 +120,9 @@ class Decoder:
         """Add bytes read from the line; return every event they complete."""
         if not isinstance(data, (bytes, bytearray, memoryview)):
             raise TypeError(f"feed() takes bytes, not {type(data).__name__}")
-        self._buf = self._buf + data if self._buf else bytes(data)
+        if type(data) is not bytes:
+            data = bytes(data)  # (a copy: later changes to a mutable input don't count)
+        self._buf = self._buf + data if self._buf else data
         return self._decode(final=False)
 
     def line_idle(self) -> list[Event]:

@@ -277,12 +277,23 @@ class Record(NamedTuple):
         return self["timer"] if self.spec.timed else None  # type: ignore[return-value]
 
     def __getitem__(self, field_name: str) -> Value:  # type: ignore[override]
-        if type(field_name) is not str:  # the tuple's own indexing, for its own use
+        if not isinstance(field_name, str):  # the tuple's own indexing, for its own use
             return tuple.__getitem__(self, field_name)  # type: ignore[return-value]
         try:
             return self.values[self.spec.field_names.index(field_name)]
         except ValueError:
             raise KeyError(f"{self.name} has no field {field_name!r}") from None
+
+    def __contains__(self, field_name: object) -> bool:
+        return field_name in self.spec.field_names
+
+    def __eq__(self, other: object) -> bool:  # a Record, never a bare tuple
+        return type(other) is Record and tuple.__eq__(self, other)  # type: ignore[arg-type]
+
+    def __ne__(self, other: object) -> bool:
+        return not self == other
+
+    __hash__ = tuple.__hash__
 
     def as_dict(self) -> dict[str, Value]:
         return dict(zip(self.spec.field_names, self.values, strict=True))

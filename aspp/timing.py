@@ -74,8 +74,9 @@ class TimerUnwrapper:
                 elapsed = host_time - self._last_host
                 # the usual reading (one sample period on): no wrap can hide in less
                 # than half a wrap of host time, and a timer no further ahead of the
-                # host clock than the tolerance is what _reconcile accepts as it is
-                if not (elapsed < _HALF_WRAP_SECONDS
+                # host clock than the tolerance is what _reconcile accepts as it is (a
+                # host clock that stepped back is left to _reconcile)
+                if not (0.0 <= elapsed < _HALF_WRAP_SECONDS
                         and delta <= (elapsed + self.tolerance) * TICKS_PER_SECOND):
                     delta = self._reconcile(delta, elapsed)
             self._total_ticks += delta

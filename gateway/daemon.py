@@ -118,9 +118,11 @@ class Gateway:
             tasks.append(loop.create_task(self._watchdog(self.systemd.watchdog_interval)))
         log.info("publishing on %s, control on %s, %d nodes", self.config.publish.endpoint,
                  self.config.control.endpoint, len(self.nodes))
-        # everything built so far lives as long as the process: out of the collector's
-        # sight, a full collection no longer walks it (here ~20 ms of stalled records
-        # each time, for some 35,000 objects of modules, configuration and sockets)
+        # everything still alive now lives as long as the process: out of the
+        # collector's sight, a full collection no longer walks it (here ~20 ms of
+        # stalled records each time, for some 35,000 objects of modules, configuration
+        # and sockets). The garbage of starting up is collected first.
+        gc.collect()
         gc.freeze()
         try:
             await stop.wait()

@@ -125,3 +125,22 @@ def test_nan_survives_and_compares_with_same_as():
 def test_encode_names_the_bad_field(record, fields, names):
     with pytest.raises(CommandError, match=re.escape(names)):
         encode(record, **fields)
+
+
+def test_a_record_is_a_record_not_a_tuple():
+    """Record is a NamedTuple for speed; it still behaves as a record: equal only to a
+    record, fields looked up by any str (a StrEnum too), ``in`` asks for a field."""
+    from enum import StrEnum
+
+    class Names(StrEnum):
+        TIMER = "timer"
+
+    rec = decode(encode("euler", roll=0.1, pitch=0.2, yaw=0.3, timer=42))
+    assert rec == decode(encode("euler", roll=0.1, pitch=0.2, yaw=0.3, timer=42))
+    assert rec != (rec.spec, rec.values) and (rec.spec, rec.values) != rec
+    assert hash(rec) == hash(decode(encode("euler", roll=0.1, pitch=0.2, yaw=0.3,
+                                           timer=42)))
+    assert rec[Names.TIMER] == 42 == rec.timer
+    assert "yaw" in rec and "accel" not in rec
+    with pytest.raises(KeyError):
+        rec["accel"]
