@@ -70,6 +70,9 @@ def wait_for(condition: Callable[[], Any], timeout: float, what: str) -> Any:
         time.sleep(0.01)
 
 
+SEND_TIMEOUT_MS = 2000
+
+
 class Control:
     """A control client speaking the protocol directly (gx2ctl has its own tests)."""
 
@@ -77,6 +80,9 @@ class Control:
                  keys: ClientKeys | None = None) -> None:
         self.socket = context.socket(zmq.DEALER)
         self.socket.setsockopt(zmq.LINGER, 0)
+        # a DEALER whose only peer refused it (a CURVE handshake that failed) has no
+        # pipe left to queue on, and a plain send would wait for one forever
+        self.socket.setsockopt(zmq.SNDTIMEO, SEND_TIMEOUT_MS)
         if keys is not None:
             curve.connect_as(self.socket, keys.client, keys.server_public)
         self.socket.connect(endpoint)
@@ -92,7 +98,10 @@ class Control:
     def call(self, op: str, timeout: float = 10.0, **fields: Any) -> dict[str, Any]:
         """One request; the whole reply ({"id", "ok", "result" | "error"})."""
         request_id = uuid.uuid4().hex
-        self.send_raw(b"", msgpack.packb({"id": request_id, "op": op, **fields}))
+        try:
+            self.send_raw(b"", msgpack.packb({"id": request_id, "op": op, **fields}))
+        except zmq.Again:
+            raise AssertionError(f"could not send {op}: no peer took it") from None
         deadline = time.monotonic() + timeout
         while (left := deadline - time.monotonic()) > 0:
             reply = self.receive(left)
