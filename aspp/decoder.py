@@ -139,7 +139,6 @@ class Decoder:
         out: list[Event] = []
         append = out.append
         stats = self.stats
-        view = memoryview(buf)
         unpack_header = _HEADER.unpack_from
         adler32 = zlib.adler32
         reply_size, reply_start, new_tuple = _REPLY_SIZE, _REPLY_START, _new_tuple
@@ -159,7 +158,7 @@ class Decoder:
                     if end > n:
                         if not final:
                             break  # a reply the read cut short: wait for the rest
-                    elif adler32(view[pos + 1:end - 4]) & 0xFFFF == (
+                    elif adler32(buf[pos + 1:end - 4]) & 0xFFFF == (
                             (buf[end - 2] << 8) | buf[end - 1]) + 1:
                         append(new_tuple(Reply, (buf[pos:end],)))
                         replies += 1
@@ -204,7 +203,6 @@ class Decoder:
                     append(self._discard(pos, end, DiscardReason.GARBAGE))
                 run_goes_on = end - pos == MAX_DISCARD
                 pos = end
-        view.release()
         self._run_goes_on = run_goes_on
         stats.replies += replies
         self._buf = buf[pos:] if pos else buf
