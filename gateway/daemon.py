@@ -40,8 +40,11 @@ from .sim.server import Simulator
 log = logging.getLogger("gx2.gateway")
 EXIT_BUDGET = 1.5
 """Seconds a shutdown may spend stopping streams, within the promised 2 s."""
-WATCH_INTERVAL = 0.25
-"""Seconds between looks for streams that fell silent."""
+WATCH_MIN_SLEEP = 0.25
+"""The least the stream watcher sleeps; also how long a stall's backlog is given to be
+read before any stream is judged silent."""
+WATCH_MAX_SLEEP = 1.0
+"""The most it sleeps: no stream armed meanwhile can fall silent sooner (SILENCE_MIN)."""
 _new_tuple = tuple.__new__  # a Delivery without NamedTuple's Python-level __new__
 
 try:
@@ -251,16 +254,20 @@ class Gateway:
 
     async def _watch_streams(self) -> None:
         """A stream that fell silent (a reboot whose discovery packet was lost, or the
-        node out of range) is counted and its configured stream re-armed."""
-        last = time.monotonic()
+        node out of range) is counted and its configured stream re-armed. A timer, not
+        a tick: it sleeps until the earliest moment a stream could fall silent."""
         while True:
-            await asyncio.sleep(WATCH_INTERVAL)
             now = time.monotonic()
-            stalled, last = now - last > 2 * WATCH_INTERVAL, now
+            due = min((at for node in self.nodes.values()
+                       if (at := node.silent_at()) is not None), default=now + WATCH_MAX_SLEEP)
+            delay = min(max(due - now, WATCH_MIN_SLEEP), WATCH_MAX_SLEEP)
+            await asyncio.sleep(delay)
+            woke = time.monotonic()
+            stalled = woke - now > delay + WATCH_MIN_SLEEP
             if stalled or not self.link.up:  # (after a stall of this process the bytes
                 continue                    # it has not read yet may hold the records)
             for node in self.nodes.values():
-                if node.fell_silent(now):
+                if node.fell_silent(woke):
                     log.warning("node %s: its %s stream fell silent", node.config.label,
                                 node.record)
                     if node.config.stream is not None:

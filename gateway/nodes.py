@@ -137,11 +137,18 @@ class NodeState:
         self._last_stream_timer = None
         self._stream_seen = time.monotonic()
 
+    def silent_at(self) -> float | None:
+        """When (``time.monotonic()``) the stream falls silent if no record comes first;
+        None if there is no stream to watch (or a stop of it is under way)."""
+        if self.state != "streaming" or self.record is None or self.stop_policy is not None:
+            return None
+        return self._stream_seen + self.silence_limit
+
     def fell_silent(self, now: float) -> bool:
         """Whether the stream just fell silent (checked against ``time.monotonic()``);
         if so it is counted and the state says so."""
-        if (self.state != "streaming" or self.record is None or self.stop_policy is not None
-                or now - self._stream_seen <= self.silence_limit):
+        due = self.silent_at()
+        if due is None or now <= due:
             return False
         self.silences += 1
         self.state = "silent"  # (if the stream resumes, its timer gap is lost_radio)
