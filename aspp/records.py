@@ -319,7 +319,7 @@ def decode(data: bytes | bytearray | memoryview, start: int = 0,
     Raises :class:`RecordError` for an unknown echo byte or a length that does not
     match the layout; a record is never decoded from the wrong number of bytes.
     """
-    length = (len(data) if stop is None else stop) - start
+    length = (len(data) if stop is None else min(stop, len(data))) - start
     if length <= 0:
         raise RecordError("an empty reply has no echo byte")
     spec = BY_CODE.get(data[start])

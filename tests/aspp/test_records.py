@@ -88,6 +88,8 @@ def test_decode_in_place_is_decode_of_the_slice():
                      orientation=((1, 0, 0), (0, 1, 0), (0, 0, 1)), timer=77)
     framed = b"\xaa\x07\x00\x00\x4c" + payload + b"\x01\x02"
     assert decode(framed, 5, 5 + len(payload)) == decode(payload)
+    with pytest.raises(RecordError):  # a stop past the end is the end, never a misread
+        decode(framed[:5 + len(payload) - 1], 5, 5 + len(payload))
 
 
 def test_built_in_test_reply_may_run_long():
