@@ -14,8 +14,9 @@ from types import MappingProxyType
 
 from .errors import CommandError, RecordError
 from .fields import Const, Field
-from .frame import encode_command_packet, encode_ping
-from .records import STREAMABLE, CommandSpec, lookup
+from .frame import encode_command_packet
+from .records import STREAMABLE, CommandSpec, checked, lookup
+from .timing import MAX_DIVIDER, MIN_DIVIDER, valid_divider
 
 EEPROM_DIVIDER = 0xFCA2
 """EEPROM word holding the calculation-cycle divider x: data rate = 51200 / x Hz."""
@@ -23,9 +24,6 @@ EEPROM_AUTO_START = 0xFCA6
 """EEPROM word whose LSB is the record to stream from power-up (0 for none)."""
 AUTO_START_WIRELESS = 0x8000
 """MSB of the auto-start word that a wireless node needs."""
-CLOCK_HZ = 51200
-MIN_DIVIDER = 170
-MAX_DIVIDER = 51200
 DOCUMENTED_EEPROM = {EEPROM_DIVIDER: "data rate divider", EEPROM_AUTO_START: "auto-start record"}
 
 
@@ -138,27 +136,23 @@ def _read_arguments(spec: CommandSpec, data: bytes) -> Mapping[str, object]:
     return MappingProxyType(arguments)
 
 
-def _spec(record: str | int) -> CommandSpec:
+def _spec(record: str | int, *, streamable: bool = False,
+          pollable: bool = False) -> CommandSpec:
+    """:func:`aspp.records.checked`, its error raised as a CommandError."""
     try:
-        return lookup(record)
+        return checked(record, streamable=streamable, pollable=pollable)
     except RecordError as error:
         raise CommandError(str(error)) from None
 
 
 def poll(record: str | int) -> Command:
     """Ask once for a record that needs no arguments (0xC1..0xD3 data records, 0xE9)."""
-    spec = _spec(record)
-    if not spec.pollable:
-        raise CommandError(f"{spec.name} cannot be polled: it takes arguments or has no reply")
-    return build(spec.code)
+    return build(_spec(record, pollable=True).code)
 
 
 def set_continuous(record: str | int) -> Command:
     """C4 C1 29 <cmd>: stream ``record`` every calculation cycle."""
-    spec = _spec(record)
-    if spec.code not in STREAMABLE:
-        raise CommandError(f"{spec.name} cannot be streamed in continuous mode")
-    return build(0xC4, continuous_command=spec.code)
+    return build(0xC4, continuous_command=_spec(record, streamable=True).code)
 
 
 def stop_continuous() -> Command:
@@ -210,22 +204,11 @@ def built_in_test(test_config: int) -> Command:
     return build(0xFB, test_config=test_config)
 
 
-def divider_for_rate(hz: float) -> int:
-    """The divider that gives ``hz`` (51200 / x), validated against 170..51200."""
-    if isinstance(hz, bool) or not isinstance(hz, (int, float)) or not hz > 0:
-        raise CommandError(f"rate must be a positive number of Hz, not {hz!r}")
-    divider = round(CLOCK_HZ / hz)
-    if not MIN_DIVIDER <= divider <= MAX_DIVIDER:
-        raise CommandError(f"rate {hz} Hz needs divider {divider}, out of range "
-                           f"{MIN_DIVIDER}..{MAX_DIVIDER} (about 1..301 Hz)")
-    return divider
-
-
 def set_divider(divider: int) -> Command:
     """Write the data rate divider (EEPROM 0xFCA2); rate = 51200 / divider Hz."""
     if isinstance(divider, bool) or not isinstance(divider, int):
         raise CommandError(f"divider must be an integer, not {divider!r}")
-    if not MIN_DIVIDER <= divider <= MAX_DIVIDER:
+    if not valid_divider(divider):
         raise CommandError(f"divider {divider} is out of range {MIN_DIVIDER}..{MAX_DIVIDER}")
     return write_eeprom(EEPROM_DIVIDER, divider)
 
@@ -234,12 +217,5 @@ def set_auto_start(record: str | int | None) -> Command:
     """Stream ``record`` from every power-up (None: start in polled mode)."""
     if record is None:
         return write_eeprom(EEPROM_AUTO_START, 0)
-    spec = _spec(record)
-    if spec.code not in STREAMABLE:
-        raise CommandError(f"{spec.name} cannot be streamed in continuous mode")
-    return write_eeprom(EEPROM_AUTO_START, AUTO_START_WIRELESS | spec.code)
-
-
-def ping(node: int) -> bytes:
-    """The raw wireless ping ``02 MSB LSB`` (never wrapped in a packet)."""
-    return encode_ping(node)
+    return write_eeprom(EEPROM_AUTO_START,
+                        AUTO_START_WIRELESS | _spec(record, streamable=True).code)

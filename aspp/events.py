@@ -3,8 +3,8 @@
 Events are NamedTuples rather than frozen dataclasses for one measured reason: the
 decoder builds one per packet at up to several hundred thousand per second, and a
 frozen dataclass costs about 2 us to construct against about 0.4 us for a tuple.
-Equality is made type-strict, so an ``Ack()`` never equals a ``Nack()`` and a
-``Reply`` never equals a ``Frame`` holding the same bytes.
+:func:`type_strict` makes their equality strict, so an ``Ack()`` never equals a
+``Nack()`` and a ``Reply`` never equals a ``Frame`` holding the same bytes.
 
 A packet event keeps only its raw bytes; every field is read from them on demand, so
 an event is exactly as trustworthy as the bytes it was decoded from.
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import struct
 from enum import StrEnum
-from typing import NamedTuple
+from typing import NamedTuple, TypeVar
 
 from .frame import HEADER_SIZE
 
@@ -22,18 +22,26 @@ LINK_QUALITY = struct.Struct(">Bb")
 """LQI and RSSI (dBm, signed), the two bytes before a packet's checksum."""
 
 
-def _same_type_eq(self: tuple, other: object) -> bool:
-    return type(self) is type(other) and tuple.__eq__(self, other)  # type: ignore[arg-type]
+T = TypeVar("T", bound=type)
 
 
-def _same_type_ne(self: tuple, other: object) -> bool:
-    return not _same_type_eq(self, other)
+def type_strict(cls: T) -> T:
+    """A NamedTuple equal only to an instance of its own class (a plain tuple compares
+    by value alone, so ``Ack() == Nack() == ()``), hashed with its class's name."""
+    def __eq__(self: tuple, other: object) -> bool:
+        return type(self) is type(other) and tuple.__eq__(self, other)  # type: ignore[arg-type]
+
+    def __ne__(self: tuple, other: object) -> bool:
+        return not __eq__(self, other)
+
+    def __hash__(self: tuple) -> int:
+        return hash((type(self).__name__, tuple(self)))
+
+    cls.__eq__, cls.__ne__, cls.__hash__ = __eq__, __ne__, __hash__  # type: ignore[method-assign,assignment]
+    return cls
 
 
-def _typed_hash(self: tuple) -> int:
-    return hash((type(self).__name__, tuple(self)))
-
-
+@type_strict
 class Reply(NamedTuple):
     """A valid reply packet carrying a GX2 reply record: delivery flags 0x07, app type
     0x00, the unused byte 0x00 and a length of 2..102 (an echo byte and at most 100
@@ -67,11 +75,8 @@ class Reply(NamedTuple):
         """Received signal strength in dBm (a signed byte)."""
         return LINK_QUALITY.unpack_from(self.raw, len(self.raw) - 4)[1]  # type: ignore[no-any-return]
 
-    __eq__ = _same_type_eq
-    __ne__ = _same_type_ne
-    __hash__ = _typed_hash
 
-
+@type_strict
 class Frame(NamedTuple):
     """A valid packet that is not a reply: other delivery flags (0x00 is a node's
     power-up discovery packet), or a header that is not a reply's (no echo byte, more
@@ -108,34 +113,21 @@ class Frame(NamedTuple):
     def is_discovery(self) -> bool:
         return self.raw[1] == 0x00
 
-    __eq__ = _same_type_eq
-    __ne__ = _same_type_ne
-    __hash__ = _typed_hash
 
-
+@type_strict
 class Ack(NamedTuple):
     """0xAA outside any packet: the base station accepted and broadcast a command."""
 
-    __eq__ = _same_type_eq
-    __ne__ = _same_type_ne
-    __hash__ = _typed_hash
 
-
+@type_strict
 class Nack(NamedTuple):
     """0x21 outside any packet: the base station refused a malformed command packet,
     or, after a raw ping, reports that the node did not answer."""
 
-    __eq__ = _same_type_eq
-    __ne__ = _same_type_ne
-    __hash__ = _typed_hash
 
-
+@type_strict
 class PingOk(NamedTuple):
     """0x02 outside any packet: the pinged node answered over the radio."""
-
-    __eq__ = _same_type_eq
-    __ne__ = _same_type_ne
-    __hash__ = _typed_hash
 
 
 class DiscardReason(StrEnum):
@@ -154,16 +146,13 @@ class DiscardReason(StrEnum):
     checksum, so it is counted as ``bad_checksum``."""
 
 
+@type_strict
 class Discarded(NamedTuple):
     """Bytes the decoder dropped, and why. Every byte fed is accounted for exactly
     once: in a packet, as a control byte, in a ``Discarded``, or still buffered."""
 
     data: bytes
     reason: DiscardReason
-
-    __eq__ = _same_type_eq
-    __ne__ = _same_type_ne
-    __hash__ = _typed_hash
 
 
 ACK_EVENT = Ack()

@@ -1,5 +1,9 @@
-"""The node's timer: tick conversions and unwrapping into a device time that never
-goes back.
+"""Time on a node: its calculation cycle (the data rate) and its timer, with the
+unwrapping that turns the timer into a device time that never goes back.
+
+The one home of the protocol's time arithmetic. A node's calculation cycle is
+``divider / 51200`` s, the divider living in EEPROM 0xFCA2 within 170..51200 (about
+301 Hz down to 1 Hz); in continuous mode it sends one record a cycle.
 
 The timer is a u32 counting 19,660,800 Hz since power-up; it wraps every 218.45 s. Fed
 in order, consecutive readings less than one wrap apart unwrap exactly. A node silent
@@ -16,7 +20,18 @@ from __future__ import annotations
 
 from typing import Final
 
+from .errors import CommandError
+
+CLOCK_HZ: Final = 51200
+"""The calculation-cycle clock: the data rate is ``CLOCK_HZ / divider``."""
+MIN_DIVIDER: Final = 170
+MAX_DIVIDER: Final = 51200
+DEFAULT_DIVIDER: Final = 512
+"""A node's divider as shipped: 100 Hz."""
 TICKS_PER_SECOND: Final = 19_660_800
+TICKS_PER_CLOCK: Final = TICKS_PER_SECOND // CLOCK_HZ
+"""Timer ticks in one period of the 51,200 Hz clock (384): a stream's records are
+``divider * TICKS_PER_CLOCK`` ticks apart."""
 TIMER_MODULUS: Final = 1 << 32
 WRAP_SECONDS: Final = TIMER_MODULUS / TICKS_PER_SECOND  # 218.45 s
 _HALF_WRAP_SECONDS: Final = WRAP_SECONDS / 2
@@ -31,14 +46,29 @@ def seconds_to_ticks(seconds: float) -> int:
     return round(seconds * TICKS_PER_SECOND) % TIMER_MODULUS
 
 
+def valid_divider(divider: int) -> bool:
+    return MIN_DIVIDER <= divider <= MAX_DIVIDER
+
+
 def data_rate(divider: int) -> float:
     """Records per second in continuous mode for a calculation-cycle divider."""
-    return 51200 / divider
+    return CLOCK_HZ / divider
 
 
 def sample_period(divider: int) -> float:
     """Seconds between records in continuous mode (x / 51200)."""
-    return divider / 51200
+    return divider / CLOCK_HZ
+
+
+def divider_for_rate(hz: float) -> int:
+    """The divider that gives ``hz`` (51200 / x); CommandError unless 170..51200."""
+    if isinstance(hz, bool) or not isinstance(hz, (int, float)) or not hz > 0:
+        raise CommandError(f"rate must be a positive number of Hz, not {hz!r}")
+    divider = round(CLOCK_HZ / hz)
+    if not valid_divider(divider):
+        raise CommandError(f"rate {hz} Hz needs divider {divider}, out of range "
+                           f"{MIN_DIVIDER}..{MAX_DIVIDER} (about 1..301 Hz)")
+    return divider
 
 
 class TimerUnwrapper:

@@ -33,10 +33,10 @@ import msgpack
 import yaml
 import zmq
 from benchutil import free_port, rss_kib, tap_writes
+from gateway.sim.station import LineFaults, RadioLink
 
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
-from gateway.sim.station import LineFaults, RadioLink
 
 NODES = (76, 77, 78)
 LINE_BYTES_PER_SECOND = 115200 / 10

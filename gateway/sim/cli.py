@@ -10,8 +10,8 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from aspp.commands import MAX_DIVIDER, MIN_DIVIDER
-from gateway.cli_args import (
+from aspp.timing import DEFAULT_DIVIDER, MAX_DIVIDER, MIN_DIVIDER
+from gateway.common.args import (
     ArgumentParser,
     bounded,
     fail,
@@ -19,7 +19,8 @@ from gateway.cli_args import (
     probability,
     streamable_record,
 )
-from gateway.yamlconfig import ConfigError, describe, load_model
+from gateway.common.strict import describe, load_model
+from gateway.common.yamlfile import ConfigError
 
 from .config import SimConfig
 from .node import GX2, INERTIA_LINK
@@ -44,7 +45,8 @@ def build_parser() -> ArgumentParser:
     nodes.add_argument("--model", choices=(INERTIA_LINK, GX2), default=INERTIA_LINK)
     nodes.add_argument("--stream", type=streamable_record, metavar="RECORD",
                        help="record streamed from power-up (auto-start), e.g. accel_angrate")
-    nodes.add_argument("--divider", type=bounded(int, MIN_DIVIDER, MAX_DIVIDER), default=512,
+    nodes.add_argument("--divider", type=bounded(int, MIN_DIVIDER, MAX_DIVIDER),
+                       default=DEFAULT_DIVIDER,
                        help="data rate divider: 51200/x Hz (default 512, 100 Hz)")
     nodes.add_argument("--timer-start", type=bounded(float, 0.0, 1e9), default=0.0,
                        metavar="SECONDS",

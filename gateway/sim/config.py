@@ -20,23 +20,19 @@ from __future__ import annotations
 
 from urllib.parse import parse_qsl, urlsplit
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
-from aspp.commands import MAX_DIVIDER, MIN_DIVIDER
 from aspp.records import checked
-from gateway.yamlconfig import key_path
+from aspp.timing import DEFAULT_DIVIDER, MAX_DIVIDER, MIN_DIVIDER
+from gateway.common.strict import Strict, describe
 
+from .base_station import LineFaults, RadioLink
 from .node import GX2, INERTIA_LINK, NodeSettings
-from .station import LineFaults, RadioLink
 
 Probability = Field(default=0.0, ge=0.0, le=1.0)
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
-
-
-class RadioConfig(_Strict):
+class RadioConfig(Strict):
     in_range: bool = True
     command_loss: float = Probability
     data_loss: float = Probability
@@ -48,7 +44,7 @@ class RadioConfig(_Strict):
         return RadioLink(**self.model_dump())
 
 
-class LineConfig(_Strict):
+class LineConfig(Strict):
     garbage: float = Probability
     bad_checksum: float = Probability
     false_header: float = Probability
@@ -59,11 +55,11 @@ class LineConfig(_Strict):
         return LineFaults(**self.model_dump())
 
 
-class NodeConfig(_Strict):
+class SimNodeEntry(Strict):
     address: int = Field(ge=1, le=65534)
     model: str = INERTIA_LINK
     stream: str | None = None
-    divider: int = Field(default=512, ge=MIN_DIVIDER, le=MAX_DIVIDER)
+    divider: int = Field(default=DEFAULT_DIVIDER, ge=MIN_DIVIDER, le=MAX_DIVIDER)
     timer_start: float = Field(default=0.0, ge=0.0)
     serial: str = Field(default="", max_length=16)
     radio: RadioConfig = RadioConfig()
@@ -86,12 +82,12 @@ class NodeConfig(_Strict):
                             serial=self.serial)
 
 
-class SimConfig(_Strict):
+class SimConfig(Strict):
     baudrate: int = Field(default=115200, ge=1200, le=4_000_000)
     seed: int = 1
     first_write_failure: float = Probability
     line: LineConfig = LineConfig()
-    nodes: list[NodeConfig] = Field(default_factory=list)
+    nodes: list[SimNodeEntry] = Field(default_factory=list)
 
     @model_validator(mode="after")
     def _unique_addresses(self) -> SimConfig:
@@ -141,6 +137,4 @@ def from_url(url: str, nodes: list[int]) -> SimConfig:
                                                **groups["radio"]}} for a in nodes]},
             strict=False)
     except ValidationError as error:
-        problem = error.errors(include_url=False)[0]
-        raise ValueError(f"sim:// {key_path(problem['loc'])}: "
-                         f"{problem['msg'].removeprefix('Value error, ')}") from None
+        raise ValueError(describe(error, "sim://")) from None

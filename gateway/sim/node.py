@@ -20,7 +20,13 @@ from aspp.commands import EEPROM_AUTO_START, EEPROM_DIVIDER
 from aspp.errors import CommandError
 from aspp.orientation import accel_temperature_code, euler_from_matrix, gyro_temperature_code
 from aspp.records import STREAMABLE, encode, lookup
-from aspp.timing import TICKS_PER_SECOND, TIMER_MODULUS
+from aspp.timing import (
+    DEFAULT_DIVIDER,
+    TICKS_PER_SECOND,
+    TIMER_MODULUS,
+    sample_period,
+    valid_divider,
+)
 
 from .physics import Motion
 
@@ -38,7 +44,7 @@ class NodeSettings:
     model: str = INERTIA_LINK
     stream: str | None = None
     """Record streamed from power-up: the auto-start word at EEPROM 0xFCA6."""
-    divider: int = 512
+    divider: int = DEFAULT_DIVIDER
     timer_start: float = 0.0
     """Seconds on the timer at power-up (215 starts it 3.45 s before the wrap)."""
     serial: str = ""
@@ -89,7 +95,7 @@ class SimNode:
 
     @property
     def period(self) -> float:
-        return self.divider / 51200
+        return sample_period(self.divider)
 
     def _rebase(self, t: float) -> None:
         """Count cycles from ``t`` at the current period (after power-up, or when the
@@ -100,8 +106,8 @@ class SimNode:
 
     @property
     def divider(self) -> int:
-        value = self.eeprom.get(EEPROM_DIVIDER, 512)
-        return value if gx2.MIN_DIVIDER <= value <= gx2.MAX_DIVIDER else 512
+        value = self.eeprom.get(EEPROM_DIVIDER, DEFAULT_DIVIDER)
+        return value if valid_divider(value) else DEFAULT_DIVIDER
 
     def next_cycle_time(self) -> float:
         return self._cycles_from + (self.cycle + 1) * self._cycle_period

@@ -30,8 +30,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
+from .base_station import BaseStation, LineFaults, RadioLink
 from .node import NodeSettings, SimNode
-from .station import BaseStation, LineFaults, RadioLink
 
 log = logging.getLogger("gx2.sim")
 HOST_IDLE = 0.05

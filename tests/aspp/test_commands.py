@@ -9,14 +9,15 @@ import pytest
 
 from aspp import commands
 from aspp.errors import AsppError, CommandError, PacketError
-from aspp.frame import decode_command_packet, encode_command_packet
+from aspp.frame import decode_command_packet, encode_command_packet, encode_ping
 from aspp.records import STREAMABLE, all_specs, lookup
+from aspp.timing import divider_for_rate
 
 BAD_ARGUMENTS = [
     ("node 0", lambda: commands.poll("euler").packet(0), PacketError, "node address 0"),
     ("node 65535", lambda: commands.poll("euler").packet(65535), PacketError, "65535"),
-    ("node bool", lambda: commands.ping(True), PacketError, "node address"),
-    ("node float", lambda: commands.ping(76.0), PacketError, "node address"),
+    ("node bool", lambda: encode_ping(True), PacketError, "node address"),
+    ("node float", lambda: encode_ping(76.0), PacketError, "node address"),
     ("eeprom address", lambda: commands.read_eeprom(0x10000), CommandError, "address"),
     ("eeprom negative", lambda: commands.read_eeprom(-1), CommandError, "address"),
     ("eeprom value", lambda: commands.write_eeprom(0xFCA2, 70000), CommandError, "value"),
@@ -24,8 +25,8 @@ BAD_ARGUMENTS = [
     ("eeprom value fraction", lambda: commands.write_eeprom(1, 2.5), CommandError, "value"),
     ("divider low", lambda: commands.set_divider(169), CommandError, "divider 169"),
     ("divider high", lambda: commands.set_divider(51201), CommandError, "divider 51201"),
-    ("rate too fast", lambda: commands.divider_for_rate(400), CommandError, "400"),
-    ("rate zero", lambda: commands.divider_for_rate(0), CommandError, "rate"),
+    ("rate too fast", lambda: divider_for_rate(400), CommandError, "400"),
+    ("rate zero", lambda: divider_for_rate(0), CommandError, "rate"),
     ("selector", lambda: commands.device_id(4), CommandError, "selector 4"),
     ("sampling time 0", lambda: commands.capture_gyro_bias(0), CommandError, "sampling_time"),
     ("sampling time big", lambda: commands.capture_gyro_bias(70000), CommandError,
@@ -62,8 +63,8 @@ def test_bad_argument_raises_one_clear_error(build, error, names):
 
 
 def test_data_rate_divider_round_trip():
-    assert commands.divider_for_rate(100) == 512
-    assert commands.divider_for_rate(1) == 51200
+    assert divider_for_rate(100) == 512
+    assert divider_for_rate(1) == 51200
     assert commands.set_divider(512).data == bytes.fromhex("E4 C1 29 00 FC A2 02 00")
     assert commands.set_divider(170).arguments == {"address": 0xFCA2, "value": 170}
 

@@ -21,8 +21,6 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import pytest
-from decoding import decode_chunks as run
-from decoding import represented, stats_for
 
 from aspp import records
 from aspp.decoder import MAX_DISCARD, Decoder
@@ -42,9 +40,11 @@ from aspp.frame import (
     PING,
     SOP,
     checksum,
-    encode_reply_packet,
     reply_packet_size,
 )
+from tests.helpers.decoding import decode_chunks as run
+from tests.helpers.decoding import represented, stats_for
+from tests.helpers.packets import pkt, raw_packet
 
 GARBAGE = DiscardReason.GARBAGE
 BAD_CHECKSUM = DiscardReason.BAD_CHECKSUM
@@ -60,18 +60,6 @@ MAX_REPLY_LENGTH = 102  # the longest length byte of a plausible reply header
 
 
 # --- packets used by the cases --------------------------------------------------------
-
-def pkt(payload: bytes, node: int = 76, lqi: int = 0x64, rssi: int = -44,
-        flags: int = 0x07) -> bytes:
-    return encode_reply_packet(node, payload, lqi=lqi, rssi=rssi, flags=flags)
-
-
-def raw_packet(flags: int, node: int, payload: bytes, app: int = 0, unused: int = 0,
-               lqi: int = 0, rssi_byte: int = 0) -> bytes:
-    """A checksum-valid packet with any header bytes (encode_reply_packet refuses some)."""
-    body = bytes((flags, app, node >> 8, node & 0xFF, len(payload) + 1, unused)) + payload
-    return b"\xaa" + body + bytes((lqi, rssi_byte)) + checksum(body).to_bytes(2, "big")
-
 
 ACCEL = pkt(records.encode("accel_angrate", accel=(0.0, 0.0, -1.0),
                            ang_rate=(0.01, -0.02, 0.03), timer=123456))

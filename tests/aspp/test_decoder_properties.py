@@ -11,7 +11,6 @@ from __future__ import annotations
 from itertools import pairwise
 
 import pytest
-from decoding import decode_chunks, represented, stats_for
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
@@ -41,6 +40,8 @@ from aspp.frame import (
     encode_reply_packet,
     reply_packet_size,
 )
+from tests.helpers.decoding import decode_chunks, represented, stats_for
+from tests.helpers.packets import raw_packet
 
 PENDING_BOUND = max(reply_packet_size(0xFF), MAX_DISCARD)
 """The decoder docstring: an unfinished packet (at most 265 bytes) or an unfinished
@@ -111,12 +112,6 @@ def octets(min_size: int = 0, max_size: int = 40, sop: bool = True) -> st.Search
     st.binary and a translation: drawing byte by byte is several times slower."""
     table = _HOT if sop else _HOT_NO_SOP
     return st.binary(min_size=min_size, max_size=max_size).map(lambda b: b.translate(table))
-
-
-def raw_packet(flags: int, node: int, payload: bytes, lqi: int = 0, rssi_byte: int = 0) -> bytes:
-    """A checksum-valid packet with any node address (encode_reply_packet refuses 0)."""
-    body = bytes((flags, 0, node >> 8, node & 0xFF, len(payload) + 1, 0)) + payload
-    return bytes((SOP,)) + body + bytes((lqi, rssi_byte)) + checksum(body).to_bytes(2, "big")
 
 
 @st.composite

@@ -24,6 +24,7 @@ import serial
 from aspp import TICKS_PER_SECOND, Decoder, Event, Frame, Reply, decode
 from aspp import commands as gx2
 from gateway.sim.cli import UNPLUG_SECONDS
+from tests.helpers.waiting import wait_for
 
 STARTUP = 60.0
 """Seconds allowed for the script to import and print its port: a bound that tells a
@@ -150,13 +151,6 @@ def pointing(link: Path) -> str | None:
     with contextlib.suppress(OSError):
         return os.readlink(link)
     return None
-
-
-def wait_until(condition: Callable[[], bool], timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, f"{what}: not within {timeout} s"
-        time.sleep(0.01)  # polling interval of a deadline-bounded wait, not a sync point
 
 
 def stops_cleanly(running: Running, signum: int, link: Path) -> None:
@@ -338,6 +332,6 @@ def test_signals_trigger_reboot_and_unplug(launch: Callable[..., Running], tmp_p
             # ... the link goes with it (it is removed before the pty is closed) ...
             assert pointing(link) != old_pty, "the link still points to the unplugged pty"
             # ... and a new device comes back behind the same link
-            wait_until(lambda: pointing(link) not in (None, old_pty),
+            wait_for(lambda: pointing(link) not in (None, old_pty),
                        UNPLUG_SECONDS + DEADLINE, "the link to a new pty")
     stops_cleanly(running, signal.SIGTERM, link)

@@ -37,12 +37,14 @@ from aspp import (
     decode,
 )
 from aspp import commands as gx2
+from aspp.frame import encode_ping
 from aspp.stop import GaveUp, SendStop, Stopped, StopPolicy, WaitUntil
 from aspp.timing import TIMER_MODULUS
+from gateway.sim.base_station import BaseStation, LineFaults, RadioLink
 from gateway.sim.node import FIRMWARE_VERSION, GX2, INERTIA_LINK, NodeSettings
 from gateway.sim.physics import EARTH_FIELD
 from gateway.sim.server import Simulator
-from gateway.sim.station import BaseStation, LineFaults, RadioLink
+from tests.helpers.waiting import wait_for
 
 BAUD = 115200
 LINE_BYTES_PER_SECOND = BAUD / 10  # 8N1
@@ -154,16 +156,6 @@ def start_streaming(client: Client, node: int, record: str) -> Reply:
 
 def norm(v: object) -> float:
     return math.sqrt(sum(x * x for x in v))  # type: ignore[attr-defined]
-
-
-def wait_until(condition: Callable[[], bool], timeout: float, what: str) -> float:
-    """Poll ``condition`` until it holds; return when it did (monotonic)."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() >= deadline:
-            raise TimeoutError(f"{what}: not within {timeout} s")
-        time.sleep(0.005)  # polling interval of a deadline-bounded wait, not a sync point
-    return time.monotonic()
 
 
 def start_streams(sim: Simulator, addresses: tuple[int, ...], record: str) -> float:
@@ -488,7 +480,7 @@ def test_stop_is_retried_until_the_stream_is_silent(sims: Sims, clients: Clients
         assert replies(after, 76) == [], f"seed {seed}: still streaming: {summary(after)}"
 
         # a ping answered: the base station has handled every command sent before it
-        client.send(gx2.ping(76))
+        client.send(encode_ping(76))
         client.read_events(has(PingOk))
         stats = sim.station.stats
         stops = [c for c in sim.node(76).log.commands if c.code in (0xFA, 0xC4)]
@@ -513,7 +505,7 @@ def test_ping_in_and_out_of_range(sims: Sims, clients: Clients) -> None:
     client = clients.open(sim.path)
 
     def ping(node: int) -> list[Event]:
-        client.send(gx2.ping(node))
+        client.send(encode_ping(node))
         return client.read_events(lambda ev: bool(ev))
 
     assert ping(76) == [PingOk()]
@@ -675,7 +667,8 @@ def test_unplug_and_return(sims: Sims, clients: Clients, tmp_path: Path) -> None
     with pytest.raises(serial.SerialException, match="returned no data"):
         client.read_events(lambda ev: False)
 
-    back_at = wait_until(link.is_symlink, timeout=DEADLINE, what="the link reappears")
+    wait_for(link.is_symlink, timeout=DEADLINE, what="the link reappears")
+    back_at = time.monotonic()
     assert back_at - unplugged_at >= 0.45
     new_pty = os.readlink(link)
     assert new_pty == sim.port.path and os.path.exists(new_pty)

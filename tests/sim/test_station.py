@@ -8,9 +8,8 @@ import random
 import pytest
 
 from aspp import Ack, Decoder, Discarded, Frame, Nack, PingOk, Reply, commands, decode
-from aspp.frame import encode_command_packet
-from gateway.sim.node import NodeSettings, SimNode
-from gateway.sim.station import (
+from aspp.frame import encode_command_packet, encode_ping
+from gateway.sim.base_station import (
     BUFFER_BYTES,
     GLUE_WAIT,
     PING_TIMEOUT,
@@ -18,6 +17,7 @@ from gateway.sim.station import (
     LineFaults,
     RadioLink,
 )
+from gateway.sim.node import NodeSettings, SimNode
 
 T0 = 50.0
 
@@ -67,7 +67,7 @@ def test_ack_then_reply_and_nack_for_malformed():
 def test_ping_answers_in_range_out_of_range_and_unknown():
     bench = Bench(NodeSettings(76), NodeSettings(77), radio={77: RadioLink(in_range=False)})
     for node, answer in ((76, PingOk()), (77, Nack()), (300, Nack())):
-        bench.send(commands.ping(node))
+        bench.send(encode_ping(node))
         assert bench.run(PING_TIMEOUT * 2) == [answer], node
 
 
@@ -188,7 +188,7 @@ def test_a_station_that_runs_late_sends_what_a_prompt_one_would():
     def line(step: float) -> tuple[bytes, int]:
         bench = Bench(NodeSettings(76, stream="accel_angrate"), NodeSettings(77, stream="euler"))
         bench.run(0.5085, step)  # between cycles: records reach the station at .xx3 s
-        bench.send(commands.ping(77))  # answered at .5145, after the record at .513
+        bench.send(encode_ping(77))  # answered at .5145, after the record at .513
         bench.send(commands.poll("euler").packet(77))  # reaches 77 at .5115
         bench.run(1.0, step)
         return b"".join(bench.chunks), bench.station.stats.packets_dropped_full

@@ -1,0 +1,51 @@
+"""ZeroMQ endpoints: the defaults, what counts as one, and which ones other hosts can
+reach."""
+
+from __future__ import annotations
+
+import ipaddress
+
+DEFAULT_PUBLISH = "tcp://127.0.0.1:5555"
+DEFAULT_CONTROL = "tcp://127.0.0.1:5556"
+WILDCARD_HOSTS = ("*", "0.0.0.0", "::", "[::]", "[*]")
+
+
+def check_endpoint(value: str) -> str:
+    """A ZeroMQ endpoint the gateway can bind or a client connect; ValueError if not."""
+    scheme, sep, rest = value.partition("://")
+    host, colon, port = rest.rpartition(":")
+    if (not sep or scheme not in ("tcp", "ipc", "inproc") or not rest
+            or (scheme == "tcp" and not (colon and host and (port.isdigit() or port == "*")))):
+        raise ValueError(f"must be a ZeroMQ endpoint such as tcp://127.0.0.1:5556 or "
+                         f"ipc:///run/gx2-gateway/control, not {value!r}")
+    return value
+
+
+def is_loopback(endpoint: str) -> bool:
+    """ipc://, inproc://, or tcp:// on a loopback address: unreachable from elsewhere."""
+    scheme, _, rest = endpoint.partition("://")
+    if scheme != "tcp":
+        return True
+    host = rest.rpartition(":")[0].strip("[]")
+    if host in ("localhost", "lo"):
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False  # *, a host name or an interface name: possibly reachable
+
+
+def tcp_host(address: str) -> str | None:
+    scheme, _, rest = address.partition("://")
+    return rest.rpartition(":")[0] if scheme == "tcp" else None
+
+
+def connectable(address: str, near: str) -> str:
+    """A bind address (``tcp://*:5555``) turned into one to connect to: the host of
+    ``near`` (the control endpoint) if that is concrete, else the loopback."""
+    host = tcp_host(address)
+    if host not in WILDCARD_HOSTS:
+        return address
+    other = tcp_host(near)
+    concrete = other if other and other not in WILDCARD_HOSTS else "127.0.0.1"
+    return f"tcp://{concrete}:{address.rpartition(':')[2]}"

@@ -1,0 +1,22 @@
+"""Publish topics: ``gx2/<address>/<record>`` for a node's records (decimal address,
+no padding, so a subscriber to ``gx2/76/`` gets node 76 and never node 760) and
+``gx2/gateway/status`` for the gateway's own heartbeat, which no node topic can equal.
+"""
+
+from __future__ import annotations
+
+import re
+
+PREFIX = "gx2/"
+STATUS_TOPIC = b"gx2/gateway/status"
+NODE_TOPIC = re.compile(rb"gx2/[0-9]+/")
+"""Matches the start of a node's topic (not the gateway's own gx2/gateway/...)."""
+
+
+def topic(node: int, record: str) -> bytes:
+    return f"gx2/{node}/{record}".encode("ascii")
+
+
+def node_prefix(node: int) -> str:
+    """What to subscribe to for every record of ``node``."""
+    return f"gx2/{node}/"

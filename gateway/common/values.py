@@ -1,0 +1,107 @@
+"""The kinds of value a command line or a control request carries: a node address, a
+record, an EEPROM word, a data rate, ... Each kind reads itself from command-line text
+and checks a value that came over the wire, with one message for both, so gx2ctl
+refuses a bad argument (exit 2) with the very words the gateway would answer it with.
+
+A check raises ValueError with a message that does not name the field: the caller
+knows which field it is (argparse names the argument, pydantic the key).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from aspp.errors import AsppError
+from aspp.frame import MAX_NODE, MIN_NODE
+from aspp.records import checked
+from aspp.timing import divider_for_rate
+
+
+@dataclass(frozen=True)
+class Kind:
+    """One kind of value. ``type`` is what it is on the wire (msgpack gives ints,
+    floats, strings); ``read`` turns command-line text into such a value and ``check``
+    validates one, returning it in the form the gateway uses."""
+
+    name: str
+    type: Any
+    read: Callable[[str], Any]
+    check: Callable[[Any], Any]
+
+    def from_text(self, text: str) -> Any:
+        return self.check(self.read(text))
+
+
+def integer(text: str) -> int:
+    """Decimal or 0x hexadecimal, nothing else (``076`` is 76, not octal)."""
+    body = text.strip()
+    if body.isascii():
+        if body[:2].lower() == "0x" and body[2:].isalnum():
+            try:
+                return int(body[2:], 16)
+            except ValueError:
+                pass
+        elif body.isdecimal():
+            return int(body, 10)
+    raise ValueError(f"{text!r} is not a decimal or 0x hexadecimal number")
+
+
+def number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{text!r} is not a finite number")
+    return value
+
+
+def in_range(low: int, high: int, what: str) -> Callable[[int], int]:
+    def check(value: int) -> int:
+        if not low <= value <= high:
+            raise ValueError(f"{what} {value} is out of range {low}..{high}")
+        return value
+    return check
+
+
+def _node(text: str) -> int:
+    try:
+        return integer(text)
+    except ValueError:
+        raise ValueError(f"node address {text!r} is not a number") from None
+
+
+def _record(streamable: bool = False, pollable: bool = False) -> Callable[[Any], str]:
+    def check(value: Any) -> str:
+        try:
+            return checked(value, streamable=streamable, pollable=pollable).name
+        except AsppError as error:
+            raise ValueError(str(error)) from None
+    return check
+
+
+def _rate(hz: float) -> float:
+    try:
+        divider_for_rate(hz)
+    except AsppError as error:
+        raise ValueError(str(error)) from None
+    return float(hz)
+
+
+def _finite(value: float) -> float:
+    if not math.isfinite(value):
+        raise ValueError(f"{value} is not a finite number")
+    return float(value)
+
+
+NODE = Kind("node address", int, _node, in_range(MIN_NODE, MAX_NODE, "node address"))
+STREAMABLE_RECORD = Kind("record that can stream", str | int, str,
+                         _record(streamable=True))
+POLLABLE_RECORD = Kind("record that can be polled", str | int, str, _record(pollable=True))
+WORD = Kind("16-bit word", int, integer, in_range(0, 0xFFFF, "word"))
+"""An EEPROM address or value."""
+RATE_HZ = Kind("data rate in Hz", float, number, _rate)
+FLOAT = Kind("number", float, number, _finite)

@@ -1,0 +1,215 @@
+"""``gx2ctl``: the ops tool that talks to a running gx2-gateway.
+
+Every control op of the table in :mod:`gateway.common.ops` is a command here, its
+arguments read by the same checks the gateway applies; ``tail`` and ``keygen`` run
+locally. Exit status: 0 success, 1 a node failed, 2 bad usage or input, 3 the gateway
+did not answer in time. Every error is one line on stderr; nothing here may hang on a
+dead gateway.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from dataclasses import dataclass
+from typing import Any
+
+from gateway.common import curve
+from gateway.common.args import ArgumentParser, argtype, bounded, endpoint, fail, node_address
+from gateway.common.endpoints import DEFAULT_CONTROL
+from gateway.common.ops import OPS, Op
+from gateway.common.protocol import Exit
+
+from . import PROG
+from .client import Client, CtlError
+from .output import show
+
+DEFAULT_TIMEOUT = 5.0
+CLIENT_KEY_ENV, SERVER_KEY_ENV = "GX2_CLIENT_KEY", "GX2_SERVER_KEY"
+
+
+def build_parser() -> ArgumentParser:
+    parser = ArgumentParser(
+        prog=PROG, description="Control a running gx2-gateway. Exit status: 0 success, "
+        "1 a node failed, 2 bad usage or input, 3 the gateway did not answer in time.")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--config", metavar="FILE",
+                       help="the gateway's nodes.yaml: use its control and publish endpoints")
+    where.add_argument("--control", type=endpoint, metavar="ENDPOINT",
+                       help=f"the gateway's control endpoint (default {DEFAULT_CONTROL})")
+    parser.add_argument("--timeout", type=bounded(float, 0.01, 86400), default=DEFAULT_TIMEOUT,
+                        metavar="SECONDS",
+                        help=f"give up (exit 3) after this long (default {DEFAULT_TIMEOUT:g})")
+    parser.add_argument("--client-key", metavar="FILE",
+                        help="CURVE: this client's .key_secret file (default: "
+                        f"${CLIENT_KEY_ENV})")
+    parser.add_argument("--server-key", metavar="KEY",
+                        help="CURVE: the gateway's public key, as Z85 text or a .key file "
+                        f"(default: ${SERVER_KEY_ENV}, or beside the server key --config "
+                        "names)")
+    parser.add_argument("--json", action="store_true",
+                        help="print each reply as one strict JSON object on one line "
+                        "(NaN as null); poll and tail always print JSON")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    groups: dict[str, Any] = {}
+    for op in OPS:
+        add_op(commands, groups, op)
+    commands.add_parser(
+        "tail", help="print published records as JSON lines until interrupted",
+        description="Print each published record as one JSON line until SIGINT/SIGTERM. "
+        "With NODEs, only their records; without, every node's records (the gateway's own "
+        "gx2/gateway/... messages are not printed). The publish endpoint comes from "
+        "--config, or else from the gateway's status reply.").add_argument(
+        "nodes", nargs="*", type=node_address, metavar="NODE")
+    commands.add_parser(
+        "keygen", help="write a new CURVE key pair: PREFIX.key (public, 0644) and "
+        "PREFIX.key_secret (0600); never overwrites").add_argument("prefix", metavar="PREFIX")
+    return parser
+
+
+def add_op(commands: Any, groups: dict[str, Any], op: Op) -> None:
+    """The op's command (``eeprom read``: a group ``eeprom`` with an action ``read``)."""
+    *group, word = op.command
+    parent = commands
+    if group:
+        if group[0] not in groups:
+            holder = commands.add_parser(group[0], help=f"{group[0]} commands")
+            groups[group[0]] = holder.add_subparsers(dest="action", required=True,
+                                                     metavar="ACTION")
+        parent = groups[group[0]]
+    sub = parent.add_parser(word, help=op.help, description=op.description or op.help)
+    sub.set_defaults(op=op)
+    for param in op.params:
+        metavar = param.name.upper()
+        if param.many:
+            sub.add_argument(param.name, nargs="+", type=argtype(param.kind),
+                             metavar=metavar, help=param.help)
+        elif param.required:
+            sub.add_argument(param.name, type=argtype(param.kind), metavar=metavar,
+                             help=param.help)
+        else:
+            sub.add_argument(param.flag, dest=param.name, type=argtype(param.kind),
+                             default=param.default, metavar=metavar.split("_")[-1],
+                             help=f"{param.help} (default {param.default})")
+
+
+# --- where the gateway is ---------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Endpoints:
+    control: str
+    publish: str | None
+    """Known only from --config; otherwise asked of the gateway when needed."""
+    keys: curve.ClientKeys | None = None
+    publish_secured: bool | None = None
+    """Whether the publish socket uses CURVE too (None: ask the gateway's status)."""
+
+
+def endpoints(args: argparse.Namespace) -> Endpoints:
+    """From --config (loaded here: its errors exit 2), --control, or the default; CURVE
+    keys from the options, the environment, or the config."""
+    client_key = args.client_key or os.environ.get(CLIENT_KEY_ENV)
+    server_key = args.server_key or os.environ.get(SERVER_KEY_ENV)
+    if args.config is None:
+        keys = client_keys(client_key, server_key, None)
+        return Endpoints(args.control or DEFAULT_CONTROL, None, keys)
+    # the gateway's own validator (pydantic): loaded only when a config is used
+    from gateway.daemon.config import ConfigError, load_config
+    try:
+        config = load_config(args.config)
+    except ConfigError as error:
+        raise CtlError(str(error), Exit.USAGE) from None
+    secured = config.curve is not None
+    if secured and server_key is None:
+        sibling = curve.public_sibling(config.curve.server_key)
+        server_key = str(sibling) if sibling.exists() else config.curve.server_key
+    keys = client_keys(client_key, server_key, args.config if secured else None)
+    return Endpoints(config.control.endpoint, config.publish.endpoint, keys,
+                     secured and config.curve.publish)
+
+
+def client_keys(client_key: str | None, server_key: str | None,
+                secured_by: str | None) -> curve.ClientKeys | None:
+    """The CURVE keys to connect with, or None for a plain connection."""
+    if client_key is None and server_key is None and secured_by is None:
+        return None
+    if client_key is None:
+        why = f"{secured_by} configures curve" if secured_by else "--server-key is given"
+        raise CtlError(f"{why}: give this client's key pair with --client-key FILE or "
+                       f"${CLIENT_KEY_ENV} (make one with gx2ctl keygen)", Exit.USAGE)
+    if server_key is None:
+        raise CtlError(f"--client-key is given: give the gateway's public key with "
+                       f"--server-key KEY or ${SERVER_KEY_ENV}", Exit.USAGE)
+    try:
+        pair = curve.load_key_pair(client_key)
+        server = (curve.load_key_pair(server_key).public
+                  if server_key.endswith(curve.SECRET_SUFFIX) else curve.public_key(server_key))
+    except curve.CurveError as error:
+        raise CtlError(str(error), Exit.USAGE) from None
+    return curve.ClientKeys(pair, server)
+
+
+# --- commands ---------------------------------------------------------------------------
+
+def fields_of(op: Op, args: argparse.Namespace) -> dict[str, Any]:
+    """The request's fields from a parsed command line (lists without repeats, and no
+    longer than the gateway takes)."""
+    fields = {}
+    for param in op.params:
+        value = getattr(args, param.name)
+        if param.many:
+            value = list(dict.fromkeys(value))
+            if len(value) > param.many:
+                raise CtlError(f"{' '.join(op.command)} takes at most {param.many} "
+                               f"{param.name}, not {len(value)}", Exit.USAGE)
+        fields[param.name] = value
+    return fields
+
+
+def run_op(op: Op, args: argparse.Namespace, where: Endpoints) -> int:
+    fields = fields_of(op, args)
+    with Client(where.control, args.timeout, where.keys) as client:
+        result = client.call(op.name, **fields)
+    shown = show(op.name, fields, result, args.json)
+    emit(shown.lines)
+    if shown.failure:
+        raise CtlError(shown.failure, Exit.NODE_FAILED)
+    return Exit.OK
+
+
+def emit(lines: list[str]) -> None:
+    for line in lines:
+        print(line)
+    sys.stdout.flush()
+
+
+def run_keygen(prefix: str) -> int:
+    try:
+        public, secret = curve.generate(prefix)
+    except curve.CurveError as error:
+        raise CtlError(str(error), Exit.NODE_FAILED) from None
+    emit([f"public key  {public}  {curve.public_key(str(public)).decode()}",
+          f"key pair    {secret}  (mode 0600: keep it private)"])
+    return Exit.OK
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if args.command == "keygen":
+            return run_keygen(args.prefix)
+        where = endpoints(args)
+        if args.command == "tail":
+            from .tail import run_tail
+            return run_tail(args.nodes, where, args.timeout)
+        return run_op(args.op, args, where)
+    except CtlError as error:
+        fail(PROG, str(error), error.status)
+    except KeyboardInterrupt:
+        return Exit.OK if args.command == "tail" else 130
+    except BrokenPipeError:  # a reader such as `head` has gone: not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return Exit.OK
+    except Exception as error:  # a bug: still one line, never a traceback
+        fail(PROG, f"internal error: {type(error).__name__}: {error}", Exit.NODE_FAILED)

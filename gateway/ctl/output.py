@@ -1,0 +1,292 @@
+"""What gx2ctl prints: strict JSON lines, and readable text for each reply.
+
+The gateway's results are data from another process (another version, perhaps): every
+formatter here tolerates missing keys, extra keys and unexpected types, printing ``-``
+rather than failing, so a newer or older gateway never makes gx2ctl crash.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import msgpack
+
+from gateway.common.ops import BY_NAME
+from gateway.common.topics import NODE_TOPIC
+
+MISSING = "-"
+
+
+@dataclass(frozen=True)
+class Shown:
+    """What gx2ctl prints for a result, and why the run failed although the gateway
+    answered (a ping some node did not answer), if it did."""
+
+    lines: list[str]
+    failure: str | None = None
+
+
+Printer = Callable[[Mapping[str, Any], Mapping[str, Any]], Shown]
+PRINTERS: dict[str, Printer] = {}
+
+
+def prints(op: str) -> Callable[[Printer], Printer]:
+    """Register the readable printer of op ``op``: it gets the request's fields and the
+    result. An op without one is printed as one JSON line."""
+    if op not in BY_NAME:
+        raise ValueError(f"{op!r} is not in the op table")
+
+    def register(printer: Printer) -> Printer:
+        PRINTERS[op] = printer
+        return printer
+    return register
+
+
+def show(op: str, fields: Mapping[str, Any], result: Mapping[str, Any],
+         as_json: bool) -> Shown:
+    printer = PRINTERS.get(op)
+    shown = printer(fields, result) if printer is not None else None
+    if as_json or shown is None:
+        return Shown([json_line(result)], shown.failure if shown else None)
+    return shown
+
+
+def strict(value: Any) -> Any:
+    """A value JSON can carry strictly: NaN and infinities become null, bytes hex, keys
+    strings (msgpack allows all of these; strict JSON parsers reject them)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if value is None or isinstance(value, (bool, int, str)):
+        return value
+    if isinstance(value, Mapping):
+        return {str(key): strict(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict(item) for item in value]
+    if isinstance(value, (bytes, bytearray, memoryview)):
+        return bytes(value).hex()
+    return str(value)
+
+
+def json_line(value: Any) -> str:
+    """One strict JSON object on one line (never NaN, never a newline inside)."""
+    return json.dumps(strict(value), allow_nan=False, ensure_ascii=False)
+
+
+def cell(value: Any) -> str:
+    """One table cell or inline value, readable whatever its type."""
+    if value is None:
+        return MISSING
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:g}" if math.isfinite(value) else MISSING
+    text = str(value)
+    return " ".join(text.split()) or MISSING
+
+
+def number(value: Any) -> float | None:
+    """A real number from a reply, or None (a bool or a string is not a number)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    return float(value) if math.isfinite(value) else None
+
+
+def duration(seconds: Any) -> str:
+    """``12.3 s``, ``4 min 05 s``, ``2 h 03 min``, ``3 d 04 h``."""
+    value = number(seconds)
+    if value is None:
+        return MISSING
+    if value < 60:
+        return f"{max(value, 0.0):.1f} s"
+    whole = int(value)
+    days, rest = divmod(whole, 86400)
+    hours, rest = divmod(rest, 3600)
+    minutes, secs = divmod(rest, 60)
+    if days:
+        return f"{days} d {hours:02d} h"
+    if hours:
+        return f"{hours} h {minutes:02d} min"
+    return f"{minutes} min {secs:02d} s"
+
+
+def ago(timestamp: Any, now: float) -> str:
+    """How long before ``now`` a UNIX time was; ``never`` for None."""
+    if timestamp is None:
+        return "never"
+    value = number(timestamp)
+    return MISSING if value is None else f"{duration(now - value)} ago"
+
+
+def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    widths = [max(len(row[i]) for row in (header, *rows)) for i in range(len(header))]
+    return ["  ".join(text.ljust(width) for text, width in zip(row, widths, strict=True))
+            .rstrip() for row in (header, *rows)]
+
+
+def _map(value: Any) -> Mapping[str, Any]:
+    return value if isinstance(value, Mapping) else {}
+
+
+def _count(value: Any, unit: str) -> str:
+    text = cell(value)
+    return f"{text} {unit}" if text != MISSING else MISSING
+
+
+NODE_COLUMNS = ("node", "name", "state", "record", "configured", "desired", "rate Hz",
+                "packets", "published", "lost radio", "lost gateway", "reboots",
+                "silences", "LQI", "RSSI", "last seen")
+
+
+def status_lines(result: Mapping[str, Any], now: float) -> list[str]:
+    """The gateway line, the link line and a table of nodes."""
+    gateway = _map(result.get("gateway"))
+    link = _map(result.get("link"))
+    lines = [f"gateway  version {cell(gateway.get('version'))}, "
+             f"up {duration(gateway.get('uptime'))}, "
+             f"publish {cell(gateway.get('publish_endpoint'))}, "
+             f"control {cell(gateway.get('control_endpoint'))}"]
+    since = number(link.get("since"))
+    for_how_long = f" for {duration(now - since)}" if since is not None else ""
+    lines.append(f"link     {cell(link.get('port'))} {cell(link.get('state'))}{for_how_long}, "
+                 f"reconnects {cell(link.get('reconnects'))}, "
+                 f"read {_count(link.get('bytes_read'), 'bytes')}, "
+                 f"discarded {_count(link.get('discarded_bytes'), 'bytes')}")
+    nodes = result.get("nodes")
+    rows = [[cell(node.get("node")), cell(node.get("name")), cell(node.get("state")),
+             cell(node.get("record")), cell(node.get("configured")),
+             cell(node.get("desired")), cell(node.get("rate_hz")), cell(node.get("packets")),
+             cell(node.get("published")), cell(node.get("lost_radio")),
+             cell(node.get("lost_gateway")), cell(node.get("reboots")),
+             cell(node.get("silences")), cell(node.get("lqi")), cell(node.get("rssi")),
+             ago(node.get("last_seen"), now)]
+            for node in (nodes if isinstance(nodes, list) else []) if isinstance(node, Mapping)]
+    if rows:
+        lines.append("")
+        lines.extend(table(NODE_COLUMNS, rows))
+    else:
+        lines.append("no nodes")
+    return lines
+
+
+def answered(result: Mapping[str, Any]) -> dict[Any, bool]:
+    """node -> whether it answered, from a ping result."""
+    nodes = result.get("nodes")
+    return {entry.get("node"): entry.get("answered") is True
+            for entry in (nodes if isinstance(nodes, list) else [])
+            if isinstance(entry, Mapping)}
+
+
+@prints("status")
+def _status(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    return Shown(status_lines(result, time.time()))
+
+
+@prints("ping")
+def _ping(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    """One line per node asked about, in the order asked (missing: no answer)."""
+    requested = fields["nodes"]
+    replies = answered(result)
+    silent = [str(node) for node in requested if not replies.get(node)]
+    failure = (f"{len(silent)} of {len(requested)} nodes did not answer: "
+               f"{', '.join(silent)}") if silent else None
+    return Shown([f"{node} {'answered' if replies.get(node) else 'no answer'}"
+                  for node in requested], failure)
+
+
+def _word(value: Any) -> str:
+    if isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= 0xFFFF:
+        return f"{value} (0x{value:04X})"
+    return cell(value)
+
+
+def _address(value: Any) -> str:
+    if isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= 0xFFFF:
+        return f"0x{value:04X}"
+    return cell(value)
+
+
+def _attempts(value: Any) -> str:
+    return f"{cell(value)} attempt{'' if value == 1 else 's'}"
+
+
+INFO_KEYS = (("node", "node"), ("firmware", "firmware"), ("model_number", "model number"),
+             ("serial_number", "serial number"), ("model_name", "model name"),
+             ("options", "options"))
+
+
+@prints("start")
+def _start(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    return Shown([f"{cell(result.get('node'))} streaming {cell(result.get('record'))} "
+                  f"({_attempts(result.get('attempts'))})"])
+
+
+@prints("stop")
+def _stop(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    elapsed = number(result.get("elapsed"))
+    took = f", {elapsed:.2f} s" if elapsed is not None else ""
+    return Shown([f"{cell(result.get('node'))} stopped "
+                  f"({_attempts(result.get('attempts'))}{took})"])
+
+
+@prints("poll")
+def _poll(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    return Shown([json_line(result)])  # a record is data: always one JSON line
+
+
+@prints("eeprom_read")
+def _eeprom_read(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    return Shown([f"{cell(result.get('node'))} eeprom[{_address(result.get('address'))}]"
+                  f" = {_word(result.get('value'))}"])
+
+
+@prints("eeprom_write")
+def _eeprom_write(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    return Shown([f"{cell(result.get('node'))} eeprom[{_address(result.get('address'))}]"
+                  f" = {_word(result.get('value'))}, written and read back "
+                  f"({_attempts(result.get('attempts'))})"])
+
+
+@prints("rate")
+def _rate(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    return Shown([f"{cell(result.get('node'))} rate {cell(result.get('hz'))} Hz "
+                  f"(divider {cell(result.get('divider'))})"])
+
+
+@prints("info")
+def _info(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    width = max(len(label) for _, label in INFO_KEYS)
+    return Shown([f"{label.ljust(width)}  {cell(result.get(key))}"
+                  for key, label in INFO_KEYS])
+
+
+class BadMessage(Exception):
+    """A published message tail cannot print; ``str()`` says which and why."""
+
+
+def printable(data: bytes, limit: int = 80) -> str:
+    """Bytes from the network, safe in a one-line message."""
+    text = repr(bytes(data[:limit]))[2:-1]
+    return text + ("..." if len(data) > limit else "")
+
+
+def tail_line(frames: Sequence[bytes], nodes_only: bool) -> str | None:
+    """The JSON line for one published message; None for one not to print (another
+    topic); raises BadMessage for one that is not [topic, msgpack map]."""
+    topic = frames[0] if frames else b""
+    if nodes_only and not NODE_TOPIC.match(topic):
+        return None
+    where = f"on {printable(topic)}" if topic else "without a topic"
+    if len(frames) != 2:
+        raise BadMessage(f"{where}: {len(frames)} frames, not 2 (topic, payload)")
+    try:
+        data = msgpack.unpackb(frames[1], raw=False, strict_map_key=False)
+    except Exception:  # msgpack raises several unrelated types
+        raise BadMessage(f"{where}: the payload is not msgpack") from None
+    if not isinstance(data, dict):
+        raise BadMessage(f"{where}: the payload is a {type(data).__name__}, not a map")
+    return json_line(data)

@@ -1,0 +1,170 @@
+"""The gateway: the parts wired together, and their life from start to shutdown.
+
+One asyncio loop owns the serial port, the PUB and ROUTER sockets and every timer, so
+no socket is ever touched by two threads. Data flows one way:
+:mod:`~gateway.daemon.link` (bytes in) -> :mod:`~gateway.daemon.reader` (decoded,
+tallied by :mod:`~gateway.daemon.nodes`) -> :mod:`~gateway.daemon.publisher`. Control
+requests go :mod:`~gateway.daemon.control` -> :mod:`~gateway.daemon.operations` ->
+:mod:`~gateway.daemon.scheduler` -> serial writes, their replies coming back through
+the reader; :mod:`~gateway.daemon.supervisor` keeps each node doing what it should.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import gc
+import logging
+import time
+from typing import Any
+
+import zmq
+import zmq.asyncio
+from zmq.auth.asyncio import AsyncioAuthenticator
+
+from gateway.common.curve import AllowList, KeyPair
+
+from . import status
+from .config import GatewayConfig
+from .control import ControlServer
+from .link import SerialLink
+from .nodes import Node
+from .operations import Operations
+from .ports import Port
+from .publisher import Publisher
+from .reader import Reader
+from .scheduler import Scheduler
+from .sd_notify import Notifier
+from .supervisor import Supervisor
+
+log = logging.getLogger("gx2.gateway")
+EXIT_BUDGET = 1.5
+"""Seconds a shutdown may spend stopping streams, within the promised 2 s."""
+
+
+class StartupError(Exception):
+    """The gateway cannot start (an endpoint cannot be bound): one line, exit 1."""
+
+
+class Gateway:
+    def __init__(self, config: GatewayConfig) -> None:
+        self.config = config
+        self.started = time.time()
+        self.nodes = {n.address: Node(n) for n in config.nodes}
+        self.systemd = Notifier()
+        self._ready = False
+        self._context = zmq.asyncio.Context()
+        server: KeyPair | None = None
+        self.allow_list: AllowList | None = None
+        self._auth: AsyncioAuthenticator | None = None
+        if config.curve is not None:  # ZAP first: no connection is ever let in unchecked
+            server = config.curve.server_pair()
+            self.allow_list = AllowList(config.curve.allowed())
+            self._auth = AsyncioAuthenticator(self._context)
+            self._auth.start()
+            self._auth.configure_curve_callback("*", self.allow_list)
+        self.scheduler = Scheduler(self._write)
+        self.supervisor = Supervisor(self.scheduler, self.nodes)
+        self.ops = Operations(self.scheduler, self.supervisor, self.status,
+                              allow_eeprom_write=config.control.allow_eeprom_write,
+                              allow_any_eeprom_address=config.control.allow_any_eeprom_address)
+        endpoint = config.publish.endpoint
+        try:
+            self.publisher = Publisher(self._context, endpoint, config.publish.high_water_mark,
+                                       server if config.curve and config.curve.publish
+                                       else None)
+            endpoint = config.control.endpoint
+            self.control = ControlServer(self._context, endpoint, self.ops, server)
+        except zmq.ZMQError as error:
+            self._stop_auth()
+            self._context.destroy(linger=0)
+            raise StartupError(f"cannot bind {endpoint}: {error.strerror}") from None
+        self.reader = Reader(self.nodes, self.publisher, self.supervisor, self.scheduler,
+                             config.base_station.idle_ms / 1000)
+        # only once nothing above can fail: the embedded simulator makes a directory
+        self.port = Port(config.base_station.port, list(self.nodes))
+        self.link = SerialLink(self.port.path, config.base_station.baudrate,
+                               self.reader.on_data, self._on_link_state)
+
+    # -- running --------------------------------------------------------------------------
+
+    async def run(self, stop: asyncio.Event) -> None:
+        self.port.start()
+        try:
+            self.link.open()
+            log.info("base station %s open", self.config.base_station.port)
+        except OSError as error:
+            log.warning("base station %s: %s; retrying", self.config.base_station.port, error)
+            self.link.start_reopening()
+        loop = asyncio.get_running_loop()
+        tasks = [loop.create_task(self.control.serve()), loop.create_task(self._heartbeat()),
+                 loop.create_task(self.supervisor.watch_streams())]
+        if self.systemd.watchdog_interval:
+            tasks.append(loop.create_task(self._watchdog(self.systemd.watchdog_interval)))
+        log.info("publishing on %s, control on %s, %d nodes", self.config.publish.endpoint,
+                 self.config.control.endpoint, len(self.nodes))
+        # everything still alive now lives as long as the process: out of the
+        # collector's sight, a full collection no longer walks it (here ~20 ms of
+        # stalled records each time, for some 35,000 objects of modules, configuration
+        # and sockets). The garbage of starting up is collected first.
+        gc.collect()
+        gc.freeze()
+        try:
+            await stop.wait()
+        finally:
+            self.systemd.stopping()
+            for task in tasks:
+                task.cancel()
+            await self._shutdown()
+
+    async def _shutdown(self) -> None:
+        self.supervisor.close()
+        if self.config.shutdown.stop_streams and self.link.up:
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(self.supervisor.stop_all_streams(), EXIT_BUDGET)
+        self.control.close()
+        self.link.close()
+        self.publisher.close()
+        self._stop_auth()
+        self._context.destroy(linger=0)
+        self.port.close()
+        log.info("stopped")
+
+    def _stop_auth(self) -> None:
+        if self._auth is not None:
+            self._auth.stop()
+            self._auth = None
+
+    def _write(self, data: bytes) -> None:
+        self.link.write(data)
+
+    def _on_link_state(self, up: bool) -> None:
+        self.scheduler.link_up = up
+        if up and not self._ready:
+            # READY only now: the sockets were bound before the port could open
+            self._ready = True
+            self.systemd.ready(f"{len(self.nodes)} nodes on {self.config.base_station.port}")
+        self.systemd.status("base station " + ("connected" if up else "disconnected, "
+                                               "reconnecting"))
+        if not up:
+            self.scheduler.on_link_down()
+        self.supervisor.link_changed(up)
+        self.publisher.status(self.status())
+
+    # -- status ---------------------------------------------------------------------------
+
+    async def _watchdog(self, interval: float) -> None:
+        """WATCHDOG=1 while the loop runs and the link is up or being reopened: a stuck
+        loop, or a reopen loop that died, stops the pings and systemd restarts us."""
+        while True:
+            if self.link.up or self.link.reopening:
+                self.systemd.watchdog()
+            await asyncio.sleep(interval)
+
+    async def _heartbeat(self) -> None:
+        while True:
+            await asyncio.sleep(self.config.publish.heartbeat_s)
+            self.publisher.status(self.status())
+
+    def status(self) -> dict[str, Any]:
+        return status.report(self)

@@ -1,0 +1,74 @@
+"""``gx2-gateway --config nodes.yaml``: the daemon's command line, thin.
+
+SIGINT and SIGTERM mean "stop, quietly, exit 0" from the first instant: a quiet
+handler is installed before anything heavy is imported, and the daemon's own handlers
+(which close everything cleanly) replace it once the loop runs.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+from types import FrameType
+from typing import NoReturn
+
+
+def _exit_quietly(signum: int, frame: FrameType | None) -> NoReturn:
+    raise SystemExit(0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, _exit_quietly)
+
+    import asyncio
+    import logging
+    import os
+
+    from gateway.common.args import ArgumentParser, fail
+
+    from .config import ConfigError, load_config
+
+    parser = ArgumentParser(prog="gx2-gateway", description="Gateway for MicroStrain "
+                            "3DM-GX2 / Inertia-Link wireless sensors: owns the base "
+                            "station's serial port and publishes every node's records "
+                            "over ZeroMQ.")
+    parser.add_argument("--config", required=True, metavar="FILE",
+                        help="the gateway's YAML configuration (see config/nodes.yaml)")
+    parser.add_argument("--check", action="store_true",
+                        help="validate the configuration and exit (0: valid, 2: not)")
+    parser.add_argument("--log-level", default="INFO",
+                        choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    args = parser.parse_args(argv)
+    try:
+        config = load_config(args.config)
+    except ConfigError as error:
+        fail(parser.prog, str(error), 2)
+    if args.check:
+        count = len(config.nodes)
+        print(f"{args.config}: valid ({count} node{'s' if count != 1 else ''})")
+        return 0
+    under_systemd = "INVOCATION_ID" in os.environ or "JOURNAL_STREAM" in os.environ
+    logging.basicConfig(
+        level=args.log_level, stream=sys.stderr,
+        format="%(levelname)s %(name)s: %(message)s" if under_systemd
+        else "%(asctime)s %(levelname)s %(name)s: %(message)s")
+
+    from .app import Gateway, StartupError
+
+    async def serve() -> int:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(signum, stop.set)
+        await Gateway(config).run(stop)
+        return 0
+
+    try:
+        return asyncio.run(serve())
+    except StartupError as error:
+        fail(parser.prog, str(error), 1)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,146 @@
+"""The gateway's configuration: ``gx2-gateway --config nodes.yaml``.
+
+The keys of the interface (README, "Configuration"), plus a few marked "added" below.
+Strict: an unknown key is an error, so a typo never passes silently.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+from pydantic import AfterValidator, Field, field_validator, model_validator
+
+from aspp.frame import MAX_NODE, MIN_NODE
+from aspp.records import checked
+from gateway.common import curve
+from gateway.common.endpoints import (
+    DEFAULT_CONTROL,
+    DEFAULT_PUBLISH,
+    check_endpoint,
+    is_loopback,
+)
+from gateway.common.strict import Strict, load_model
+from gateway.common.yamlfile import ConfigError
+
+from . import ports
+
+__all__ = ["ConfigError", "GatewayConfig", "load_config"]
+
+Endpoint = Annotated[str, AfterValidator(check_endpoint)]
+
+
+class BaseStationConfig(Strict):
+    port: Annotated[str, Field(min_length=1)]
+    """A device path, a pyserial URL, or sim:// (the built-in simulator)."""
+    baudrate: Annotated[int, Field(ge=1200, le=4_000_000)] = 115200
+    idle_ms: Annotated[float, Field(ge=1, le=1000)] = 30.0
+    """Added: a line silent this long has finished what it was sending."""
+
+
+class PublishConfig(Strict):
+    endpoint: Endpoint = DEFAULT_PUBLISH
+    heartbeat_s: Annotated[float, Field(gt=0, le=60)] = 1.0
+    """Added: period of the gx2/gateway/status message."""
+    high_water_mark: Annotated[int, Field(ge=100, le=10_000_000)] = 20_000
+    """Added: messages queued per subscriber before the slowest one loses some."""
+
+
+class ControlConfig(Strict):
+    endpoint: Endpoint = DEFAULT_CONTROL
+    allow_eeprom_write: bool = False
+    allow_any_eeprom_address: bool = False
+    """Added: write EEPROM words other than the ones the reference documents (0xFCA2
+    data rate divider, 0xFCA6 auto-start); a wrong word can break a node's calibration."""
+
+
+class CurveConfig(Strict):
+    """Added: CURVE encryption and authentication (keys from ``gx2ctl keygen``)."""
+
+    server_key: Annotated[str, Field(min_length=1)]
+    """The gateway's ``.key_secret`` file (not readable by every user)."""
+    clients: Annotated[list[str], Field(min_length=1)]
+    """The client public keys let in: 40-character Z85 keys or ``.key`` files."""
+    publish: bool = True
+    """Encrypt the publish socket too (subscribers then need an allowed key); false
+    leaves the data stream open to anyone who can reach it."""
+
+    @field_validator("server_key")
+    @classmethod
+    def _server_pair(cls, value: str) -> str:
+        curve.load_key_pair(value)  # (a CurveError is a ValueError: a config error)
+        return value
+
+    @field_validator("clients")
+    @classmethod
+    def _client_keys(cls, values: list[str]) -> list[str]:
+        for index, value in enumerate(values):
+            try:
+                curve.public_key(value)
+            except curve.CurveError as error:
+                raise ValueError(f"[{index}]: {error}") from None
+        return values
+
+    def server_pair(self) -> curve.KeyPair:
+        return curve.load_key_pair(self.server_key)
+
+    def allowed(self) -> frozenset[bytes]:
+        return frozenset(curve.public_key(value) for value in self.clients)
+
+
+class ShutdownConfig(Strict):
+    """Added: what the gateway does on SIGTERM/SIGINT (it exits within 2 s either way)."""
+
+    stop_streams: bool = False
+    """Send 0xFA to the streams it started, best effort, within the exit budget. Off by
+    default: a restarted gateway re-arms them, so leaving them on loses no data."""
+
+
+class NodeEntry(Strict):
+    address: Annotated[int, Field(ge=MIN_NODE, le=MAX_NODE, strict=True)]
+    name: Annotated[str, Field(min_length=1, max_length=64)] | None = None
+    stream: str | None = None
+
+    @field_validator("stream")
+    @classmethod
+    def _streamable(cls, value: str | None) -> str | None:
+        return None if value is None else checked(value, streamable=True).name
+
+    @property
+    def label(self) -> str:
+        return f"{self.address} ({self.name})" if self.name else str(self.address)
+
+
+class GatewayConfig(Strict):
+    base_station: BaseStationConfig
+    publish: PublishConfig = PublishConfig()
+    control: ControlConfig = ControlConfig()
+    shutdown: ShutdownConfig = ShutdownConfig()
+    curve: CurveConfig | None = None
+    nodes: Annotated[list[NodeEntry], Field(min_length=1)]
+
+    @model_validator(mode="after")
+    def _distinct(self) -> GatewayConfig:
+        seen: set[int] = set()
+        for index, node in enumerate(self.nodes):
+            if node.address in seen:
+                raise ValueError(f"nodes[{index}].address: {node.address} is already "
+                                 "configured")
+            seen.add(node.address)
+        if self.publish.endpoint == self.control.endpoint:
+            raise ValueError("publish.endpoint and control.endpoint must differ")
+        if self.curve is None and not is_loopback(self.control.endpoint):
+            raise ValueError(f"control.endpoint: {self.control.endpoint} may be reachable "
+                             "from other hosts, and control can write EEPROM and stop "
+                             "streams: bind it to 127.0.0.1 or an ipc:// path, or "
+                             "configure curve (see README)")
+        try:
+            ports.check_url(self.base_station.port, [n.address for n in self.nodes])
+        except ValueError as error:
+            raise ValueError(f"base_station.port: {error}") from None
+        return self
+
+
+def load_config(path: str | Path) -> GatewayConfig:
+    """Read and validate a gateway configuration; raises ConfigError (one line)."""
+    return load_model(path, GatewayConfig)

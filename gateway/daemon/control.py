@@ -1,0 +1,155 @@
+"""The control endpoint: a ZeroMQ ROUTER that runs each request as its own task, so a
+slow request to one node never blocks a ping to another, and answers each exactly once.
+
+Any message is answered or, if it cannot even carry an answer, dropped and counted:
+never a crash. Requests are idempotent by (client, id) for a minute, so a client that
+retries after a timeout gets the first run's answer instead of a second run.
+
+A request that says how long its client waits (``timeout``) is answered before then,
+whatever the node or the gateway's own background work is doing: an op still running
+when its time is up is cancelled and answered as a node that did not answer in time.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import time
+from collections import OrderedDict
+from collections.abc import Awaitable
+from typing import Any
+
+import zmq
+import zmq.asyncio
+
+from gateway.common import curve, protocol
+from gateway.common.protocol import ErrorKind
+
+from .errors import OpError
+from .operations import Operations
+from .requests import RequestBase, RequestError, parse_request
+
+log = logging.getLogger("gx2.control")
+REMEMBER_SECONDS = 60.0
+REMEMBER_MAX = 2048
+IPC_MODE = 0o660
+"""An ipc:// control socket: its owner and group may connect (gx2ctl users join the
+gateway's group), nobody else."""
+REPLY_MARGIN = (0.1, 0.1, 1.0)
+"""A request with a timeout is answered this much before it runs out, to cross the
+network in time: a tenth of it, at least 0.1 s and at most 1 s."""
+
+
+def answer_within(timeout: float) -> float:
+    """Seconds from a request's arrival within which it must be answered."""
+    share, least, most = REPLY_MARGIN
+    return max(timeout / 2, timeout - min(most, max(least, share * timeout)))
+
+
+class ControlServer:
+    def __init__(self, context: zmq.asyncio.Context, endpoint: str, ops: Operations,
+                 server: curve.KeyPair | None = None) -> None:
+        self.socket = context.socket(zmq.ROUTER)
+        self.socket.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_REQUEST_BYTES + 1024)
+        self.socket.setsockopt(zmq.LINGER, 0)
+        self.socket.setsockopt(zmq.ROUTER_MANDATORY, 0)
+        if server is not None:
+            curve.serve(self.socket, server)
+        self.socket.bind(endpoint)
+        if endpoint.startswith("ipc://"):
+            with contextlib.suppress(OSError):  # (an abstract @name has no file)
+                os.chmod(endpoint[len("ipc://"):], IPC_MODE)
+        self.endpoint = endpoint
+        self.ops = ops
+        self._seen: OrderedDict[tuple[bytes, object], tuple[float, asyncio.Task[bytes]]] = \
+            OrderedDict()
+        self._tasks: set[asyncio.Task[None]] = set()
+        self.requests = 0
+        self.rejected = 0
+        self.dropped = 0
+        self.late = 0
+        """Requests cut short by their deadline."""
+
+    async def serve(self) -> None:
+        while True:
+            frames = await self.socket.recv_multipart(copy=True)
+            self._accept(frames)
+
+    def _accept(self, frames: list[bytes]) -> None:
+        # ROUTER gives [identity, *envelope, payload]; REQ puts an empty frame first.
+        if len(frames) < 2 or len(frames) > 3 or (len(frames) == 3 and frames[1] != b""):
+            self.dropped += 1
+            log.debug("dropped a control message of %d frames", len(frames))
+            return
+        envelope, payload = frames[:-1], frames[-1]
+        self.requests += 1
+        try:
+            request = parse_request(payload)
+        except RequestError as error:
+            self.rejected += 1
+            self._reply(envelope, protocol.error(error.request_id, ErrorKind.INVALID,
+                                                 str(error)))
+            return
+        key = (envelope[0], request.id)
+        self._forget_old()
+        remembered = self._seen.get(key)
+        if remembered is None:
+            task = asyncio.get_running_loop().create_task(self._run(request))
+            self._seen[key] = (time.monotonic(), task)
+        else:
+            task = remembered[1]
+        self._spawn(self._answer_when_done(envelope, task))
+
+    def _spawn(self, coroutine: Awaitable[None]) -> None:
+        task = asyncio.get_running_loop().create_task(coroutine)  # type: ignore[arg-type]
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    async def _answer_when_done(self, envelope: list[bytes], task: asyncio.Task[bytes]) -> None:
+        self._reply(envelope, await asyncio.shield(task))
+
+    def _reply(self, envelope: list[bytes], payload: bytes) -> None:
+        try:
+            self.socket.send_multipart([*envelope, payload], flags=zmq.NOBLOCK)
+        except zmq.ZMQError as error:  # the client went away: nobody to answer
+            log.debug("reply not sent: %s", error)
+
+    def _forget_old(self) -> None:
+        cutoff = time.monotonic() - REMEMBER_SECONDS
+        while self._seen:
+            when, task = next(iter(self._seen.values()))
+            if (when < cutoff and task.done()) or len(self._seen) > REMEMBER_MAX:
+                self._seen.popitem(last=False)
+            else:
+                break
+
+    async def _run(self, request: RequestBase) -> bytes:
+        """Run one validated request; always returns the one reply it gets."""
+        limit = None if request.timeout is None else answer_within(request.timeout)
+        try:
+            async with asyncio.timeout(limit):
+                return protocol.ok(request.id, await self.ops.run(request))
+        except TimeoutError:
+            self.late += 1
+            return protocol.error(request.id, ErrorKind.NODE, _too_late(request, limit))
+        except OpError as error:
+            return protocol.error(request.id, error.kind, str(error))
+        except Exception as error:  # a bug: answer, log, and keep serving
+            log.exception("request %r failed", request)
+            return protocol.error(request.id, ErrorKind.INTERNAL,
+                                  f"{type(error).__name__}: {error}")
+
+    def close(self) -> None:
+        for task in list(self._tasks):
+            task.cancel()
+        for _, task in self._seen.values():
+            task.cancel()
+        self.socket.close()
+
+
+def _too_late(request: Any, limit: float | None) -> str:
+    who = f"node {request.node}" if hasattr(request, "node") else "the nodes"
+    return (f"{request.op}: {who} did not answer within the request's {request.timeout:g} s "
+            f"(answered after {limit:.2f} s)")

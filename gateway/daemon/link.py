@@ -1,0 +1,202 @@
+"""The base station's serial port, read by the event loop: the one place bytes enter.
+
+Opened exclusively and raw (pyserial sets raw mode on a tty); each time the fd is
+readable, everything waiting is read in one call and stamped with the host time.
+Writes go straight to the non-blocking fd; what it cannot take at once waits in a
+small buffer that is flushed when the fd becomes writable, so a busy host or a full
+driver buffer is never mistaken for a lost port (pyserial's own write timeout counts a
+scheduling stall as a timeout even after every byte was written). A read or write
+error, or end of file (the USB plug pulled), closes the port, and it is reopened with
+backoff in steps of at most 1 s until it comes back. What it opens comes from
+:mod:`gateway.daemon.ports`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import time
+from collections.abc import Callable
+
+import serial
+
+log = logging.getLogger("gx2.link")
+REOPEN_STEPS = (0.1, 0.2, 0.5, 1.0)
+"""Backoff between reopen attempts; it stays at the last step (1 s) until the port returns."""
+READ_SIZE = 65536
+MAX_UNSENT = 4096
+"""Bytes the port may leave untaken before it is declared lost: the scheduler has one
+packet of at most 110 bytes in flight, so this many means the port stopped taking any."""
+
+
+class SerialLink:
+    """Owns the port: open, read what is waiting, write, and reopen after a loss."""
+
+    def __init__(self, port: str, baudrate: int, on_data: Callable[[bytes, float], None],
+                 on_state: Callable[[bool], None]) -> None:
+        self.port = port
+        self.baudrate = baudrate
+        self._on_data = on_data
+        self._on_state = on_state
+        self._serial: serial.SerialBase | None = None
+        self._fd: int | None = None
+        self._poll_handle: asyncio.TimerHandle | None = None
+        self._unsent = bytearray()
+        self._writer_added = False
+        self._reopen_task: asyncio.Task[None] | None = None
+        self.up = False
+        self.since = time.time()
+        self.reconnects = 0
+        self.bytes_read = 0
+        self.last_error = ""
+        self._closing = False
+
+    def open(self) -> None:
+        """Open now; raise OSError/SerialException if the port cannot be opened."""
+        is_device = "://" not in self.port
+        # write_timeout applies only to URL handlers without an fd (loop://)
+        ser = serial.serial_for_url(self.port, self.baudrate, timeout=0, write_timeout=0.1,
+                                    exclusive=True if is_device else None)
+        self._serial = ser
+        loop = asyncio.get_running_loop()
+        try:
+            self._fd = ser.fileno()
+            loop.add_reader(self._fd, self._readable)
+        except (AttributeError, NotImplementedError, OSError, ValueError):
+            self._fd = None  # a URL handler without an fd (loop://): poll it instead
+            self._poll_handle = loop.call_later(0.005, self._poll_url)
+        self._set_up(True)
+
+    @property
+    def reopening(self) -> bool:
+        """The reopen loop is alive (it ends when the port is back)."""
+        return self._reopen_task is not None and not self._reopen_task.done()
+
+    @property
+    def unsent(self) -> int:
+        """Bytes written that the port has not taken yet."""
+        return len(self._unsent)
+
+    def start_reopening(self) -> None:
+        if self._reopen_task is None or self._reopen_task.done():
+            self._reopen_task = asyncio.get_running_loop().create_task(self._reopen())
+
+    async def _reopen(self) -> None:
+        attempt = 0
+        while not self._closing and not self.up:
+            await asyncio.sleep(REOPEN_STEPS[min(attempt, len(REOPEN_STEPS) - 1)])
+            attempt += 1
+            try:
+                self.open()
+            except (OSError, serial.SerialException) as error:
+                self.last_error = str(error)
+                log.debug("reopen %s failed: %s", self.port, error)
+                continue
+            self.reconnects += 1
+            log.info("base station %s is back after %d attempts", self.port, attempt)
+
+    def write(self, data: bytes) -> None:
+        """Send ``data`` (now, or as soon as the port takes it); OSError if the port is
+        not open or fails."""
+        if self._serial is None:
+            raise OSError("the base station is not connected")
+        if self._fd is None:
+            try:
+                self._serial.write(data)
+            except (OSError, serial.SerialException) as error:
+                self._lost(f"write failed: {error}")
+                raise OSError(str(error)) from None
+            return
+        self._unsent += data
+        if len(self._unsent) > MAX_UNSENT:
+            self._lost(f"the port took nothing of the last {len(self._unsent)} bytes")
+            raise OSError("the base station stopped taking bytes")
+        if error := self._flush():
+            raise OSError(error)
+
+    def _flush(self) -> str | None:
+        """Write what the fd takes now; watch for writability while any is left. The
+        error that lost the port, if one did."""
+        try:
+            while self._unsent:
+                del self._unsent[:os.write(self._fd, self._unsent)]  # type: ignore[arg-type]
+        except (BlockingIOError, InterruptedError):
+            pass
+        except OSError as error:
+            why = f"write failed: {error.strerror or error}"
+            self._lost(why)
+            return why
+        loop = asyncio.get_running_loop()
+        if self._unsent and not self._writer_added:
+            loop.add_writer(self._fd, self._flush)  # type: ignore[arg-type]
+            self._writer_added = True
+        elif not self._unsent and self._writer_added:
+            loop.remove_writer(self._fd)  # type: ignore[arg-type]
+            self._writer_added = False
+        return None
+
+    def _readable(self) -> None:
+        try:
+            data = os.read(self._fd, READ_SIZE)  # type: ignore[arg-type]
+        except BlockingIOError:
+            return
+        except OSError as error:
+            self._lost(f"read failed: {error.strerror or error}")
+            return
+        if not data:
+            self._lost("the port reported end of file")
+            return
+        self.bytes_read += len(data)
+        self._on_data(data, time.time())
+
+    def _poll_url(self) -> None:
+        try:
+            data = self._serial.read(READ_SIZE) if self._serial else b""  # type: ignore[union-attr]
+        except (OSError, serial.SerialException) as error:
+            self._lost(f"read failed: {error}")
+            return
+        if data:
+            self.bytes_read += len(data)
+            self._on_data(data, time.time())
+        self._poll_handle = asyncio.get_running_loop().call_later(0.005, self._poll_url)
+
+    def _lost(self, why: str) -> None:
+        if not self.up:
+            return
+        log.warning("base station %s lost: %s", self.port, why)
+        self.last_error = why
+        self._release()
+        self._set_up(False)
+        if not self._closing:
+            self.start_reopening()
+
+    def _release(self) -> None:
+        loop = asyncio.get_running_loop()
+        if self._fd is not None:
+            loop.remove_reader(self._fd)
+            if self._writer_added:
+                loop.remove_writer(self._fd)
+            self._fd = None
+        self._unsent.clear()  # commands for a port that is gone; the scheduler retries
+        self._writer_added = False
+        if self._poll_handle is not None:
+            self._poll_handle.cancel()
+            self._poll_handle = None
+        if self._serial is not None:
+            with contextlib.suppress(OSError, serial.SerialException):
+                self._serial.close()
+            self._serial = None
+
+    def _set_up(self, up: bool) -> None:
+        self.up = up
+        self.since = time.time()
+        self._on_state(up)
+
+    def close(self) -> None:
+        self._closing = True
+        if self._reopen_task is not None:
+            self._reopen_task.cancel()
+        self._release()
+        self.up = False

@@ -1,0 +1,295 @@
+"""A node's life: what it is doing (one :class:`State`, changed only by the transitions
+here), what it should be doing (its configured stream and the operator's intent), and
+the counters and payload of every record it sends.
+
+Who calls the transitions: the supervisor (arming, recovery, operator intent) and the
+per-record tally (a silent stream that resumes). Nothing else assigns a state.
+
+:meth:`Node.tally` runs for every record: plain attributes and one dict, no pydantic,
+no copies.
+"""
+
+from __future__ import annotations
+
+import time
+from enum import StrEnum
+from typing import Any, NamedTuple
+
+from aspp.events import LINK_QUALITY
+from aspp.records import Record
+from aspp.timing import (
+    DEFAULT_DIVIDER,
+    TICKS_PER_CLOCK,
+    TIMER_MODULUS,
+    TimerUnwrapper,
+    sample_period,
+    valid_divider,
+)
+
+from .config import NodeEntry
+
+RATE_WINDOW = 2.0
+"""Seconds over which the record rate is measured."""
+SILENCE_MIN = 1.0
+SILENCE_PERIODS = 10
+"""A stream with no record for this many sample periods (and at least SILENCE_MIN
+seconds) has fallen silent: the node rebooted with its discovery packet lost, or went
+out of range."""
+STEPS_CHECKED = 32
+"""Timer steps of a stream compared before its divider is corrected from them (a real
+node may apply a new divider only after a power cycle, whatever its EEPROM says)."""
+OFF = "off"
+"""The desired stream of a node an operator stopped: it is kept stopped."""
+
+
+class State(StrEnum):
+    UNKNOWN = "unknown"
+    """Not heard of yet: the base station has not been open since the gateway started."""
+    POLLED = "polled"
+    """Streams nothing the gateway knows of; answers commands."""
+    ARMING = "arming"
+    """Its desired stream is being started."""
+    STREAMING = "streaming"
+    UNREACHABLE = "unreachable"
+    """Did not answer while being armed; tried again after a backoff."""
+    SILENT = "silent"
+    """Its stream stopped arriving (out of range, or a reboot whose discovery was lost)."""
+    REBOOTED = "rebooted"
+    """Announced a power-up: whatever it streamed is gone."""
+    STOPPING = "stopping"
+    """A stop of its stream is under way."""
+    LINK_DOWN = "link down"
+    """The base station is gone."""
+
+
+class Delivery(NamedTuple):
+    """A reply as the operations see it: the decoded record and its published payload."""
+
+    record: Record
+    payload: dict[str, Any]
+
+
+class Node:
+    """One configured node."""
+
+    def __init__(self, config: NodeEntry) -> None:
+        self.config = config
+        self.address = config.address
+        self.name = config.name
+        self.label = config.label
+        self.desired: str | None = config.stream
+        """What the node should stream: a record name, OFF (an operator stopped it), or
+        None (nothing asked: it is left as it is). The configuration's ``stream`` until
+        an operator's start or stop replaces it."""
+        self._state = State.UNKNOWN
+        self.record: str | None = None
+        """The record it streams, as far as the gateway knows."""
+        self.divider = DEFAULT_DIVIDER
+        self.seq = 0
+        self.packets = 0
+        self.lost_radio = 0
+        self.lost_gateway = 0
+        self.reboots = 0
+        self.silences = 0
+        self.lqi: int | None = None
+        self.rssi: int | None = None
+        self.last_seen: float | None = None
+        self.rate_hz = 0.0
+        self.timer_reset = False
+        """Its timer went back with no discovery packet to announce it: a reboot the
+        supervisor has not dealt with yet (see :meth:`take_timer_reset`)."""
+        self._unwrapper = TimerUnwrapper()
+        self._reboot_announced = False
+        self._last_stream_timer: int | None = None
+        self._steps = 0
+        self._shortest_step = 0
+        self._stream_seen = 0.0
+        """time.monotonic() of the last record of the stream (or of its start)."""
+        self._window_start = 0.0
+        self._window_count = 0
+
+    @property
+    def state(self) -> State:
+        return self._state
+
+    @property
+    def period(self) -> float:
+        return sample_period(self.divider)
+
+    @property
+    def silence_limit(self) -> float:
+        return max(SILENCE_MIN, SILENCE_PERIODS * self.period)
+
+    # -- the per-record path -------------------------------------------------------------
+
+    def tally(self, raw: bytes, record: Record, host_time: float) -> dict[str, Any]:
+        """Count one record of this node (seq, packets, link quality, rate, device time,
+        samples lost over the air) and return its published payload (CONTRACT section 4).
+        ``raw`` is the packet it came in."""
+        self.seq = seq = self.seq + 1
+        self.packets += 1
+        self.lqi, self.rssi = lqi, rssi = LINK_QUALITY.unpack_from(raw, len(raw) - 4)
+        self.last_seen = host_time
+        self._window_count += 1  # the record rate, measured over RATE_WINDOW
+        if host_time - self._window_start >= RATE_WINDOW:
+            self._close_rate_window(host_time)
+        spec = record.spec
+        name = spec.name
+        payload = dict(zip(spec.field_names, record.values, strict=True),
+                       node=self.address, record=name, command=spec.code, seq=seq,
+                       host_time=host_time, lqi=lqi, rssi=rssi)
+        is_stream = name == self.record
+        timer = payload.get("timer")
+        if timer is not None:
+            unwrapper = self._unwrapper
+            payload["device_time"] = unwrapper.update(timer, host_time)
+            if unwrapper.last_was_reset:
+                if not self._reboot_announced:  # a reboot seen only in the timer
+                    self.reboots += 1
+                    self.timer_reset = True
+                self._reboot_announced = False
+                self._last_stream_timer = None  # no gap across a power-up
+            if is_stream:
+                self._count_gaps(timer)
+        if is_stream:
+            self._stream_seen = time.monotonic()
+            if self._state is State.SILENT:
+                self._state = State.STREAMING  # (its timer gap was counted as lost_radio)
+        return payload
+
+    def _count_gaps(self, timer: int) -> None:
+        """Samples lost over the air, from the device timer: the stream's records are
+        exactly one period apart, so a longer step is records that never arrived.
+
+        Every STEPS_CHECKED steps the shortest one is compared with the divider: a
+        stream that never once stepped by one period does not run at it."""
+        last, self._last_stream_timer = self._last_stream_timer, timer
+        if last is None:
+            return
+        ticks = (timer - last) % TIMER_MODULUS
+        step = round(ticks / TICKS_PER_CLOCK)
+        if self._steps == 0 or step < self._shortest_step:
+            self._shortest_step = step
+        self._steps += 1
+        if self._steps == STEPS_CHECKED:
+            if self._shortest_step != self.divider and valid_divider(self._shortest_step):
+                self.divider = self._shortest_step
+            self._steps = 0
+        missing = round(step / self.divider) - 1
+        if 0 < missing < 10_000:
+            self.lost_radio += missing
+
+    def _close_rate_window(self, now: float) -> None:
+        elapsed = now - self._window_start
+        self.rate_hz = self._window_count / elapsed if elapsed < 2 * RATE_WINDOW else 0.0
+        self._window_start, self._window_count = now, 0
+
+    def publish_failed(self) -> None:
+        """Its last record was not published (ZeroMQ refused it)."""
+        self.lost_gateway += 1
+
+    # -- transitions --------------------------------------------------------------------
+
+    def want(self, record: str | None) -> None:
+        """The operator's intent: stream ``record``, or stay stopped (OFF)."""
+        self.desired = record
+
+    def arming(self) -> None:
+        self._state = State.ARMING
+
+    def unreachable(self) -> None:
+        self._state = State.UNREACHABLE
+
+    def streaming(self, record: str, divider: int | None = None) -> None:
+        """The node now streams ``record`` (at ``divider``, if that is known)."""
+        self.record = record
+        if divider is not None and valid_divider(divider):
+            self.divider = divider
+        self._state = State.STREAMING
+        self._restart_stream()
+
+    def polled(self) -> None:
+        """The node streams nothing (as far as the gateway knows)."""
+        self.record = None
+        self._state = State.POLLED
+        self._restart_stream()
+
+    def _restart_stream(self) -> None:
+        self._last_stream_timer = None
+        self._steps = 0
+        self._stream_seen = time.monotonic()
+
+    def settled(self) -> None:
+        """Nothing to pursue: the node does what it is known to do."""
+        if self.record:
+            self.streaming(self.record)
+        else:
+            self.polled()
+
+    def divider_read(self, divider: int) -> None:
+        """The divider its EEPROM holds (ignored if it is not a valid one)."""
+        if valid_divider(divider):
+            self.divider = divider
+
+    def stopping(self) -> None:
+        self._state = State.STOPPING
+
+    def stop_failed(self) -> None:
+        """A stop gave up or was abandoned: the stream goes on (unless something else,
+        the link lost, has happened to the node meanwhile)."""
+        if self._state is State.STOPPING:
+            self.settled()
+
+    def rebooted(self) -> None:
+        """A discovery packet: the node lost power; whatever it streamed is gone."""
+        self.reboots += 1
+        self._reboot_announced = True  # its timer going back is the same reboot
+        self.record = None
+        self._state = State.REBOOTED
+        self._last_stream_timer = None
+
+    def rebooted_quietly(self) -> None:
+        """A reboot its timer showed (counted by :meth:`tally`): its stream is unknown."""
+        self.record = None
+        self._state = State.REBOOTED
+        self._last_stream_timer = None
+
+    def take_timer_reset(self) -> bool:
+        """Whether the timer showed an unannounced reboot since the last call."""
+        reset, self.timer_reset = self.timer_reset, False
+        return reset
+
+    def link_lost(self) -> None:
+        """The base station went away: what is missed now is not lost over the air."""
+        self._state = State.LINK_DOWN
+        self._last_stream_timer = None
+
+    def silent_at(self) -> float | None:
+        """When (``time.monotonic()``) the stream falls silent if no record comes first;
+        None if there is no stream to watch."""
+        if self._state is not State.STREAMING or self.record is None:
+            return None
+        return self._stream_seen + self.silence_limit
+
+    def fell_silent(self, now: float) -> bool:
+        """Whether the stream just fell silent (checked against ``time.monotonic()``);
+        if so it is counted and the state says so."""
+        due = self.silent_at()
+        if due is None or now <= due:
+            return False
+        self.silences += 1
+        self._state = State.SILENT  # (if the stream resumes, its timer gap is lost_radio)
+        return True
+
+    # -- status --------------------------------------------------------------------------
+
+    def status(self, now: float) -> dict[str, Any]:
+        if self.last_seen is not None and now - self.last_seen > 2 * RATE_WINDOW:
+            self.rate_hz = 0.0
+        return {"node": self.address, "name": self.name, "state": str(self._state),
+                "record": self.record, "configured": self.config.stream,
+                "desired": self.desired, "rate_hz": round(self.rate_hz, 2),
+                "divider": self.divider, "packets": self.packets, "published": self.seq,
+                "lost_radio": self.lost_radio, "lost_gateway": self.lost_gateway,
+                "reboots": self.reboots, "silences": self.silences, "lqi": self.lqi,
+                "rssi": self.rssi, "last_seen": self.last_seen, "seq": self.seq}

@@ -1,0 +1,167 @@
+"""What each control op does: one async function per row of the op table
+(:mod:`gateway.common.ops`), registered under the row's name with :func:`handles`.
+
+Single steps (a poll) and multi-step ones (write then verify) read top to bottom here;
+the scheduler decides when each packet goes out, and the supervisor owns everything
+about a node's stream (``start`` and ``stop`` change what it pursues).
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from aspp import commands
+from aspp.commands import DOCUMENTED_EEPROM, EEPROM_DIVIDER
+from aspp.frame import encode_ping
+from aspp.timing import data_rate, divider_for_rate
+from gateway.common import ops
+
+from .errors import Invalid, NodeError, Refused
+from .nodes import Node
+from .requests import RequestBase
+from .scheduler import Scheduler
+from .supervisor import Supervisor
+
+Result = dict[str, Any]
+Handler = Callable[["Operations", Any], Awaitable[Result]]
+HANDLERS: dict[str, Handler] = {}
+
+
+def handles(name: str) -> Callable[[Handler], Handler]:
+    """Register the function that runs op ``name`` (a row of the op table)."""
+    if name not in ops.BY_NAME:
+        raise ValueError(f"{name!r} is not in the op table")
+
+    def register(handler: Handler) -> Handler:
+        HANDLERS[name] = handler
+        return handler
+    return register
+
+
+class Operations:
+    """What the handlers run against: the nodes, the scheduler, the supervisor and the
+    gateway's policy."""
+
+    def __init__(self, scheduler: Scheduler, supervisor: Supervisor,
+                 status: Callable[[], Result], *, allow_eeprom_write: bool,
+                 allow_any_eeprom_address: bool = False) -> None:
+        self.scheduler = scheduler
+        self.supervisor = supervisor
+        self.nodes = supervisor.nodes
+        self.status = status
+        self.allow_eeprom_write = allow_eeprom_write
+        self.allow_any_eeprom_address = allow_any_eeprom_address
+
+    async def run(self, request: RequestBase) -> Result:
+        return await HANDLERS[request.op](self, request)  # type: ignore[attr-defined]
+
+    def node(self, address: int) -> Node:
+        state = self.nodes.get(address)
+        if state is None:
+            raise Invalid(f"node {address} is not configured in this gateway")
+        return state
+
+    def check_writes_allowed(self) -> None:
+        if not self.allow_eeprom_write:
+            raise Refused("EEPROM writes are disabled on this gateway; to allow them set "
+                          "control.allow_eeprom_write: true in its configuration and "
+                          "restart it")
+
+
+@handles("status")
+async def status(gw: Operations, request: Any) -> Result:
+    return gw.status()
+
+
+@handles("ping")
+async def ping(gw: Operations, request: Any) -> Result:
+    addresses = request.nodes
+    results = await asyncio.gather(*(gw.scheduler.ping(a, encode_ping(a))
+                                     for a in addresses), return_exceptions=True)
+    for result in results:  # a lost base station fails the request; a ping that got
+        if isinstance(result, BaseException) and not isinstance(result, NodeError):
+            raise result    # no answer byte at all is a node that did not answer
+    return {"nodes": [{"node": a, "answered": result is True}
+                      for a, result in zip(addresses, results, strict=True)]}
+
+
+@handles("start")
+async def start(gw: Operations, request: Any) -> Result:
+    return await gw.supervisor.start(gw.node(request.node), request.record)
+
+
+@handles("stop")
+async def stop(gw: Operations, request: Any) -> Result:
+    return await gw.supervisor.stop(gw.node(request.node))
+
+
+@handles("poll")
+async def poll(gw: Operations, request: Any) -> Result:
+    node = gw.node(request.node)
+    return (await gw.scheduler.ask(node, commands.poll(request.record))).payload
+
+
+@handles("eeprom_read")
+async def eeprom_read(gw: Operations, request: Any) -> Result:
+    node = gw.node(request.node)
+    value = (await gw.scheduler.ask(node, commands.read_eeprom(request.address))
+             ).record["value"]
+    return {"node": node.address, "address": request.address, "value": value}
+
+
+@handles("eeprom_write")
+async def eeprom_write(gw: Operations, request: Any) -> Result:
+    return await write_word(gw, gw.node(request.node), request.address, request.value)
+
+
+async def write_word(gw: Operations, node: Node, word: int, value: int) -> Result:
+    """Write, retry once if the reply shows the old word (the reference: the first
+    write after power-up may fail), then read it back."""
+    gw.check_writes_allowed()
+    if word not in DOCUMENTED_EEPROM and not gw.allow_any_eeprom_address:
+        known = ", ".join(f"0x{a:04X} ({what})" for a, what in DOCUMENTED_EEPROM.items())
+        raise Refused(f"EEPROM 0x{word:04X} is not a word the reference documents "
+                      f"({known}); to write it anyway set "
+                      "control.allow_any_eeprom_address: true and restart the gateway")
+    attempts = 0
+    while True:
+        attempts += 1
+        stored = (await gw.scheduler.ask(node, commands.write_eeprom(word, value))
+                  ).record["value"]
+        if stored == value:
+            break
+        if attempts == 2:
+            raise NodeError(f"node {node.address}: EEPROM 0x{word:04X} still holds "
+                            f"{stored} after 2 writes of {value}")
+    readback = (await gw.scheduler.ask(node, commands.read_eeprom(word))).record["value"]
+    if readback != value:
+        raise NodeError(f"node {node.address}: EEPROM 0x{word:04X} reads back "
+                        f"{readback}, not {value}")
+    if word == EEPROM_DIVIDER:
+        node.divider_read(value)
+    return {"node": node.address, "address": word, "value": value, "attempts": attempts}
+
+
+@handles("rate")
+async def rate(gw: Operations, request: Any) -> Result:
+    node = gw.node(request.node)
+    divider = divider_for_rate(request.hz)  # (the request model checked it)
+    await write_word(gw, node, EEPROM_DIVIDER, divider)
+    return {"node": node.address, "hz": round(data_rate(divider), 3), "divider": divider}
+
+
+@handles("info")
+async def info(gw: Operations, request: Any) -> Result:
+    node = gw.node(request.node)
+    version = (await gw.scheduler.ask(node, commands.firmware_version())).record["version"]
+    texts = []
+    for selector in range(4):
+        record = (await gw.scheduler.ask(node, commands.device_id(selector))).record
+        if record["selector"] != selector:  # a late answer to an earlier request
+            raise NodeError(f"node {node.address}: asked for identifier {selector}, "
+                            f"got {record['selector']}")
+        texts.append(record["text"])
+    return {"node": node.address, "firmware": version, "model_number": texts[0],
+            "serial_number": texts[1], "model_name": texts[2], "options": texts[3]}

@@ -1,0 +1,63 @@
+"""Opening the base station from its URL: the one place the daemon reaches beyond a
+plain serial device.
+
+- a device path (``/dev/ttyUSB0``, ``/dev/gx2-basestation``): opened exclusively and raw;
+- a pyserial URL (``rfc2217://host:port``, ``socket://``, ``loop://``), for a base
+  station behind a network serial server;
+- ``sim://[?faults]``: gx2-sim, run inside the gateway for the configured nodes behind
+  a pty with a private path, so the daemon opens it exactly as it opens hardware. Query
+  parameters select faults: ``sim://?data_loss=0.05&garbage=0.01&stop_loss=0.5``.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from pathlib import Path
+
+import serial
+
+SIM_SCHEME = "sim://"
+
+
+def check_url(url: str, nodes: list[int]) -> str:
+    """``url`` if the gateway can open it for ``nodes``; ValueError (one line) if not.
+    Nothing is opened or started: ``gx2-gateway --check`` runs exactly this."""
+    if url.startswith(SIM_SCHEME):
+        from gateway.sim.config import from_url
+        from_url(url, nodes)
+    elif "://" in url:
+        try:
+            serial.serial_for_url(url, do_not_open=True)
+        except (ValueError, serial.SerialException) as error:
+            raise ValueError(f"{url!r} is not a device path, sim:// or a pyserial URL: "
+                             f"{error}") from None
+    return url
+
+
+class Port:
+    """A base station's port: what the link opens, and what must run for it to be
+    there (the embedded simulator)."""
+
+    def __init__(self, url: str, nodes: list[int]) -> None:
+        self.url = url
+        self.path = url
+        """What pyserial opens."""
+        self._directory: Path | None = None
+        self._simulator = None
+        if url.startswith(SIM_SCHEME):
+            from gateway.sim.cli import simulator_from
+            from gateway.sim.config import from_url
+            self._directory = Path(tempfile.mkdtemp(prefix="gx2-sim-"))
+            self.path = str(self._directory / "base-station")
+            self._simulator = simulator_from(from_url(url, nodes), self.path)
+
+    def start(self) -> None:
+        if self._simulator is not None:
+            self._simulator.start()
+
+    def close(self) -> None:
+        if self._simulator is not None:
+            self._simulator.stop()
+        if self._directory is not None:
+            shutil.rmtree(self._directory, ignore_errors=True)

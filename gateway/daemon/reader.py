@@ -1,0 +1,88 @@
+"""What the gateway does with the bytes it reads: the per-record path.
+
+Follow a packet down this file: the link hands over a read and its host time, the
+decoder cuts it into events, and each reply record is decoded, tallied by its node
+(seq, device time, losses), published, shown to the supervisor (is the node doing what
+it should?) and handed to the scheduler (is anyone waiting for it?), in that order and
+without climbing back up. ACKs, NACKs and ping answers go to the scheduler; a
+discovery packet to the supervisor.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+
+from aspp import Ack, Decoder, Event, Frame, Nack, PingOk, Reply, decode
+from aspp.errors import RecordError
+from aspp.frame import HEADER_SIZE
+
+from .nodes import Delivery, Node
+from .publisher import Publisher
+from .scheduler import Scheduler
+from .supervisor import Supervisor
+
+log = logging.getLogger("gx2.reader")
+
+
+class Reader:
+    def __init__(self, nodes: dict[int, Node], publisher: Publisher, supervisor: Supervisor,
+                 scheduler: Scheduler, idle_seconds: float) -> None:
+        self.decoder = Decoder()
+        self.nodes = nodes
+        self.publisher = publisher
+        self.supervisor = supervisor
+        self.scheduler = scheduler
+        self.idle_seconds = idle_seconds
+        self.unknown_node_packets = 0
+        self.bad_records = 0
+        self._idle: asyncio.TimerHandle | None = None
+
+    def on_data(self, data: bytes, host_time: float) -> None:
+        """One read from the port, and when it was made (UNIX seconds)."""
+        self._dispatch(self.decoder.feed(data), host_time)
+        if self._idle is not None:
+            self._idle.cancel()
+            self._idle = None
+        if self.decoder.pending:  # a line quiet this long has finished what it sent
+            self._idle = asyncio.get_running_loop().call_later(
+                self.idle_seconds, self._line_idle, host_time)
+
+    def _line_idle(self, host_time: float) -> None:
+        self._idle = None
+        self._dispatch(self.decoder.line_idle(), host_time)
+
+    def _dispatch(self, events: list[Event], host_time: float) -> None:
+        scheduler = self.scheduler
+        for event in events:
+            kind = type(event)
+            if kind is Reply:
+                self._on_reply(event, host_time)  # type: ignore[arg-type]
+            elif kind is Ack:
+                scheduler.on_ack()
+            elif kind is Nack:
+                scheduler.on_nack()
+            elif kind is PingOk:
+                scheduler.on_ping_ok()
+            elif kind is Frame and event.is_discovery:  # type: ignore[union-attr]
+                node = self.nodes.get(event.node)  # type: ignore[union-attr]
+                if node is not None:
+                    self.supervisor.discovery(node)
+
+    def _on_reply(self, event: Reply, host_time: float) -> None:
+        node = self.nodes.get(event.node)
+        if node is None:
+            self.unknown_node_packets += 1
+            return
+        raw = event.raw
+        try:
+            record = decode(raw, HEADER_SIZE, len(raw) - 4)  # (event.payload, in place)
+        except RecordError as error:
+            self.bad_records += 1
+            log.debug("node %d: %s", event.node, error)
+            return
+        payload = node.tally(raw, record, host_time)
+        if not self.publisher.publish(node.address, record.spec.name, payload):
+            node.publish_failed()
+        self.supervisor.after_record(node, record)
+        self.scheduler.on_reply(node.address, record.spec.code, Delivery(record, payload))

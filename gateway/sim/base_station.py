@@ -1,0 +1,268 @@
+"""The simulated USB base station: the serial line on one side, the radio on the other.
+
+From the host it takes command packets and raw pings (:mod:`aspp.host_side` parses them),
+answers each packet with ACK or NACK and each ping with 0x02 or 0x21, and forwards
+commands over a lossy radio to its nodes. From the nodes it takes reply records, wraps
+them in packets with LQI and RSSI, and sends them to the host no faster than the baud
+rate allows: each chunk is written when its last byte would have left the UART, and a
+base station whose buffer is full drops what arrives. Faults on the line (garbage, bad
+checksums, false headers, the ACK glued to the next SOP) are injected here. Pure: the
+caller owns the clock and the port.
+"""
+
+from __future__ import annotations
+
+import heapq
+import random
+from collections import deque
+from dataclasses import dataclass, field
+
+from aspp.frame import ACK, FLAGS_DISCOVERY, NACK, PING, encode_reply_packet
+from aspp.host_side import CommandPacket, Garbled, HostStreamDecoder, PingRequest
+
+from .node import FIRMWARE_VERSION, SimNode
+
+RADIO_LATENCY = 0.003
+"""One way over the air, base station to node or back (seconds)."""
+PING_TIMEOUT = 0.030
+"""How long the base station waits for a node before answering a ping with 0x21."""
+GLUE_WAIT = 0.050
+"""How long a held ACK waits for a packet to be glued to."""
+BUFFER_BYTES = 4096
+"""The base station's serial output buffer; packets arriving to a full buffer are lost.
+ACK, NACK and ping answers are never dropped: they are the base station's own answers."""
+
+
+@dataclass
+class LineFaults:
+    """Faults on the serial line, each a probability per packet sent to the host."""
+
+    garbage: float = 0.0
+    bad_checksum: float = 0.0
+    false_header: float = 0.0
+    glue_ack: bool = False
+    """Hold each ACK and write it in one chunk with the next packet (AA AA 07 ...)."""
+    nack: float = 0.0
+    """Chance that a well-formed command packet is NACKed anyway (received garbled)
+    and not broadcast: the host must send it again."""
+
+
+@dataclass
+class RadioLink:
+    """One node's radio link: its reach, its losses, its signal."""
+
+    in_range: bool = True
+    command_loss: float = 0.0
+    data_loss: float = 0.0
+    stop_loss: float = 0.0
+    """Extra loss for 0xFA alone: a node busy streaming often misses it."""
+    lqi: int = 200
+    rssi: int = -45
+
+
+@dataclass
+class StationStats:
+    acks: int = 0
+    nacks: int = 0
+    pings: int = 0
+    commands_delivered: int = 0
+    commands_lost: int = 0
+    packets_sent: dict[int, int] = field(default_factory=dict)
+    packets_lost_radio: int = 0
+    packets_dropped_full: int = 0
+    bytes_sent: int = 0
+    faults_injected: int = 0
+    line_idle: float = 0.0
+    """Seconds the UART had nothing to send between two chunks (model time, so it does
+    not depend on how promptly the simulator's thread runs)."""
+
+
+class BaseStation:
+    def __init__(self, nodes: list[SimNode], radio: dict[int, RadioLink] | None = None,
+                 line: LineFaults | None = None, baudrate: int = 115200,
+                 rng: random.Random | None = None) -> None:
+        self.nodes = {node.address: node for node in nodes}
+        self.radio = {a: (radio or {}).get(a, RadioLink()) for a in self.nodes}
+        self.line = line or LineFaults()
+        self.byte_time = 10 / baudrate  # 8N1: ten bit times a byte
+        self.rng = rng or random.Random(0)
+        self.stats = StationStats()
+        self._host = HostStreamDecoder()
+        self._to_nodes: list[tuple[float, int, int, bytes]] = []  # (due, seq, node, command)
+        self._answers: list[tuple[float, int, bytes]] = []        # (due, seq, byte)
+        self._seq = 0
+        self._out: deque[tuple[float, bytes]] = deque()  # (written at, chunk)
+        self._line_free_at = 0.0
+        self._held_ack_since: float | None = None
+        self._held_acks = 0
+
+    # -- host side --------------------------------------------------------------------
+
+    def from_host(self, data: bytes, now: float) -> None:
+        for event in self._host.feed(data):
+            self._handle(event, now)
+
+    def host_idle(self, now: float) -> None:
+        """The host stopped writing mid-packet: NACK what it left."""
+        for event in self._host.line_idle():
+            self._handle(event, now)
+
+    def _handle(self, event: CommandPacket | PingRequest | Garbled, now: float) -> None:
+        if isinstance(event, Garbled):
+            self.stats.nacks += 1
+            self._queue(bytes((NACK,)), now, control=True)
+        elif isinstance(event, PingRequest):
+            self.stats.pings += 1
+            link = self.radio.get(event.node)
+            ok = link is not None and link.in_range
+            delay = 2 * RADIO_LATENCY if ok else PING_TIMEOUT
+            self._push_answer(now + delay, bytes((PING if ok else NACK,)))
+        elif self.line.nack and self.rng.random() < self.line.nack:
+            self.stats.nacks += 1
+            self._queue(bytes((NACK,)), now, control=True)
+        else:
+            self.stats.acks += 1
+            if self.line.glue_ack:
+                if self._held_ack_since is None:
+                    self._held_ack_since = now
+                self._held_acks += 1
+            else:
+                self._queue(bytes((ACK,)), now, control=True)
+            self._broadcast(event.node, event.command, now)
+
+    def _broadcast(self, node: int, command: bytes, now: float) -> None:
+        link = self.radio.get(node)
+        loss = 0.0 if link is None else link.command_loss
+        if link is not None and command[:1] == b"\xfa":
+            loss = 1 - (1 - loss) * (1 - link.stop_loss)
+        if link is None or not link.in_range or self.rng.random() < loss:
+            self.stats.commands_lost += 1
+            return
+        self._seq += 1
+        heapq.heappush(self._to_nodes, (now + RADIO_LATENCY, self._seq, node, command))
+
+    def _push_answer(self, due: float, byte: bytes) -> None:
+        self._seq += 1
+        heapq.heappush(self._answers, (due, self._seq, byte))
+
+    # -- radio side -------------------------------------------------------------------
+
+    def reboot(self, address: int, now: float) -> None:
+        """The node lost power and came back: it announces itself with a discovery
+        packet (delivery flags 0x00) and starts over."""
+        node = self.nodes[address]
+        node.power_up(now)
+        self._send_packet(address, b"\x01" + FIRMWARE_VERSION.to_bytes(4, "big"), now,
+                          flags=FLAGS_DISCOVERY)
+
+    def advance(self, now: float) -> None:
+        """Everything due by ``now``, in time order: commands reach nodes, nodes finish
+        cycles, replies and answers reach the serial line. In order even when called
+        late: a command reaches a node after the cycles before it, and an answer goes on
+        the line behind the records that reached the base station first."""
+        while True:
+            heads = [queue[0][0] for queue in (self._answers, self._to_nodes) if queue]
+            if not heads or min(heads) > now:
+                break
+            due = min(heads)
+            self._replies_until(due)
+            if self._answers and self._answers[0][0] == due:
+                _, _, byte = heapq.heappop(self._answers)
+                self._queue(byte, due, control=True)
+            else:
+                _, _, address, command = heapq.heappop(self._to_nodes)
+                self.nodes[address].receive(command)
+                self.stats.commands_delivered += 1
+        self._replies_until(now)
+        if self._held_ack_since is not None and now - self._held_ack_since >= GLUE_WAIT:
+            self._queue(self._release_acks(), now, control=True)
+
+    def _replies_until(self, t: float) -> None:
+        """The replies of every cycle whose record reaches the base station by ``t``."""
+        replies = []
+        for address, node in self.nodes.items():
+            replies.extend((c + RADIO_LATENCY, address, reply)
+                           for c, reply in node.run_until(t - RADIO_LATENCY))
+        # by time only: sorted() is stable, so a node's replies keep the order the node
+        # made them in (a cycle's continuous record before its polled reply)
+        for c, address, reply in sorted(replies, key=lambda item: item[0]):
+            self._send_packet(address, reply, c)
+
+    def _release_acks(self) -> bytes:
+        acks = bytes((ACK,)) * self._held_acks
+        self._held_ack_since, self._held_acks = None, 0
+        return acks
+
+    def _send_packet(self, address: int, reply: bytes, t: float, flags: int = 0x07) -> None:
+        link = self.radio[address]
+        if not link.in_range or self.rng.random() < link.data_loss:
+            self.stats.packets_lost_radio += 1
+            return
+        lqi = max(0, min(255, link.lqi + self.rng.randint(-3, 3)))
+        rssi = max(-128, min(127, link.rssi + self.rng.randint(-2, 2)))
+        packet = self._with_faults(encode_reply_packet(address, reply, lqi, rssi, flags))
+        acks = self._release_acks() if self._held_acks else b""
+        if self._queue(acks + packet, t):
+            self.stats.packets_sent[address] = self.stats.packets_sent.get(address, 0) + 1
+        else:
+            self.stats.packets_dropped_full += 1
+            if acks:
+                self._queue(acks, t, control=True)
+
+    def _with_faults(self, packet: bytes) -> bytes:
+        line, rng = self.line, self.rng
+        if line.bad_checksum and rng.random() < line.bad_checksum:
+            self.stats.faults_injected += 1
+            packet = packet[:-1] + bytes(((packet[-1] + 1 + rng.randrange(255)) & 0xFF,))
+        if line.false_header and rng.random() < line.false_header:
+            self.stats.faults_injected += 1
+            packet = bytes((0xAA, rng.randrange(256), 0, 0, 0x4C, 0xFF)) + packet
+        if line.garbage and rng.random() < line.garbage:
+            self.stats.faults_injected += 1
+            packet += bytes(rng.randrange(256) for _ in range(rng.randint(1, 12)))
+        return packet
+
+    # -- the serial line --------------------------------------------------------------
+
+    def _queue(self, chunk: bytes, t: float, control: bool = False) -> bool:
+        """Schedule ``chunk`` on the UART; False if the buffer is full (never for
+        ``control`` bytes, the base station's own answers)."""
+        backlog = (self._line_free_at - t) / self.byte_time
+        if backlog + len(chunk) > BUFFER_BYTES and not control:
+            return False
+        if t > self._line_free_at > 0.0:
+            self.stats.line_idle += t - self._line_free_at
+        start = max(t, self._line_free_at)
+        self._line_free_at = start + len(chunk) * self.byte_time
+        self._out.append((self._line_free_at, chunk))
+        return True
+
+    @property
+    def backlog(self) -> int:
+        """Bytes queued on the UART, not yet sent."""
+        return sum(len(chunk) for _, chunk in self._out)
+
+    def take_output(self, now: float) -> bytes:
+        """The bytes whose last bit has left the UART by ``now``."""
+        chunks = []
+        while self._out and self._out[0][0] <= now:
+            chunks.append(self._out.popleft()[1])
+        data = b"".join(chunks)
+        self.stats.bytes_sent += len(data)
+        return data
+
+    def next_due(self, now: float) -> float:
+        """When something next needs doing (for the caller's sleep)."""
+        times = [now + 1.0]
+        if self._out:
+            times.append(self._out[0][0])
+        if self._answers:
+            times.append(self._answers[0][0])
+        if self._to_nodes:
+            times.append(self._to_nodes[0][0])
+        if self._held_ack_since is not None:
+            times.append(self._held_ack_since + GLUE_WAIT)
+        for node in self.nodes.values():
+            if node.continuous or node.pending or node.capture_due:
+                times.append(node.next_cycle_time() + RADIO_LATENCY)
+        return min(times)

@@ -1,0 +1,1 @@
+"""The protocol library, pure: golden vectors, decoder tables and properties."""

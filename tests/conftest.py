@@ -1,0 +1,74 @@
+"""Fixtures shared by the suite: a ZeroMQ context, gx2-sim on a pty, and the installed
+gx2-gateway running on it (tests/helpers has the helpers behind them)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zmq
+
+from gateway.sim.base_station import LineFaults, RadioLink
+from gateway.sim.node import NodeSettings
+from gateway.sim.server import Simulator
+from tests.helpers.gateway import RunningGateway, gateway_config
+from tests.helpers.processes import STARTUP
+from tests.helpers.waiting import wait_for
+
+
+@pytest.fixture
+def zmq_context() -> Iterator[zmq.Context]:
+    context = zmq.Context()
+    yield context
+    context.destroy(linger=0)
+
+
+@pytest.fixture
+def simulator(tmp_path: Path) -> Iterator[Callable[..., Simulator]]:
+    """``simulator(NodeSettings(76, ...), ..., radio=..., line=...)``: started, on a pty
+    behind ``tmp_path/gx2``; stopped (and checked for loop errors) afterwards."""
+    started: list[Simulator] = []
+
+    def start(*nodes: NodeSettings, radio: dict[int, RadioLink] | None = None,
+              line: LineFaults | None = None, **options: Any) -> Simulator:
+        sim = Simulator(list(nodes), link=tmp_path / "gx2", radio=radio, line=line,
+                        **options).start()
+        started.append(sim)
+        return sim
+
+    yield start
+    for sim in started:
+        sim.stop()
+        assert sim.error is None, sim.error
+
+
+@pytest.fixture
+def gateway(tmp_path: Path, zmq_context: zmq.Context) -> Iterator[Callable[..., RunningGateway]]:
+    """``gateway(port, nodes, **sections)``: gx2-gateway running on that port, ready
+    (its control endpoint answers and the base station is open); ``wait=False`` returns
+    at once, ``env`` replaces its environment."""
+    started: list[RunningGateway] = []
+
+    def start(port: str, nodes: list[dict[str, Any]], *, wait: bool = True,
+              env: dict[str, str] | None = None, **sections: Any) -> RunningGateway:
+        running = RunningGateway(gateway_config(port, nodes, **sections), tmp_path,
+                                 zmq_context, env)
+        started.append(running)
+        if not wait:
+            return running
+
+        def link_up() -> bool:
+            if running.proc.poll() is not None:
+                raise AssertionError(f"gateway exited {running.proc.returncode}:\n"
+                                     f"{running.log()}")
+            reply = running.control.try_call("status", timeout=0.5)
+            return bool(reply and reply["ok"] and reply["result"]["link"]["state"] == "up")
+        wait_for(link_up, STARTUP, "the gateway to answer with its link up")
+        return running
+
+    yield start
+    for running in started:
+        running.close()
+

@@ -1,0 +1,98 @@
+"""SerialLink against a real pseudo-terminal: the far end (the test) plays the base
+station, reading and writing the master side exactly as the USB adapter would."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import tty
+from collections.abc import Iterator
+
+import pytest
+
+from gateway.daemon import link as link_module
+from gateway.daemon.link import SerialLink
+from tests.helpers.waiting import wait_for_async
+
+
+@pytest.fixture
+def pty_pair() -> Iterator[tuple[int, str]]:
+    master, slave = os.openpty()
+    tty.setraw(master)
+    path = os.ttyname(slave)
+    os.close(slave)  # the link opens the path itself, as it opens /dev/ttyUSB0
+    yield master, path
+    with contextlib.suppress(OSError):  # a test may have closed it: the plug pulled
+        os.close(master)
+
+
+def read_available(master: int) -> bytes:
+    os.set_blocking(master, False)
+    try:
+        return os.read(master, 1 << 16)
+    except BlockingIOError:
+        return b""
+
+
+def test_a_port_that_does_not_take_bytes_yet_is_not_lost(pty_pair) -> None:
+    """The base station's side stops reading until the pty's buffer is full: the link
+    keeps the rest, stays up, and delivers every byte in order once it is read again
+    (pyserial's write timeout would have called the port lost here)."""
+    master, path = pty_pair
+    states: list[bool] = []
+
+    async def scenario() -> bytes:
+        link = SerialLink(path, 115200, lambda data, t: None, states.append)
+        link.open()
+        sent = bytearray()
+        packet = bytes(range(100))
+        while not link.unsent:  # fill the pty until the fd refuses bytes
+            link.write(packet)
+            sent += packet
+            assert len(sent) < 1 << 20, "the pty never filled"
+        assert link.up and states == [True]
+        received = bytearray()
+        await wait_for_async(lambda: received.extend(read_available(master)) or
+                             len(received) == len(sent), 5, "every byte to arrive")
+        await wait_for_async(lambda: link.unsent == 0, 5, "the buffer to empty")
+        assert link.up and states == [True]
+        link.close()
+        return bytes(received) == bytes(sent)
+
+    assert asyncio.run(scenario())
+
+
+def test_a_port_that_takes_nothing_at_all_is_lost(pty_pair, monkeypatch) -> None:
+    """Beyond MAX_UNSENT untaken bytes the port is declared lost (and reopening starts)."""
+    _master, path = pty_pair
+    monkeypatch.setattr(link_module, "MAX_UNSENT", 200)
+    states: list[bool] = []
+
+    async def scenario() -> None:
+        link = SerialLink(path, 115200, lambda data, t: None, states.append)
+        link.open()
+        with pytest.raises(OSError, match="stopped taking bytes"):
+            while True:
+                link.write(bytes(100))
+        assert states == [True, False] and not link.up and link.reopening
+        assert "took nothing" in link.last_error
+        link.close()
+
+    asyncio.run(scenario())
+
+
+def test_the_master_closing_is_a_lost_port(pty_pair) -> None:
+    """The plug pulled: reads fail, the link goes down once and starts reopening."""
+    master, path = pty_pair
+    states: list[bool] = []
+
+    async def scenario() -> None:
+        link = SerialLink(path, 115200, lambda data, t: None, states.append)
+        link.open()
+        os.close(master)
+        await wait_for_async(lambda: not link.up, 5, "the link to go down")
+        assert states == [True, False] and link.reopening
+        link.close()
+
+    asyncio.run(scenario())
