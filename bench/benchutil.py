@@ -1,21 +1,22 @@
-"""What the hand-run scripts in bench/ share: a free port, a process's RSS, and a tap on
-what the simulator really writes into its pty."""
+"""What the hand-run scripts in bench/ share: the test suite's helpers (a free port),
+a process's RSS, and a tap on what the simulator really writes into its pty."""
 
 from __future__ import annotations
 
-import socket
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 
-from aspp import Decoder, Reply
-from gateway.sim.server import Simulator
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:  # (run as bench/NAME.py: the suite's helpers live there)
+    sys.path.insert(0, str(REPO))
 
+from aspp import Decoder, Reply  # noqa: E402
+from gateway.sim.server import Simulator  # noqa: E402
+from tests.helpers.ports import free_port  # noqa: E402
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+__all__ = ["REPO", "free_port", "rss_kib", "tap_writes"]
 
 
 def rss_kib(pid: int) -> int:

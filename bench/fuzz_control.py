@@ -28,8 +28,8 @@ import msgpack
 import yaml
 import zmq
 from benchutil import free_port
-from gateway.protocol import MAX_REQUEST_BYTES
 
+from gateway.common.protocol import MAX_REQUEST_BYTES
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
 

@@ -6,7 +6,7 @@
 1. decoder: packets/s on one core over the mixed stream of decoder_throughput.py,
    next to a naive decoder in the shape of typical drivers, in the same run;
 2. pipeline: records/s through everything after the serial read (the daemon's own
-   _on_data: decoder, record, payload, msgpack, PUB) to a SUB in another process;
+   reader: decoder, record, payload, msgpack, PUB) to a SUB in another process;
 3. latency: from the simulator writing a packet's last byte into the pty to a
    subscriber holding its message, through the installed gx2-gateway: at a saturated
    115200-baud line (3 nodes of 0xC2 at 96 Hz) and in an unpaced burst;
@@ -201,7 +201,7 @@ def pipeline_round(chunks: list[bytes], packets: int) -> tuple[float, float]:
         time.sleep(0.5)  # the subscription reaches the PUB (ZeroMQ's slow joiner)
         start, cpu = time.perf_counter(), time.process_time()
         for chunk in chunks:
-            gateway._on_data(chunk, time.time())
+            gateway.reader.on_data(chunk, time.time())
         gateway.publisher.close()
         gateway._context.destroy(linger=5000)  # returns once every message is out
         return start, time.process_time() - cpu

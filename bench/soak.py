@@ -33,8 +33,8 @@ import msgpack
 import yaml
 import zmq
 from benchutil import free_port, rss_kib, tap_writes
-from gateway.sim.station import LineFaults, RadioLink
 
+from gateway.sim.base_station import LineFaults, RadioLink
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
 

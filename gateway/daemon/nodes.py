@@ -102,7 +102,7 @@ class Node:
         self._reboot_announced = False
         self._last_stream_timer: int | None = None
         self._steps = 0
-        self._shortest_step = 0
+        self._shortest_step = TIMER_MODULUS
         self._stream_seen = 0.0
         """time.monotonic() of the last record of the stream (or of its start)."""
         self._window_start = 0.0
@@ -166,15 +166,14 @@ class Node:
         last, self._last_stream_timer = self._last_stream_timer, timer
         if last is None:
             return
-        ticks = (timer - last) % TIMER_MODULUS
-        step = round(ticks / TICKS_PER_CLOCK)
-        if self._steps == 0 or step < self._shortest_step:
+        step = round(((timer - last) % TIMER_MODULUS) / TICKS_PER_CLOCK)
+        if step < self._shortest_step:
             self._shortest_step = step
         self._steps += 1
         if self._steps == STEPS_CHECKED:
             if self._shortest_step != self.divider and valid_divider(self._shortest_step):
                 self.divider = self._shortest_step
-            self._steps = 0
+            self._steps, self._shortest_step = 0, TIMER_MODULUS
         missing = round(step / self.divider) - 1
         if 0 < missing < 10_000:
             self.lost_radio += missing
@@ -216,7 +215,7 @@ class Node:
 
     def _restart_stream(self) -> None:
         self._last_stream_timer = None
-        self._steps = 0
+        self._steps, self._shortest_step = 0, TIMER_MODULUS
         self._stream_seen = time.monotonic()
 
     def settled(self) -> None:

@@ -85,4 +85,5 @@ class Reader:
         if not self.publisher.publish(node.address, record.spec.name, payload):
             node.publish_failed()
         self.supervisor.after_record(node, record)
-        self.scheduler.on_reply(node.address, record.spec.code, Delivery(record, payload))
+        if self.scheduler.expects(node.address, record.spec.code):
+            self.scheduler.on_reply(node.address, record.spec.code, Delivery(record, payload))

@@ -28,6 +28,8 @@ PING_TIMEOUT = 0.030
 """How long the base station waits for a node before answering a ping with 0x21."""
 GLUE_WAIT = 0.050
 """How long a held ACK waits for a packet to be glued to."""
+HOST_LOG = 10_000
+"""Command packets and pings from the host remembered for tests (the newest)."""
 BUFFER_BYTES = 4096
 """The base station's serial output buffer; packets arriving to a full buffer are lost.
 ACK, NACK and ping answers are never dropped: they are the base station's own answers."""
@@ -87,6 +89,9 @@ class BaseStation:
         self.byte_time = 10 / baudrate  # 8N1: ten bit times a byte
         self.rng = rng or random.Random(0)
         self.stats = StationStats()
+        self.from_host_log: deque[tuple[float, CommandPacket | PingRequest]] = deque(
+            maxlen=HOST_LOG)
+        """What the host sent, well formed: (when, packet or ping), newest last."""
         self._host = HostStreamDecoder()
         self._to_nodes: list[tuple[float, int, int, bytes]] = []  # (due, seq, node, command)
         self._answers: list[tuple[float, int, bytes]] = []        # (due, seq, byte)
@@ -108,6 +113,8 @@ class BaseStation:
             self._handle(event, now)
 
     def _handle(self, event: CommandPacket | PingRequest | Garbled, now: float) -> None:
+        if not isinstance(event, Garbled):
+            self.from_host_log.append((now, event))
         if isinstance(event, Garbled):
             self.stats.nacks += 1
             self._queue(bytes((NACK,)), now, control=True)

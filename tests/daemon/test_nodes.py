@@ -1,12 +1,15 @@
-"""A node's stream watch, on its own (the daemon's end-to-end recovery tests drive it
-through a real pty): when a stream would fall silent, and that it falls silent once."""
+"""A node on its own (the end-to-end tests drive it through a real pty): when its
+stream falls silent, what its timer says of its rate, its losses and its reboots."""
 
 from __future__ import annotations
 
 import time
 
+from aspp.frame import encode_reply_packet
+from aspp.records import decode, encode
+from aspp.timing import TICKS_PER_CLOCK, TICKS_PER_SECOND
 from gateway.daemon.config import NodeEntry
-from gateway.daemon.nodes import SILENCE_MIN, Node, State
+from gateway.daemon.nodes import SILENCE_MIN, STEPS_CHECKED, Node, State
 
 
 def test_silent_at_is_the_watchers_deadline() -> None:
@@ -26,3 +29,44 @@ def test_polled_mode_is_not_watched() -> None:
     node = Node(NodeEntry(address=76))
     node.polled()
     assert node.state is State.POLLED and node.silent_at() is None
+
+
+def stream_record(node: Node, timer: int, at: float) -> dict:
+    raw = encode_reply_packet(node.address, encode("accel_angrate", accel=(0, 0, -1),
+                                                   ang_rate=(0, 0, 0), timer=timer))
+    return node.tally(raw, decode(raw, 7, len(raw) - 4), at)
+
+
+def test_the_divider_follows_the_streams_own_timer() -> None:
+    """Its EEPROM said 512, but the node runs at 1024 (a real node applies a new divider
+    only after a power cycle): after STEPS_CHECKED steps the divider is corrected, and
+    the steps stop counting as lost records."""
+    node = Node(NodeEntry(address=76))
+    node.streaming("accel_angrate", 512)
+    step = 1024 * TICKS_PER_CLOCK
+    for i in range(STEPS_CHECKED + 1):
+        stream_record(node, i * step, 100.0 + i * 0.02)
+    assert node.divider == 1024
+    lost = node.lost_radio
+    for i in range(STEPS_CHECKED + 1, 3 * STEPS_CHECKED):
+        stream_record(node, i * step, 100.0 + i * 0.02)
+    assert node.lost_radio == lost
+
+
+def test_a_lossy_stream_keeps_its_divider_and_counts_its_losses() -> None:
+    node = Node(NodeEntry(address=76))
+    node.streaming("accel_angrate", 512)
+    step = 512 * TICKS_PER_CLOCK
+    sent = [i for i in range(4 * STEPS_CHECKED) if i % 3 != 1]  # every third one lost
+    for i in sent:
+        stream_record(node, i * step, 100.0 + i * 0.01)
+    assert node.divider == 512
+    assert node.lost_radio == len(set(range(sent[0], sent[-1])) - set(sent))
+
+
+def test_a_timer_that_goes_back_is_a_reboot_for_the_supervisor() -> None:
+    node = Node(NodeEntry(address=76))
+    node.streaming("accel_angrate", 512)
+    stream_record(node, 100 * TICKS_PER_SECOND, 1000.0)
+    stream_record(node, 1 * TICKS_PER_SECOND, 1000.01)  # back by 99 s: a power-up
+    assert node.reboots == 1 and node.take_timer_reset() and not node.take_timer_reset()

@@ -1,11 +1,22 @@
-"""The installed console scripts, run as a user runs them."""
+"""The installed console scripts, run as a user runs them.
+
+``GX2_BIN`` names another directory to take them from: the end-to-end tests that use
+only the console scripts can then be run against another installation (an older
+commit's, to show that a test fails there).
+"""
 
 from __future__ import annotations
 
 import errno
+import os
+import queue
 import shutil
 import subprocess
 import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -20,8 +31,9 @@ STARVED = 3.0
 
 def script(name: str) -> str:
     """The path of an installed console script (gx2-gateway, gx2ctl, gx2-sim)."""
-    found = shutil.which(name, path=str(Path(sys.executable).parent))
-    assert found, f"{name} is not installed beside {sys.executable}"
+    where = os.environ.get("GX2_BIN") or str(Path(sys.executable).parent)
+    found = shutil.which(name, path=where)
+    assert found, f"{name} is not installed in {where}"
     return found
 
 
@@ -36,3 +48,79 @@ def spawn_run(command: list[str], **options: Any) -> subprocess.CompletedProcess
             if error.errno != errno.EFAULT or attempt == 2:
                 raise
     raise AssertionError("unreachable")
+
+
+@dataclass(frozen=True)
+class Ran:
+    """A finished run of a console script."""
+
+    status: int
+    stdout: str
+    stderr: str
+    seconds: float
+
+
+def gx2ctl(*args: str, timeout: float = 60.0) -> Ran:
+    """``gx2ctl ARGS``, timed from just before it starts until it exits."""
+    start = time.monotonic()
+    run = spawn_run([script("gx2ctl"), *args], capture_output=True, text=True,
+                    timeout=timeout, stdin=subprocess.DEVNULL)
+    return Ran(run.returncode, run.stdout, run.stderr, time.monotonic() - start)
+
+
+class Running:
+    """A console script running in the background, its stdout and stderr lines
+    collected by threads."""
+
+    def __init__(self, name: str, *args: str) -> None:
+        self.proc = subprocess.Popen([script(name), *args], stdin=subprocess.DEVNULL,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True)
+        self.lines: queue.Queue[str] = queue.Queue()
+        self.stdout: list[str] = []
+        self.stderr: list[str] = []
+        self._threads = [threading.Thread(target=self._pump, args=(self.proc.stdout, True),
+                                          daemon=True),
+                         threading.Thread(target=self._pump, args=(self.proc.stderr, False),
+                                          daemon=True)]
+        for thread in self._threads:
+            thread.start()
+
+    def _pump(self, stream: object, is_stdout: bool) -> None:
+        for line in stream:  # type: ignore[attr-defined]
+            (self.stdout if is_stdout else self.stderr).append(line)
+            if is_stdout:
+                self.lines.put(line.rstrip("\n"))
+
+    def wait_for_line(self, predicate: Callable[[str], bool], timeout: float) -> str:
+        deadline = time.monotonic() + timeout
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0 or (self.proc.poll() is not None and self.lines.empty()):
+                raise AssertionError(f"no such line on stdout within {timeout} s; exit "
+                                     f"{self.proc.poll()}, stdout {self.stdout!r}, "
+                                     f"stderr {self.stderr!r}")
+            try:
+                line = self.lines.get(timeout=min(left, 0.1))
+            except queue.Empty:
+                continue
+            if predicate(line):
+                return line
+
+    def finish(self, timeout: float) -> int:
+        """The exit status, within ``timeout`` s; then the output is all collected."""
+        try:
+            status = self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            raise AssertionError(f"still running {timeout} s later; stderr "
+                                 f"{self.stderr!r}") from None
+        for thread in self._threads:
+            thread.join(10)
+        return status
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(5)
+        for thread in self._threads:
+            thread.join(2)

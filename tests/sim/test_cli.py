@@ -7,13 +7,9 @@ import contextlib
 import itertools
 import math
 import os
-import queue
 import re
-import shutil
 import signal
 import subprocess
-import sys
-import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -24,6 +20,7 @@ import serial
 from aspp import TICKS_PER_SECOND, Decoder, Event, Frame, Reply, decode
 from aspp import commands as gx2
 from gateway.sim.cli import UNPLUG_SECONDS
+from tests.helpers.processes import Running, script
 from tests.helpers.waiting import wait_for
 
 STARTUP = 60.0
@@ -45,75 +42,12 @@ DEADLINE = 10.0
 simulator reaches it: a stall on a loaded machine must delay a test, not fail it."""
 
 
-def gx2_sim() -> str:
-    found = shutil.which("gx2-sim", path=str(Path(sys.executable).parent))
-    assert found, f"the gx2-sim console script is not installed beside {sys.executable}"
-    return found
-
-
-class Running:
-    """A gx2-sim process whose stdout and stderr lines are collected by threads."""
-
-    def __init__(self, *args: str) -> None:
-        self.proc = subprocess.Popen([gx2_sim(), *args], stdin=subprocess.DEVNULL,
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                     text=True)
-        self.lines: queue.Queue[str] = queue.Queue()
-        self.stdout: list[str] = []
-        self.stderr: list[str] = []
-        self._threads = [threading.Thread(target=self._pump, args=(self.proc.stdout, True),
-                                          daemon=True),
-                         threading.Thread(target=self._pump, args=(self.proc.stderr, False),
-                                          daemon=True)]
-        for thread in self._threads:
-            thread.start()
-
-    def _pump(self, stream: object, is_stdout: bool) -> None:
-        for line in stream:  # type: ignore[attr-defined]
-            (self.stdout if is_stdout else self.stderr).append(line)
-            if is_stdout:
-                self.lines.put(line.rstrip("\n"))
-
-    def wait_for_line(self, predicate: Callable[[str], bool], timeout: float) -> str:
-        deadline = time.monotonic() + timeout
-        while True:
-            left = deadline - time.monotonic()
-            if left <= 0 or (self.proc.poll() is not None and self.lines.empty()):
-                raise AssertionError(f"no such line on stdout within {timeout} s; exit "
-                                     f"{self.proc.poll()}, stdout {self.stdout!r}, "
-                                     f"stderr {self.stderr!r}")
-            try:
-                line = self.lines.get(timeout=min(left, 0.1))
-            except queue.Empty:
-                continue
-            if predicate(line):
-                return line
-
-    def finish(self, timeout: float) -> int:
-        """The exit status, within ``timeout`` s; then the output is all collected."""
-        try:
-            status = self.proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            raise AssertionError(f"still running {timeout} s later; stderr "
-                                 f"{self.stderr!r}") from None
-        for thread in self._threads:
-            thread.join(DEADLINE)
-        return status
-
-    def kill(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(5)
-        for thread in self._threads:
-            thread.join(2)
-
-
 @pytest.fixture
 def launch() -> Iterator[Callable[..., Running]]:
     started: list[Running] = []
 
     def start(*args: str) -> Running:
-        running = Running(*args)
+        running = Running("gx2-sim", *args)
         started.append(running)
         return running
 
@@ -269,7 +203,7 @@ def bad_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, 
         elif config_text is not None:
             config.write_text(config_text)
             arguments += ["--config", str(config)]
-        proc = subprocess.Popen([gx2_sim(), *arguments, "--link", str(tmp / "gx2")],
+        proc = subprocess.Popen([script("gx2-sim"), *arguments, "--link", str(tmp / "gx2")],
                                 stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True)
         started[case] = (tmp, places, proc)

@@ -1,0 +1,202 @@
+#!/usr/bin/env python3
+"""This checkout against an earlier commit, interleaved: A B A B ... in one run.
+
+    .venv/bin/python bench/ab.py --base REV [--rounds 4] [--seconds 30] [--record]
+
+The earlier commit is checked out into a temporary git worktree; each measurement runs
+in a process of its own whose imports come from one tree or the other, in turn:
+
+1. pipeline: records per CPU-second through the daemon's read path (decoder, record,
+   payload, msgpack, PUB) fed perf.py's mixed stream, every record counted by a SUB in
+   another process (as bench/perf.py measures it), each node's stream known to the
+   gateway as it is once armed;
+2. CPU at a saturated line: the gateway of each tree, started as its console script
+   would be, on gx2-sim (this tree's) with 3 nodes of 0xC2 at 96 Hz, its CPU time over
+   ``--seconds`` (% of one core). With ``--record``, B runs with ``record:`` configured
+   (only a tree that has recording knows that key).
+
+Each round measures A then B (the order alternates each round, so neither side always
+goes first); the table gives each round's figures and the median of the rounds' B/A
+ratios, so a neighbour that slows the machine for a while slows both sides of a round.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import tomllib
+from pathlib import Path
+
+import yaml
+from benchutil import REPO, free_port
+
+from gateway.sim.node import NodeSettings
+from gateway.sim.server import Simulator
+
+PIPELINE = r'''
+import asyncio, multiprocessing, sys, time
+sys.path.insert(0, sys.argv[1])
+sys.path.insert(1, sys.argv[2])
+import aspp, gateway  # from the tree measured, before anything puts this one first
+try:
+    from gateway.daemon.app import Gateway
+    from gateway.daemon.config import GatewayConfig
+    def feeder(gw): return gw.reader.on_data
+except ImportError:
+    from gateway.daemon import Gateway
+    from gateway.config import GatewayConfig
+    def feeder(gw): return gw._on_data
+for module in (aspp, gateway, sys.modules[Gateway.__module__]):
+    assert module.__file__.startswith(sys.argv[1]), module.__file__
+from perf import count_messages
+from decoder_throughput import mixed_stream
+from benchutil import free_port
+packets = int(sys.argv[3])
+STREAMS = ((76, "accel_angrate"), (77, "accel_angrate_mag_orientation"), (95, "euler"))
+stream = mixed_stream(packets)
+chunks = [stream[o:o + 4096] for o in range(0, len(stream), 4096)]
+endpoint = f"tcp://127.0.0.1:{free_port()}"
+config = GatewayConfig.model_validate({
+    "base_station": {"port": "loop://"},
+    "publish": {"endpoint": endpoint, "high_water_mark": 10_000_000},
+    "control": {"endpoint": f"tcp://127.0.0.1:{free_port()}"},
+    "nodes": [{"address": a} for a in (76, 77, 95)]})
+ready, result = multiprocessing.Event(), multiprocessing.Queue()
+counter = multiprocessing.Process(target=count_messages, args=(endpoint, packets, ready, result))
+async def run():
+    gw = Gateway(config)
+    feed = feeder(gw)
+    for address, record in STREAMS:  # known, as after arming (both trees do the same)
+        gw.nodes[address].streaming(record)
+    counter.start()
+    ready.wait(10)
+    time.sleep(0.5)
+    cpu = time.process_time()
+    for chunk in chunks:
+        feed(chunk, time.time())
+    gw.publisher.close()
+    gw._context.destroy(linger=5000)
+    return time.process_time() - cpu
+cpu = asyncio.run(run())
+got, _ = result.get(timeout=60)
+counter.join(10)
+assert got == packets, (got, packets)
+print(packets / cpu)
+'''
+
+TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def worktree(rev: str, into: Path) -> Path:
+    subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", "-q", str(into),
+                    rev], check=True)
+    return into
+
+
+def entry_point(tree: Path) -> str:
+    """``module:function`` of the tree's gx2-gateway console script."""
+    scripts = tomllib.loads((tree / "pyproject.toml").read_text())["project"]["scripts"]
+    return scripts["gx2-gateway"]
+
+
+def pipeline(tree: Path, packets: int) -> float:
+    run = subprocess.run([sys.executable, "-c", PIPELINE, str(tree), str(REPO / "bench"),
+                          str(packets)], capture_output=True, text=True, timeout=600,
+                         cwd=REPO / "bench")
+    if run.returncode:
+        raise RuntimeError(f"pipeline in {tree} failed:\n{run.stderr}")
+    return float(run.stdout.strip().splitlines()[-1])
+
+
+def saturated_cpu(tree: Path, seconds: float, record: bool) -> float:
+    """The tree's gateway on this tree's simulator: % of one core over ``seconds``."""
+    work = Path(tempfile.mkdtemp(prefix="gx2-ab-"))
+    nodes = [NodeSettings(a, divider=533, stream="accel_angrate") for a in (76, 77, 78)]
+    config = {"base_station": {"port": str(work / "gx2")},
+              "publish": {"endpoint": f"tcp://127.0.0.1:{free_port()}"},
+              "control": {"endpoint": f"tcp://127.0.0.1:{free_port()}"},
+              "nodes": [{"address": n.address, "stream": "accel_angrate"} for n in nodes]}
+    if record:
+        config["record"] = {"directory": str(work / "recordings")}
+    (work / "nodes.yaml").write_text(yaml.safe_dump(config))
+    module, function = entry_point(tree).split(":")
+    code = (f"import sys; sys.path.insert(0, {str(tree)!r}); import {module} as m; "
+            f"sys.argv[0] = 'gx2-gateway'; sys.exit(m.{function}())")
+    with Simulator(nodes, link=work / "gx2"):
+        proc = subprocess.Popen([sys.executable, "-c", code, "--config",
+                                 str(work / "nodes.yaml"), "--log-level", "WARNING"],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            time.sleep(5.0)  # started, armed and streaming (a settling period, not a sync)
+            cpu0, t0 = cpu_seconds(proc.pid), time.monotonic()
+            time.sleep(seconds)
+            share = (cpu_seconds(proc.pid) - cpu0) / (time.monotonic() - t0)
+        finally:
+            proc.terminate()
+            proc.wait(10)
+    return share * 100
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
+    return (int(fields[11]) + int(fields[12])) / TICKS
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--base", required=True, help="the commit to compare against (A)")
+    parser.add_argument("--rounds", type=int, default=4)
+    parser.add_argument("--seconds", type=float, default=30.0,
+                        help="CPU measured for this long in each round")
+    parser.add_argument("--packets", type=int, default=150_000)
+    parser.add_argument("--record", action="store_true",
+                        help="B runs with record: configured (A without)")
+    parser.add_argument("--skip-pipeline", action="store_true")
+    args = parser.parse_args()
+    base_rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", args.base],
+                              capture_output=True, text=True, check=True).stdout.strip()
+    head_rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
+                              capture_output=True, text=True, check=True).stdout.strip()
+    dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain"],
+                           capture_output=True, text=True).stdout.strip()
+    with tempfile.TemporaryDirectory(prefix="gx2-ab-base-") as temporary:
+        base = worktree(args.base, Path(temporary) / "base")
+        trees = {"A": base, "B": REPO}
+        rows: dict[str, list[tuple[float, float]]] = {"pipeline": [], "cpu": []}
+        try:
+            for round_ in range(args.rounds):
+                order = ("A", "B") if round_ % 2 == 0 else ("B", "A")
+                if not args.skip_pipeline:
+                    got = {side: pipeline(trees[side], args.packets) for side in order}
+                    rows["pipeline"].append((got["A"], got["B"]))
+                got = {side: saturated_cpu(trees[side], args.seconds,
+                                           args.record and side == "B") for side in order}
+                rows["cpu"].append((got["A"], got["B"]))
+                print(f"round {round_ + 1}: " + ", ".join(
+                    f"{name} A {a:,.1f} B {b:,.1f}" for name, values in rows.items()
+                    for a, b in values[-1:]), flush=True)
+        finally:
+            subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force",
+                            str(base)], check=False)
+    print(f"\nA = {base_rev}, B = {head_rev}{' (with uncommitted changes)' if dirty else ''}"
+          f"{', B records' if args.record else ''}; {args.rounds} interleaved rounds")
+    print("| measure | A, each round | B, each round | B / A (median of rounds) |")
+    print("|---|---|---|---|")
+    names = {"pipeline": "pipeline, records per CPU-second",
+             "cpu": f"gateway CPU at a saturated line, % of one core over {args.seconds:g} s"}
+    for name, values in rows.items():
+        if values:
+            a = ", ".join(f"{x:,.1f}" for x, _ in values)
+            b = ", ".join(f"{y:,.1f}" for _, y in values)
+            ratio = statistics.median(y / x for x, y in values)
+            print(f"| {names[name]} | {a} | {b} | {ratio:.3f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,127 @@
+"""The supervisor over gx2-sim's base station in memory: what a node keeps doing
+(configured stream, operator intent), streams found on their own, and background work
+that gives way to an operator."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+import pytest
+
+from gateway.daemon import scheduler as scheduling
+from gateway.daemon import supervisor as supervising
+from gateway.daemon.errors import NodeError
+from gateway.daemon.nodes import OFF, State
+from gateway.sim.base_station import RadioLink
+from gateway.sim.node import NodeSettings
+from tests.helpers.waiting import wait_for_async
+from tests.helpers.wired import Wired
+
+
+@pytest.fixture(autouse=True)
+def quick(monkeypatch):
+    monkeypatch.setattr(scheduling, "REPLY_TIMEOUT", 0.1)
+    monkeypatch.setattr(supervising, "BACKOFF", (0.05,))
+
+
+def run(scenario: Callable[[], Awaitable[Any]]) -> Any:
+    return asyncio.run(asyncio.wait_for(scenario(), 30))
+
+
+def test_the_configured_stream_is_armed_at_its_rate() -> None:
+    async def scenario() -> None:
+        async with Wired([NodeSettings(76, divider=1024)],
+                         [{"address": 76, "stream": "euler"}]) as gw:
+            node = gw.nodes[76]
+            await wait_for_async(lambda: node.state is State.STREAMING, 5, "streaming")
+            assert (node.record, node.divider) == ("euler", 1024)
+            assert gw.node(76).continuous == 0xCE
+    run(scenario)
+
+
+def test_a_stream_found_on_its_own_is_taken_with_the_rate_of_its_timer() -> None:
+    async def scenario() -> None:
+        async with Wired([NodeSettings(76, stream="mag", divider=2048)],
+                         [{"address": 76}]) as gw:
+            node = gw.nodes[76]
+            await wait_for_async(lambda: node.state is State.STREAMING, 5, "streaming")
+            assert (node.record, node.divider, node.desired) == ("mag", 2048, None)
+            assert [c.code for c in gw.node(76).log.commands] == []  # left as it is
+    run(scenario)
+
+
+def test_a_polled_reply_is_not_taken_for_a_stream() -> None:
+    async def scenario() -> None:
+        async with Wired([NodeSettings(76)], [{"address": 76}]) as gw:
+            for _ in range(3):
+                await gw.run("poll", node=76, record="euler")
+            assert gw.nodes[76].state is State.POLLED
+    run(scenario)
+
+
+def test_the_operators_start_is_kept_through_a_reboot() -> None:
+    async def scenario() -> None:
+        async with Wired([NodeSettings(77)], [{"address": 77, "stream": "euler"}]) as gw:
+            node = gw.nodes[77]
+            await wait_for_async(lambda: node.record == "euler", 5, "euler")
+            await gw.run("start", node=77, record="accel_angrate")
+            gw.station.reboot(77, asyncio.get_running_loop().time())
+            await wait_for_async(lambda: node.reboots == 1, 5, "the reboot")
+            await wait_for_async(lambda: node.state is State.STREAMING, 5, "re-armed")
+            assert (node.record, gw.node(77).continuous) == ("accel_angrate", 0xC2)
+    run(scenario)
+
+
+def test_a_start_that_failed_is_pursued_until_the_node_answers() -> None:
+    async def scenario() -> None:
+        radio = {95: RadioLink(in_range=False)}
+        async with Wired([NodeSettings(95)], [{"address": 95}], radio=radio) as gw:
+            with pytest.raises(NodeError):
+                await gw.run("start", node=95, record="euler")
+            assert gw.nodes[95].desired == "euler"
+            radio[95].in_range = True  # it comes into range
+            await wait_for_async(lambda: gw.node(95).continuous == 0xCE, 5, "started")
+            await wait_for_async(lambda: gw.nodes[95].state is State.STREAMING, 5,
+                                 "streaming")
+    run(scenario)
+
+
+def test_a_stop_cut_short_by_its_deadline_is_finished_in_the_background() -> None:
+    async def scenario() -> None:
+        radio = {76: RadioLink()}
+        async with Wired([NodeSettings(76)], [{"address": 76, "stream": "euler"}],
+                         radio=radio) as gw:
+            node = gw.nodes[76]
+            await wait_for_async(lambda: node.record == "euler", 5, "euler")
+            radio[76].command_loss = 1.0
+            with pytest.raises(TimeoutError):
+                async with asyncio.timeout(0.3):
+                    await gw.run("stop", node=76)
+            assert node.desired == OFF and node.state is State.STREAMING
+            radio[76].command_loss = 0.0
+            await wait_for_async(lambda: gw.node(76).continuous == 0, 10, "stopped")
+            await wait_for_async(lambda: node.state is State.POLLED, 5, "polled")
+    run(scenario)
+
+
+def test_an_operators_request_waits_one_background_attempt_at_most() -> None:
+    """Node 95 is out of range and being armed: an operator's poll of it goes out after
+    at most the attempt already on its way, not behind the background's retries."""
+    async def scenario() -> None:
+        async with Wired([NodeSettings(95)], [{"address": 95, "stream": "euler"}],
+                         radio={95: RadioLink(in_range=False)}) as gw:
+            def sent_to_95() -> list[int]:
+                return [e.command[0] for _, e in gw.station.from_host_log
+                        if getattr(e, "node", None) == 95 and hasattr(e, "command")]
+            await wait_for_async(lambda: len(sent_to_95()) >= 2, 5, "background retries")
+            before = len(sent_to_95())
+            with pytest.raises(NodeError):
+                await gw.run("poll", node=95, record="mag")
+            after = sent_to_95()[before:]
+            first_poll = after.index(0xC7)
+            assert first_poll <= 1, f"the poll waited behind {after[:first_poll]}"
+            assert after.count(0xC7) == scheduling.MAX_ATTEMPTS
+            assert all(code == 0xC7 for code in after[first_poll:first_poll + 4]), after
+    run(scenario)

@@ -1,0 +1,182 @@
+"""The configuration file as gx2-gateway reads it: every kind of mistake is one line
+and exit 2, never a traceback; --check validates exactly what start-up does."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from tests.helpers.ports import free_port
+from tests.helpers.processes import script, spawn_run
+
+REPO = Path(__file__).resolve().parents[2]
+CLI_TIMEOUT = 15.0
+"""Seconds a `gx2-gateway` run with a bad configuration may take before it counts as hung."""
+
+
+# -- 8. invalid configuration files ----------------------------------------------------------------
+
+def valid_config() -> dict[str, Any]:
+    return {"base_station": {"port": "/dev/gx2-test-no-such-port", "baudrate": 115200},
+            "publish": {"endpoint": f"tcp://127.0.0.1:{free_port()}"},
+            "control": {"endpoint": f"tcp://127.0.0.1:{free_port()}",
+                        "allow_eeprom_write": False},
+            "nodes": [{"address": 76, "name": "left-wing", "stream": "accel_angrate"},
+                      {"address": 77}]}
+
+
+def _same_endpoints(config: dict[str, Any]) -> None:
+    config["publish"]["endpoint"] = config["control"]["endpoint"]
+
+
+BAD_CONFIGS: dict[str, tuple[Any, list[str]]] = {
+    # name: (change to a valid config, patterns the one stderr line must match)
+    "unknown-top-level-key": (lambda c: c.update(bogus=1), [r"\bbogus\b", r"unknown"]),
+    "unknown-base-station-key": (lambda c: c["base_station"].update(baud=9600),
+                                 [r"base_station\.baud\b", r"unknown"]),
+    "address-is-a-string": (lambda c: c["nodes"][0].update(address="76"),
+                            [r"nodes\[0\]\.address", r"integer"]),
+    "baudrate-is-a-word": (lambda c: c["base_station"].update(baudrate="fast"),
+                           [r"base_station\.baudrate", r"integer"]),
+    "address-0": (lambda c: c["nodes"][0].update(address=0),
+                  [r"nodes\[0\]\.address", r"greater than or equal to 1|1\.\.65534"]),
+    "address-65535": (lambda c: c["nodes"][0].update(address=65535),
+                      [r"nodes\[0\]\.address", r"65534"]),
+    "flag-is-a-word": (lambda c: c.setdefault("control", {}).update(allow_eeprom_write="yes"),
+                       [r"control\.allow_eeprom_write", r"boolean"]),
+    "baudrate-as-text": (lambda c: c["base_station"].update(baudrate="115200"),
+                         [r"base_station\.baudrate", r"integer"]),
+    "unknown-port-scheme": (lambda c: c["base_station"].update(port="bogus://x"),
+                            [r"base_station\.port", r"bogus"]),
+    "endpoint-without-port": (lambda c: c["publish"].update(endpoint="tcp://127.0.0.1"),
+                              [r"publish\.endpoint", r"endpoint"]),
+    "key-given-twice": ("base_station: {port: x}\nnodes: [{address: 3}]\n"
+                        "nodes: [{address: 4}]\n", [r"line 3", r"nodes", r"twice"]),
+    "duplicate-address": (lambda c: c["nodes"][1].update(address=76),
+                          [r"nodes\[1\]\.address", r"\b76\b", r"already|duplicate|twice"]),
+    "unknown-stream-record": (lambda c: c["nodes"][0].update(stream="sideways"),
+                              [r"nodes\[0\]\.stream", r"sideways", r"unknown"]),
+    "record-not-streamable": (lambda c: c["nodes"][0].update(stream="eeprom_read"),
+                              [r"nodes\[0\]\.stream", r"eeprom_read", r"stream"]),
+    "empty-nodes": (lambda c: c.update(nodes=[]), [r"\bnodes\b", r"at least 1|empty"]),
+    "missing-base-station": (lambda c: c.pop("base_station"),
+                             [r"\bbase_station\b", r"missing|required"]),
+    "publish-equals-control": (_same_endpoints,
+                               [r"publish\.endpoint", r"control\.endpoint", r"differ|same"]),
+    "endpoint-not-zeromq": (lambda c: c["publish"].update(endpoint="5555"),
+                            [r"publish\.endpoint", r"'?5555'?", r"endpoint"]),
+    "sim-unknown-parameter": (lambda c: c["base_station"].update(port="sim://?bogus=1"),
+                              [r"base_station\.port", r"\bbogus\b"]),
+    "sim-parameter-out-of-range": (
+        lambda c: c["base_station"].update(port="sim://?garbage=2"),
+        [r"base_station\.port", r"\bgarbage\b"]),
+    "yaml-syntax-error": ("base_station: {port: [/dev/ttyUSB0\nnodes: - 76\n",
+                          [r"line \d+"]),
+    "no-such-file": (None, [r"[Nn]o such file|does not exist|cannot read"]),
+    "a-directory": ("directory", [r"[Ii]s a directory|cannot read"]),
+}
+
+
+def run_gateway(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    """``gx2-gateway ARGS``; a run that outlives CLI_TIMEOUT is reported with returncode
+    None (it took a bad configuration and started serving)."""
+    command = [script("gx2-gateway"), *args]
+    try:
+        return spawn_run(command, capture_output=True, text=True, timeout=CLI_TIMEOUT,
+                         stdin=subprocess.DEVNULL, env=env)
+    except subprocess.TimeoutExpired as expired:
+        return subprocess.CompletedProcess(command, None, expired.stdout or "",  # type: ignore[arg-type]
+                                           expired.stderr or "")
+
+
+def write_bad_config(directory: Path, name: str, change: Any) -> Path:
+    path = directory / f"{name}.yaml"
+    if change is None:
+        return path  # never written
+    if change == "directory":
+        path.mkdir()
+    elif isinstance(change, str):
+        path.write_text(change)
+    else:
+        config = valid_config()
+        change(config)
+        path.write_text(yaml.safe_dump(config))
+    return path
+
+
+def one_line_problems(run: subprocess.CompletedProcess, path: Path,
+                      patterns: list[str]) -> list[str]:
+    """What is wrong with a run that should have rejected ``path`` (empty: nothing)."""
+    problems = []
+    if run.returncode != 2:
+        problems.append(f"exit status {run.returncode}, not 2")
+    lines = run.stderr.splitlines()
+    if len(lines) != 1:
+        problems.append(f"{len(lines)} lines on stderr, not 1")
+    if "Traceback" in run.stderr:
+        problems.append("a traceback")
+    text = lines[0] if lines else ""
+    if str(path) not in text:
+        problems.append("the file is not named")
+    problems += [f"no match for {p!r}" for p in patterns if not re.search(p, text)]
+    if run.stdout:
+        problems.append(f"stdout {run.stdout!r}")
+    return [f"{p}; stderr: {run.stderr!r}" for p in problems[:1]] + problems[1:]
+
+
+def test_invalid_configuration_files(tmp_path):
+    cases = {name: (write_bad_config(tmp_path, name, change), patterns)
+             for name, (change, patterns) in BAD_CONFIGS.items()}
+    valid = tmp_path / "valid.yaml"
+    valid.write_text(yaml.safe_dump(valid_config()))
+    with ThreadPoolExecutor(max_workers=8) as pool:
+        runs = {name: pool.submit(run_gateway, "--config", str(path))
+                for name, (path, _) in cases.items()}
+        check = pool.submit(run_gateway, "--config", str(valid), "--check")
+        no_config = pool.submit(run_gateway)
+        failures = {}
+        for name, future in runs.items():
+            path, patterns = cases[name]
+            problems = one_line_problems(future.result(), path, patterns)
+            if problems:
+                failures[name] = problems
+        check_run, usage_run = check.result(), no_config.result()
+    assert failures == {}, "\n".join(f"{k}: {v}" for k, v in failures.items())
+
+    assert check_run.returncode == 0, check_run
+    assert len(check_run.stdout.splitlines()) == 1 and check_run.stderr == "", check_run
+    assert str(valid) in check_run.stdout
+
+    assert usage_run.returncode == 2, usage_run
+    assert len(usage_run.stderr.splitlines()) == 1, usage_run
+    assert "--config" in usage_run.stderr and "Traceback" not in usage_run.stderr
+
+
+def test_check_rejects_a_bad_sim_port(tmp_path):
+    """``--check`` validates the configuration (0: valid, 2: not): it must not pass a file
+    the daemon then rejects at start-up with exit 2."""
+    names = ("sim-unknown-parameter", "sim-parameter-out-of-range")
+    paths = {n: write_bad_config(tmp_path, n, BAD_CONFIGS[n][0]) for n in names}
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        runs = {n: pool.submit(run_gateway, "--config", str(p), "--check")
+                for n, p in paths.items()}
+        failures = {n: problems for n, future in runs.items()
+                    if (problems := one_line_problems(future.result(), paths[n],
+                                                      BAD_CONFIGS[n][1]))}
+    assert failures == {}, "\n".join(f"{k}: {v}" for k, v in failures.items())
+
+
+def test_rejected_sim_port_leaves_no_temporary_directory(tmp_path):
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    path = write_bad_config(tmp_path, "bad-sim", BAD_CONFIGS["sim-unknown-parameter"][0])
+    run = run_gateway("--config", str(path), env={**os.environ, "TMPDIR": str(temporary)})
+    assert run.returncode == 2, run
+    assert sorted(p.name for p in temporary.iterdir()) == [], \
+        "the embedded simulator's directory was left behind"
