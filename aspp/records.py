@@ -323,9 +323,7 @@ def decode(data: bytes | bytearray | memoryview, start: int = 0,
     if length != size and not (spec.reply_may_run_long and length > size):
         raise RecordError(f"0x{spec.code:02X} {spec.name}: {length} bytes, "
                           f"its layout needs {size}")
-    items = spec.reply_struct.unpack_from(data, start)
-    getter = spec.reply_getter  # (shape()'s first step inline: this runs for every record)
-    return Record(spec, getter(items) if getter is not None else shape(spec, items))
+    return Record(spec, shape(spec, spec.reply_struct.unpack_from(data, start)))
 
 
 def shape(spec: CommandSpec, items: tuple) -> tuple[Value, ...]:

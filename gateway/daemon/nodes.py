@@ -95,6 +95,8 @@ class Node:
         self.rssi: int | None = None
         self.last_seen: float | None = None
         self.rate_hz = 0.0
+        self.unusual = False
+        """Whether its last record needs the supervisor's look (see :meth:`tally`)."""
         self.timer_reset = False
         """Its timer went back with no discovery packet to announce it: a reboot the
         supervisor has not dealt with yet (see :meth:`take_timer_reset`)."""
@@ -155,6 +157,11 @@ class Node:
             self._stream_seen = time.monotonic()
             if self._state is State.SILENT:
                 self._state = State.STREAMING  # (its timer gap was counted as lost_radio)
+        # anything but the next record of the stream a streaming node is known to stream
+        # is for the supervisor to look at; saying so here, where it is known, saves the
+        # reader a call for every record: 1.8% of the instructions a record takes
+        # (valgrind --tool=callgrind on bench/ab.py's read path)
+        self.unusual = not is_stream or self._state is not State.STREAMING or self.timer_reset
         return payload
 
     def _count_gaps(self, timer: int) -> None:

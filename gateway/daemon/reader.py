@@ -84,6 +84,7 @@ class Reader:
         payload = node.tally(raw, record, host_time)
         if not self.publisher.publish(node.address, record.spec.name, payload):
             node.publish_failed()
-        self.supervisor.after_record(node, record)
+        if node.unusual:  # (the next record of a known stream needs no supervision)
+            self.supervisor.after_record(node, record)
         if self.scheduler.expects(node.address, record.spec.code):
             self.scheduler.on_reply(node.address, record.spec.code, Delivery(record, payload))

@@ -78,13 +78,10 @@ class Supervisor:
         self._pursue(node)
 
     def after_record(self, node: Node, record: Record) -> None:
-        """One record of ``node``, already counted and published. (The per-record path:
-        the usual case, a record of the stream the node is known to stream, returns at
-        the first test.)"""
+        """One record of ``node``, already counted and published, that is not simply the
+        next record of the stream a streaming node is known to stream (the reader does
+        not ask about those)."""
         spec = record.spec
-        if spec.name == node.record and node.state is State.STREAMING \
-                and not node.timer_reset:
-            return
         if node.take_timer_reset():
             log.warning("node %s rebooted (its timer went back)", node.label)
             if spec.name != node.desired:

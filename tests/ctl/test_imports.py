@@ -1,0 +1,39 @@
+"""What each program imports: gx2ctl no pydantic (every run of it would pay to load it;
+only ``--config`` loads the gateway's own validator), and the daemon reaches the
+simulator only through the module that opens a port from its URL."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[2] / "gateway"
+
+
+def test_gx2ctl_imports_no_pydantic() -> None:
+    code = ("import sys, gateway.ctl.cli, gateway.ctl.tail, gateway.ctl.output; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in "
+            "('pydantic', 'pydantic_core', 'yaml')))")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=60, check=True)
+    assert run.stdout.strip() == "[]", run.stdout
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Every module a file imports (relative imports resolved within gateway.daemon)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            base = "gateway.daemon." if node.level == 1 else ""
+            found.add(base + (node.module or ""))
+    return found
+
+
+def test_the_daemon_reaches_the_simulator_only_through_ports() -> None:
+    reaching = sorted(path.name for path in (PACKAGE / "daemon").glob("*.py")
+                      if any(m.startswith("gateway.sim") for m in imported_modules(path)))
+    assert reaching == ["ports.py"]
