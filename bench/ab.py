@@ -1,9 +1,10 @@
 #!/usr/bin/env python3
 """This checkout against an earlier commit, interleaved: A B A B ... in one run.
 
-    .venv/bin/python bench/ab.py --base REV [--rounds 4] [--seconds 30] [--record]
+    .venv/bin/python bench/ab.py --base REV [--head REV] [--rounds 4] [--seconds 30]
 
-The earlier commit is checked out into a temporary git worktree; each measurement runs
+The earlier commit (and ``--head``, if given; else this working tree) is checked out
+into a temporary git worktree; each measurement runs
 in a process of its own whose imports come from one tree or the other, in turn:
 
 1. pipeline: records per CPU-second through the daemon's read path (decoder, record,
@@ -150,6 +151,8 @@ def cpu_seconds(pid: int) -> float:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--base", required=True, help="the commit to compare against (A)")
+    parser.add_argument("--head", help="the commit measured (B; default: this working "
+                        "tree, which must then not change while it runs)")
     parser.add_argument("--rounds", type=int, default=4)
     parser.add_argument("--seconds", type=float, default=30.0,
                         help="CPU measured for this long in each round")
@@ -160,13 +163,16 @@ def main() -> int:
     args = parser.parse_args()
     base_rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", args.base],
                               capture_output=True, text=True, check=True).stdout.strip()
-    head_rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
+    head_rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short",
+                               args.head or "HEAD"],
                               capture_output=True, text=True, check=True).stdout.strip()
-    dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain"],
-                           capture_output=True, text=True).stdout.strip()
+    dirty = "" if args.head else subprocess.run(
+        ["git", "-C", str(REPO), "status", "--porcelain"], capture_output=True,
+        text=True).stdout.strip()
     with tempfile.TemporaryDirectory(prefix="gx2-ab-base-") as temporary:
         base = worktree(args.base, Path(temporary) / "base")
-        trees = {"A": base, "B": REPO}
+        head = worktree(args.head, Path(temporary) / "head") if args.head else REPO
+        trees = {"A": base, "B": head}
         rows: dict[str, list[tuple[float, float]]] = {"pipeline": [], "cpu": []}
         try:
             for round_ in range(args.rounds):
@@ -181,8 +187,9 @@ def main() -> int:
                     f"{name} A {a:,.1f} B {b:,.1f}" for name, values in rows.items()
                     for a, b in values[-1:]), flush=True)
         finally:
-            subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force",
-                            str(base)], check=False)
+            for tree in {base, head} - {REPO}:
+                subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force",
+                                str(tree)], check=False)
     print(f"\nA = {base_rev}, B = {head_rev}{' (with uncommitted changes)' if dirty else ''}"
           f"{', B records' if args.record else ''}; {args.rounds} interleaved rounds")
     print("| measure | A, each round | B, each round | B / A (median of rounds) |")
