@@ -194,6 +194,11 @@ def firmware_version() -> Command:
     return build(0xE9)
 
 
+def firmware_text(version: int) -> str:
+    """0xE9's number as the reference writes versions: 2113 is 2.1.13, 2103 is 2.1.03."""
+    return f"{version // 1000}.{version // 100 % 10}.{version % 100:02d}"
+
+
 def device_id(selector: int) -> Command:
     """One of the four identifier strings: 0 model number, 1 serial number, 2 model
     name, 3 device options."""

@@ -11,6 +11,7 @@ exactly the ``m`` bytes an ASPP reply packet carries.
 
 from __future__ import annotations
 
+import difflib
 import math
 import struct
 from collections.abc import Callable, Iterator
@@ -228,7 +229,10 @@ def lookup(record: str | int) -> CommandSpec:
         elif text in BY_NAME:
             return BY_NAME[text]
         else:
-            raise RecordError(f"unknown record {record!r}; known: {', '.join(BY_NAME)}")
+            close = difflib.get_close_matches(text, BY_NAME, n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise RecordError(f"unknown record {record!r}; {hint}known: "
+                              f"{', '.join(BY_NAME)}")
     if isinstance(record, bool) or not isinstance(record, int):
         raise RecordError(f"a record is a name or a command byte, not {record!r}")
     try:

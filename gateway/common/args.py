@@ -4,6 +4,8 @@ argparse types for the values of :mod:`gateway.common.values`, and ``fail``."""
 from __future__ import annotations
 
 import argparse
+import difflib
+import re
 import sys
 from collections.abc import Callable
 from typing import Any, NoReturn
@@ -11,13 +13,32 @@ from typing import Any, NoReturn
 from .endpoints import check_endpoint
 from .protocol import Exit
 from .values import NODE, POLLABLE_RECORD, STREAMABLE_RECORD, Kind
+from .version import VERSION
 
 
 class ArgumentParser(argparse.ArgumentParser):
-    """argparse, but a usage error is one line (and exit status 2)."""
+    """argparse, but a usage error is one line (and exit status 2), a mistyped choice
+    gets a suggestion, and every program has ``--version``."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        if self.prog.count(" ") == 0:  # the program itself, not a subcommand's parser
+            self.add_argument("--version", action="version",
+                              version=f"%(prog)s {VERSION}")
 
     def error(self, message: str) -> NoReturn:
-        self.exit(Exit.USAGE, f"{self.prog}: {message} (see {self.prog} --help)\n")
+        self.exit(Exit.USAGE, f"{self.prog}: {message}{suggestion(message)} "
+                              f"(see {self.prog} --help)\n")
+
+
+def suggestion(message: str) -> str:
+    """``; did you mean 'status'?`` for argparse's "invalid choice" message."""
+    found = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
+    if found is None:
+        return ""
+    close = difflib.get_close_matches(found.group(1), re.findall(r"'([^']*)'",
+                                                                  found.group(2)), n=1)
+    return f"; did you mean {close[0]!r}?" if close else ""
 
 
 def argtype(kind: Kind) -> Callable[[str], Any]:

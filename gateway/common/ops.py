@@ -13,7 +13,17 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .protocol import MAX_PING_NODES
-from .values import NODE, POLLABLE_RECORD, RATE_HZ, STREAMABLE_RECORD, WORD, Kind
+from .values import (
+    FLOAT,
+    NODE,
+    POLLABLE_RECORD,
+    RATE_HZ,
+    SAMPLING_MS,
+    SENSOR,
+    STREAMABLE_RECORD,
+    WORD,
+    Kind,
+)
 
 REQUIRED: Any = object()
 
@@ -55,10 +65,23 @@ class Op:
     talks_to_node: bool = True
     """Sends something to a node (refused during a replay, where nothing is sent)."""
     description: str = ""
+    extra_ms: str | None = None
+    """A param in milliseconds that the op takes on top of a usual request (a bias
+    capture's sampling time): gx2ctl waits that much longer."""
+    extra_seconds: float = 0.0
+    """Seconds the op takes on top of a usual request, whatever its params."""
+    notice: str = ""
+    """What gx2ctl says (on stderr) before it sends the request; ``{field}`` is
+    replaced by the request's field."""
     fields: tuple[str, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "fields", tuple(p.name for p in self.params))
+
+    def extra_time(self, fields: dict[str, Any]) -> float:
+        """Seconds this request takes beyond a usual one."""
+        ms = fields.get(self.extra_ms, 0) if self.extra_ms else 0
+        return self.extra_seconds + (ms or 0) / 1000
 
 
 _NODE = Param("node", NODE, "the node's address")
@@ -82,6 +105,33 @@ OPS: tuple[Op, ...] = (
     Op("rate", ("rate",), "data rate via the divider at EEPROM 0xFCA2 (51200/HZ)",
        (_NODE, Param("hz", RATE_HZ, "records per second, about 1..301"))),
     Op("info", ("info",), "firmware version and identifier strings", (_NODE,)),
+    Op("bias_capture", ("bias", "capture"), "capture the gyro bias (0xCD): the node must "
+       "stand still while it samples its sensors",
+       (_NODE, Param("ms", SAMPLING_MS, "sampling time in ms (10000..30000 advised)",
+                     default=10000)), extra_ms="ms",
+       notice="node {node} samples its sensors for {ms} ms: keep it still until then",
+       description="Capture gyro bias (0xCD): the node samples its sensors for --ms "
+       "milliseconds and takes their mean as its gyro bias. It must stand still. A "
+       "stream it is running is stopped first and started again afterwards. gx2ctl "
+       "waits the sampling time on top of --timeout."),
+    Op("bias_set", ("bias", "set"), "write the accel (0xC9) or gyro (0xCA) bias "
+       "correction (needs allow_eeprom_write)",
+       (_NODE, Param("sensor", SENSOR, "accel (g) or gyro (rad/s)"),
+        Param("x", FLOAT, "x"), Param("y", FLOAT, "y"), Param("z", FLOAT, "z"))),
+    Op("store", ("store",), "keep the accel or gyro bias through power cycles (0xD0; "
+       "needs allow_eeprom_write)", (_NODE, Param("sensor", SENSOR, "accel or gyro"))),
+    Op("temperature", ("temperature",), "the four temperatures (0xD1) in degrees Celsius, "
+       "with their codes", (_NODE,)),
+    Op("selftest", ("selftest",), "built-in test (0xFB): each output checked against BIT "
+       "on and off; exit 0 only if every check passed", (_NODE,), extra_seconds=10.0,
+       notice="node {node}: built-in test; keep it still until it ends",
+       description="Built-in test: with the node standing still, its outputs are read "
+       "with BIT off, with the positive accelerometer and rate sensor BIT (bit 4) and "
+       "with the negative rate sensor BIT (bit 5); each output must step the way the "
+       "reference says, by a margin well above its noise; |accel| must be 1 g and the "
+       "temperatures plausible. BIT is always switched off again. One line per check; "
+       "exit 0 only if all pass. A stream the node is running is stopped for the test "
+       "and started again afterwards. gx2ctl waits 10 s on top of --timeout."),
 )
 
 BY_NAME: dict[str, Op] = {op.name: op for op in OPS}

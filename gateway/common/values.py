@@ -16,7 +16,7 @@ from typing import Any
 
 from aspp.errors import AsppError
 from aspp.frame import MAX_NODE, MIN_NODE
-from aspp.records import checked
+from aspp.records import STREAMABLE, all_specs, checked
 from aspp.timing import divider_for_rate
 
 
@@ -24,12 +24,14 @@ from aspp.timing import divider_for_rate
 class Kind:
     """One kind of value. ``type`` is what it is on the wire (msgpack gives ints,
     floats, strings); ``read`` turns command-line text into such a value and ``check``
-    validates one, returning it in the form the gateway uses."""
+    validates one, returning it in the form the gateway uses. ``choices``, for a kind
+    with few values, lists them (gx2ctl's help shows them)."""
 
     name: str
     type: Any
     read: Callable[[str], Any]
     check: Callable[[Any], Any]
+    choices: tuple[str, ...] = ()
 
     def from_text(self, text: str) -> Any:
         return self.check(self.read(text))
@@ -97,11 +99,29 @@ def _finite(value: float) -> float:
     return float(value)
 
 
+def _one_of(choices: tuple[str, ...], what: str) -> Callable[[Any], str]:
+    def check(value: Any) -> str:
+        if value not in choices:
+            raise ValueError(f"{what} {value!r} is not one of {', '.join(choices)}")
+        return value  # type: ignore[no-any-return]
+    return check
+
+
+def _names(streamable: bool = False, pollable: bool = False) -> tuple[str, ...]:
+    return tuple(spec.name for spec in all_specs()
+                 if (not streamable or spec.code in STREAMABLE)
+                 and (not pollable or spec.pollable))
+
+
 NODE = Kind("node address", int, _node, in_range(MIN_NODE, MAX_NODE, "node address"))
 STREAMABLE_RECORD = Kind("record that can stream", str | int, str,
-                         _record(streamable=True))
-POLLABLE_RECORD = Kind("record that can be polled", str | int, str, _record(pollable=True))
+                         _record(streamable=True), _names(streamable=True))
+POLLABLE_RECORD = Kind("record that can be polled", str | int, str, _record(pollable=True),
+                       _names(pollable=True))
 WORD = Kind("16-bit word", int, integer, in_range(0, 0xFFFF, "word"))
 """An EEPROM address or value."""
 RATE_HZ = Kind("data rate in Hz", float, number, _rate)
 FLOAT = Kind("number", float, number, _finite)
+SAMPLING_MS = Kind("sampling time in ms", int, integer, in_range(1, 0xFFFF, "sampling time"))
+SENSORS = ("accel", "gyro")
+SENSOR = Kind("sensor", str, str, _one_of(SENSORS, "sensor"), SENSORS)

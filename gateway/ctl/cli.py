@@ -23,7 +23,7 @@ from gateway.common.protocol import Exit
 
 from . import PROG
 from .client import Client, CtlError
-from .output import show
+from .output import json_line, show
 
 DEFAULT_TIMEOUT = 5.0
 CLIENT_KEY_ENV, SERVER_KEY_ENV = "GX2_CLIENT_KEY", "GX2_SERVER_KEY"
@@ -82,16 +82,19 @@ def add_op(commands: Any, groups: dict[str, Any], op: Op) -> None:
     sub.set_defaults(op=op)
     for param in op.params:
         metavar = param.name.upper()
+        listed = param.help
+        if param.kind.choices:
+            listed += f"; one of: {', '.join(param.kind.choices)}"
         if param.many:
             sub.add_argument(param.name, nargs="+", type=argtype(param.kind),
-                             metavar=metavar, help=param.help)
+                             metavar=metavar, help=listed)
         elif param.required:
             sub.add_argument(param.name, type=argtype(param.kind), metavar=metavar,
-                             help=param.help)
+                             help=listed)
         else:
             sub.add_argument(param.flag, dest=param.name, type=argtype(param.kind),
                              default=param.default, metavar=metavar.split("_")[-1],
-                             help=f"{param.help} (default {param.default})")
+                             help=f"{listed} (default {param.default})")
 
 
 # --- where the gateway is ---------------------------------------------------------------
@@ -104,6 +107,9 @@ class Endpoints:
     keys: curve.ClientKeys | None = None
     publish_secured: bool | None = None
     """Whether the publish socket uses CURVE too (None: ask the gateway's status)."""
+    heartbeat_s: float | None = None
+    nodes: tuple[int, ...] | None = None
+    """The configured nodes (None: ask the gateway's status)."""
 
 
 def endpoints(args: argparse.Namespace) -> Endpoints:
@@ -126,7 +132,8 @@ def endpoints(args: argparse.Namespace) -> Endpoints:
         server_key = str(sibling) if sibling.exists() else config.curve.server_key
     keys = client_keys(client_key, server_key, args.config if secured else None)
     return Endpoints(config.control.endpoint, config.publish.endpoint, keys,
-                     secured and config.curve.publish)
+                     secured and config.curve.publish, config.publish.heartbeat_s,
+                     tuple(n.address for n in config.nodes))
 
 
 def client_keys(client_key: str | None, server_key: str | None,
@@ -169,8 +176,10 @@ def fields_of(op: Op, args: argparse.Namespace) -> dict[str, Any]:
 
 def run_op(op: Op, args: argparse.Namespace, where: Endpoints) -> int:
     fields = fields_of(op, args)
+    if op.notice:
+        print(f"{PROG}: {op.notice.format(**fields)}", file=sys.stderr, flush=True)
     with Client(where.control, args.timeout, where.keys) as client:
-        result = client.call(op.name, **fields)
+        result = client.call(op.name, extra_time=op.extra_time(fields), **fields)
     shown = show(op.name, fields, result, args.json)
     emit(shown.lines)
     if shown.failure:
@@ -205,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
             return run_tail(args.nodes, where, args.timeout)
         return run_op(args.op, args, where)
     except CtlError as error:
+        if getattr(args, "json", False):  # a script reading stdout learns of it too
+            emit([json_line({"ok": False, "error": str(error), "exit": int(error.status)})])
         fail(PROG, str(error), error.status)
     except KeyboardInterrupt:
         return Exit.OK if args.command == "tail" else 130

@@ -152,8 +152,11 @@ def status_lines(result: Mapping[str, Any], now: float) -> list[str]:
              f"control {cell(gateway.get('control_endpoint'))}"]
     since = number(link.get("since"))
     for_how_long = f" for {duration(now - since)}" if since is not None else ""
-    lines.append(f"link     {cell(link.get('port'))} {cell(link.get('state'))}{for_how_long}, "
-                 f"reconnects {cell(link.get('reconnects'))}, "
+    error = link.get("error")
+    why = (f" ({cell(error)})" if link.get("state") != "up" and isinstance(error, str)
+           and error else "")
+    lines.append(f"link     {cell(link.get('port'))} {cell(link.get('state'))}{for_how_long}"
+                 f"{why}, reconnects {cell(link.get('reconnects'))}, "
                  f"read {_count(link.get('bytes_read'), 'bytes')}, "
                  f"discarded {_count(link.get('discarded_bytes'), 'bytes')}")
     nodes = result.get("nodes")
@@ -260,8 +263,89 @@ def _rate(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
 @prints("info")
 def _info(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
     width = max(len(label) for _, label in INFO_KEYS)
-    return Shown([f"{label.ljust(width)}  {cell(result.get(key))}"
+    values = dict(result)
+    if isinstance(result.get("firmware_version"), str):
+        values["firmware"] = f"{cell(result.get('firmware'))} ({result['firmware_version']})"
+    return Shown([f"{label.ljust(width)}  {cell(values.get(key))}"
                   for key, label in INFO_KEYS])
+
+
+def _vector(value: Any, unit: str) -> str:
+    if not isinstance(value, list) or len(value) != 3:
+        return MISSING
+    return "  ".join(f"{axis} {number(v):+.6f}" if number(v) is not None else f"{axis} -"
+                     for axis, v in zip("xyz", value, strict=True)) + f" {unit}"
+
+
+def _stream_line(node: str, result: Mapping[str, Any], what: str) -> list[str]:
+    """What happened to the stream a quiet command stopped."""
+    streamed = result.get("stream")
+    if not isinstance(streamed, str):
+        return []
+    restored = result.get("restored")
+    then = (f"{cell(restored)} started again" if isinstance(restored, str)
+            else "not started again yet (the gateway keeps trying)")
+    return [f"{node} streamed {streamed}: stopped for the {what}, {then}"]
+
+
+@prints("bias_capture")
+def _bias_capture(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    node = cell(result.get("node"))
+    ms = number(result.get("ms"))
+    over = f" over {ms / 1000:g} s" if ms is not None else ""
+    return Shown([f"{node} gyro bias captured{over}: "
+                  f"{_vector(result.get('gyro_bias'), 'rad/s')}",
+                  *_stream_line(node, result, "capture")])
+
+
+UNITS = {"accel": "g", "gyro": "rad/s"}
+
+
+@prints("bias_set")
+def _bias_set(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    sensor = cell(result.get("sensor"))
+    return Shown([f"{cell(result.get('node'))} {sensor} bias correction set (echoed): "
+                  f"{_vector(result.get('bias'), UNITS.get(sensor, ''))}"])
+
+
+@prints("store")
+def _store(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    return Shown([f"{cell(result.get('node'))} {cell(result.get('sensor'))} bias stored in "
+                  f"non-volatile memory (quantity {cell(result.get('quantity'))})"])
+
+
+@prints("temperature")
+def _temperature(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    codes = result.get("codes")
+    codes = codes if isinstance(codes, list) and len(codes) == 4 else [None] * 4
+    gyros = result.get("gyro_c")
+    gyros = gyros if isinstance(gyros, list) and len(gyros) == 3 else [None] * 3
+    rows = [["accel", result.get("accel_c"), codes[0]],
+            *[[f"gyro {axis}", value, code]
+              for axis, value, code in zip("xyz", gyros, codes[1:], strict=True)]]
+    lines = [f"node {cell(result.get('node'))} temperatures (gyro model "
+             f"{cell(result.get('gyro_model'))})"]
+    lines += table(("sensor", "deg C", "code"),
+                   [[name, f"{v:.2f}" if (v := number(value)) is not None else MISSING,
+                     cell(code)] for name, value, code in rows])
+    return Shown(lines)
+
+
+@prints("selftest")
+def _selftest(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    node = cell(result.get("node"))
+    checks = [c for c in (result.get("checks") or []) if isinstance(c, Mapping)]
+    rows = [[cell(c.get("name")),
+             f"{v:+.4f}" if (v := number(c.get("value"))) is not None else MISSING,
+             f"{cell(c.get('limit'))} {cell(c.get('unit'))}".rstrip(" -"),
+             "pass" if c.get("passed") is True else "FAIL"] for c in checks]
+    failed = [row[0] for row in rows if row[3] == "FAIL"]
+    verdict = (f"{node} self-test passed ({len(rows)} checks)" if rows and not failed
+               else f"{node} self-test FAILED: {len(failed)} of {len(rows)} checks")
+    return Shown([*table(("check", "value", "limit", "result"), rows), verdict,
+                  *_stream_line(node, result, "test")],
+                 f"node {node} failed its self-test: {', '.join(failed)}"
+                 if failed or not rows else None)
 
 
 class BadMessage(Exception):

@@ -48,16 +48,33 @@ class Stop:
         self.requested = True
 
 
+HEARTBEATS_MISSED = 3
+"""The gateway is taken for dead after this many heartbeats of silence (and at least
+``--timeout``): a slow heartbeat never makes a live gateway look dead."""
+
+
 def run_tail(nodes: list[int], where: Endpoints, timeout: float) -> int:
     """Print published records until a signal; malformed messages are warned about.
     The gateway's heartbeat (gx2/gateway/status, not printed) proves it is alive even
-    when no node streams: nothing at all for ``timeout`` seconds exits 3."""
+    when no node streams: nothing at all for ``timeout`` seconds (and three heartbeats)
+    exits 3. A node the gateway does not have is a usage error (exit 2)."""
     found, secured = where.publish, where.publish_secured
-    if found is None:
+    heartbeat, configured = where.heartbeat_s, where.nodes
+    if found is None or configured is None:
         with Client(where.control, timeout, where.keys) as client:
             status = client.call("status")
+        gateway = status.get("gateway") if isinstance(status.get("gateway"), dict) else {}
         found = publish_endpoint(status)
-        secured = bool(status.get("gateway", {}).get("publish_curve"))
+        secured = bool(gateway.get("publish_curve"))
+        heartbeat = gateway.get("heartbeat_s") if isinstance(
+            gateway.get("heartbeat_s"), (int, float)) else None
+        listed = status.get("nodes") if isinstance(status.get("nodes"), list) else []
+        configured = tuple(n.get("node") for n in listed if isinstance(n, dict))
+    unknown = [node for node in nodes if node not in configured]
+    if unknown:
+        raise CtlError(f"node {unknown[0]} is not configured in this gateway (it has "
+                       f"{', '.join(map(str, configured)) or 'none'})", Exit.USAGE)
+    silence = max(timeout, HEARTBEATS_MISSED * heartbeat if heartbeat else 0.0)
     address = connectable(found, where.control)
     stop = Stop()
     context = zmq.Context()
@@ -81,9 +98,9 @@ def run_tail(nodes: list[int], where: Endpoints, timeout: float) -> int:
             if sub.poll(100, zmq.POLLIN):
                 _print_batch(sub, stop)
                 heard = time.monotonic()
-            elif time.monotonic() - heard > timeout:
+            elif time.monotonic() - heard > silence:
                 raise CtlError(f"the gateway at {address} published nothing for "
-                               f"{timeout:g} s (not even its heartbeat)", Exit.NO_ANSWER)
+                               f"{silence:g} s (not even its heartbeat)", Exit.NO_ANSWER)
     finally:
         sub.close(linger=0)
         context.term()

@@ -90,12 +90,9 @@ class Gateway:
 
     async def run(self, stop: asyncio.Event) -> None:
         self.port.start()
-        try:
-            self.link.open()
+        self.link.start()
+        if self.link.up:
             log.info("base station %s open", self.config.base_station.port)
-        except OSError as error:
-            log.warning("base station %s: %s; retrying", self.config.base_station.port, error)
-            self.link.start_reopening()
         loop = asyncio.get_running_loop()
         tasks = [loop.create_task(self.control.serve()), loop.create_task(self._heartbeat()),
                  loop.create_task(self.supervisor.watch_streams())]
@@ -119,6 +116,7 @@ class Gateway:
 
     async def _shutdown(self) -> None:
         self.supervisor.close()
+        self.ops.close()
         if self.config.shutdown.stop_streams and self.link.up:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(self.supervisor.stop_all_streams(), EXIT_BUDGET)

@@ -45,6 +45,10 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as error:
         fail(parser.prog, str(error), 2)
     if args.check:
+        from .ports import never_serial
+        problem = never_serial(config.base_station.port)
+        if problem:
+            fail(parser.prog, f"{args.config}: base_station.port: {problem}", 2)
         count = len(config.nodes)
         print(f"{args.config}: valid ({count} node{'s' if count != 1 else ''})")
         return 0

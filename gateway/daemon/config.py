@@ -13,6 +13,7 @@ from pydantic import AfterValidator, Field, field_validator, model_validator
 
 from aspp.frame import MAX_NODE, MIN_NODE
 from aspp.records import checked
+from aspp.temperature import DEFAULT_GYRO, gyro_model
 from gateway.common import curve
 from gateway.common.endpoints import (
     DEFAULT_CONTROL,
@@ -99,12 +100,22 @@ class ShutdownConfig(Strict):
 class NodeEntry(Strict):
     address: Annotated[int, Field(ge=MIN_NODE, le=MAX_NODE, strict=True)]
     name: Annotated[str, Field(min_length=1, max_length=64)] | None = None
-    stream: str | None = None
+    stream: str | int | None = None
+    """The record it streams from start-up: a name, "0xNN", or the byte (YAML reads
+    ``0xCE`` as the number 206)."""
+    gyro: str = DEFAULT_GYRO
+    """Added: its rate sensor model, which sets how its gyro temperatures convert."""
 
     @field_validator("stream")
     @classmethod
-    def _streamable(cls, value: str | None) -> str | None:
+    def _streamable(cls, value: str | int | None) -> str | None:
         return None if value is None else checked(value, streamable=True).name
+
+    @field_validator("gyro")
+    @classmethod
+    def _known_gyro(cls, value: str) -> str:
+        gyro_model(value)
+        return value
 
     @property
     def label(self) -> str:

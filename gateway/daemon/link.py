@@ -83,6 +83,23 @@ class SerialLink:
         if self._reopen_task is None or self._reopen_task.done():
             self._reopen_task = asyncio.get_running_loop().create_task(self._reopen())
 
+    def start(self) -> None:
+        """Open the port now if it can be, else keep trying (a service must: the adapter
+        may be plugged in, or the permission granted, later)."""
+        try:
+            self.open()
+        except (OSError, serial.SerialException) as error:
+            self._cannot_open(error)
+            self.start_reopening()
+
+    def _cannot_open(self, error: Exception) -> None:
+        """Say why the port cannot be opened, once for each new reason."""
+        why = str(error) or type(error).__name__
+        if why != self.last_error:
+            log.warning("base station %s cannot be opened: %s; retrying every %g s",
+                        self.port, why, REOPEN_STEPS[-1])
+        self.last_error = why
+
     async def _reopen(self) -> None:
         attempt = 0
         while not self._closing and not self.up:
@@ -91,11 +108,12 @@ class SerialLink:
             try:
                 self.open()
             except (OSError, serial.SerialException) as error:
-                self.last_error = str(error)
-                log.debug("reopen %s failed: %s", self.port, error)
+                self._cannot_open(error)
                 continue
             self.reconnects += 1
-            log.info("base station %s is back after %d attempts", self.port, attempt)
+            self.last_error = ""
+            log.info("base station %s is back after %d attempt%s", self.port, attempt,
+                     "" if attempt == 1 else "s")
 
     def write(self, data: bytes) -> None:
         """Send ``data`` (now, or as soon as the port takes it); OSError if the port is

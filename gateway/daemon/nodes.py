@@ -58,6 +58,9 @@ class State(StrEnum):
     """Announced a power-up: whatever it streamed is gone."""
     STOPPING = "stopping"
     """A stop of its stream is under way."""
+    BUSY = "busy"
+    """A command that needs it quiet is running (a bias capture, a self-test): its
+    stream is stopped until the command ends."""
     LINK_DOWN = "link down"
     """The base station is gone."""
 
@@ -241,6 +244,9 @@ class Node:
 
     def stopping(self) -> None:
         self._state = State.STOPPING
+
+    def busy(self) -> None:
+        self._state = State.BUSY
 
     def stop_failed(self) -> None:
         """A stop gave up or was abandoned: the stream goes on (unless something else,

@@ -9,7 +9,7 @@ about a node's stream (``start`` and ``stop`` change what it pursues).
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Coroutine
 from typing import Any
 
 from aspp import commands
@@ -53,6 +53,7 @@ class Operations:
         self.status = status
         self.allow_eeprom_write = allow_eeprom_write
         self.allow_any_eeprom_address = allow_any_eeprom_address
+        self._tasks: set[asyncio.Task[None]] = set()
 
     async def run(self, request: RequestBase) -> Result:
         return await HANDLERS[request.op](self, request)  # type: ignore[attr-defined]
@@ -63,11 +64,23 @@ class Operations:
             raise Invalid(f"node {address} is not configured in this gateway")
         return state
 
-    def check_writes_allowed(self) -> None:
+    def check_writes_allowed(self, what: str = "EEPROM writes") -> None:
+        """Refused unless allow_eeprom_write: ``what`` changes what a node keeps."""
         if not self.allow_eeprom_write:
-            raise Refused("EEPROM writes are disabled on this gateway; to allow them set "
+            raise Refused(f"{what} is disabled on this gateway (it changes what the node "
+                          "measures or keeps); to allow it set "
                           "control.allow_eeprom_write: true in its configuration and "
                           "restart it")
+
+    def spawn(self, coroutine: Coroutine[Any, Any, None]) -> None:
+        """Work that outlives its request (switching a node's BIT off until it is)."""
+        task = asyncio.get_running_loop().create_task(coroutine)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    def close(self) -> None:
+        for task in self._tasks:
+            task.cancel()
 
 
 @handles("status")
@@ -119,7 +132,7 @@ async def eeprom_write(gw: Operations, request: Any) -> Result:
 async def write_word(gw: Operations, node: Node, word: int, value: int) -> Result:
     """Write, retry once if the reply shows the old word (the reference: the first
     write after power-up may fail), then read it back."""
-    gw.check_writes_allowed()
+    gw.check_writes_allowed("writing EEPROM")
     if word not in DOCUMENTED_EEPROM and not gw.allow_any_eeprom_address:
         known = ", ".join(f"0x{a:04X} ({what})" for a, what in DOCUMENTED_EEPROM.items())
         raise Refused(f"EEPROM 0x{word:04X} is not a word the reference documents "
@@ -163,5 +176,10 @@ async def info(gw: Operations, request: Any) -> Result:
             raise NodeError(f"node {node.address}: asked for identifier {selector}, "
                             f"got {record['selector']}")
         texts.append(record["text"])
-    return {"node": node.address, "firmware": version, "model_number": texts[0],
+    return {"node": node.address, "firmware": version,
+            "firmware_version": commands.firmware_text(version), "model_number": texts[0],
             "serial_number": texts[1], "model_name": texts[2], "options": texts[3]}
+
+
+# the ops that measure, correct and check what a node senses register themselves there
+from . import calibration  # noqa: E402, F401

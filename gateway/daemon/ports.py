@@ -11,7 +11,9 @@ plain serial device.
 
 from __future__ import annotations
 
+import os
 import shutil
+import stat
 import tempfile
 from pathlib import Path
 
@@ -33,6 +35,25 @@ def check_url(url: str, nodes: list[int]) -> str:
             raise ValueError(f"{url!r} is not a device path, sim:// or a pyserial URL: "
                              f"{error}") from None
     return url
+
+
+def never_serial(url: str) -> str | None:
+    """Why ``url`` can never be a serial port (a regular file, a directory), or None.
+    A path that does not exist now is not flagged: the adapter may be plugged in later.
+    Nothing is opened (a running gateway holds the port exclusively)."""
+    if "://" in url:
+        return None
+    try:
+        mode = os.stat(url).st_mode
+    except FileNotFoundError:
+        return None
+    except OSError as error:
+        return f"{url}: {error.strerror}"
+    if stat.S_ISCHR(mode):
+        return None
+    kind = ("a directory" if stat.S_ISDIR(mode) else "a regular file" if stat.S_ISREG(mode)
+            else "not a character device")
+    return f"{url} is {kind}, not a serial port"
 
 
 class Port:

@@ -96,6 +96,9 @@ class _Pending:
     reply_timeout: float
     max_attempts: int
     future: asyncio.Future[Any]
+    resend_unanswered: bool = True
+    """False: a command the base station took (ACKed) and the node did not answer fails
+    at once, never sent twice (a bias capture); a NACK is still sent again."""
     attempts: int = 0
     not_before: float = 0.0
     deadline: float = 0.0
@@ -144,28 +147,35 @@ class Scheduler:
 
     async def command(self, node: int, packet: bytes, expect: int | None, what: str, *,
                       reply_timeout: float = REPLY_TIMEOUT, attempts: int = MAX_ATTEMPTS,
-                      priority: Priority = Priority.OPERATOR) -> Answer:
+                      priority: Priority = Priority.OPERATOR,
+                      resend_unanswered: bool = True) -> Answer:
         """Send a command packet; the answer holds what :meth:`on_reply` was given for
         the matching reply (None if ``expect`` is None: done at the ACK)."""
         pending = _Pending(node, packet, expect, False, what, priority, reply_timeout,
-                           attempts, asyncio.get_running_loop().create_future())
+                           attempts, asyncio.get_running_loop().create_future(),
+                           resend_unanswered)
         return Answer(await self._submit(pending), pending.attempts)
 
     async def send(self, node: Addressee, command: Command, *,
-                   priority: Priority = Priority.OPERATOR,
-                   wait_for_reply: bool = True) -> Answer:
+                   priority: Priority = Priority.OPERATOR, wait_for_reply: bool = True,
+                   what: str | None = None, takes: float = 0.0,
+                   resend_unanswered: bool = True) -> Answer:
         """One GX2 command to one node; the reply's :class:`Delivery` is in
         ``answer.reply``. Without ``wait_for_reply`` it is done once the base station
-        ACKs it. The reply may trail a record of the node's own stream by two periods."""
+        ACKs it. The reply may trail a record of the node's own stream by two periods,
+        and ``takes`` seconds more for a command that works that long (a bias capture).
+        ``what`` names the command in an error (default: the record's name)."""
         expect = command.code if command.expects_reply and wait_for_reply else None
         return await self.command(node.address, command.packet(node.address), expect,
-                                  command.name, priority=priority,
-                                  reply_timeout=REPLY_TIMEOUT + 2 * node.period)
+                                  what or command.name, priority=priority,
+                                  reply_timeout=REPLY_TIMEOUT + 2 * node.period + takes,
+                                  resend_unanswered=resend_unanswered)
 
     async def ask(self, node: Addressee, command: Command, *,
-                  priority: Priority = Priority.OPERATOR) -> Delivery:
+                  priority: Priority = Priority.OPERATOR, what: str | None = None) -> Delivery:
         """One command and its reply (raises NodeError or LinkDown without one)."""
-        return (await self.send(node, command, priority=priority)).reply  # type: ignore[no-any-return]
+        return (await self.send(node, command, priority=priority,  # type: ignore[no-any-return]
+                                what=what)).reply
 
     async def ping(self, node: int, packet: bytes,
                    priority: Priority = Priority.OPERATOR) -> bool:
@@ -285,7 +295,8 @@ class Scheduler:
                 del self._awaiting[node]
             elif now >= pending.deadline:
                 del self._awaiting[node]
-                self._retry(pending, "no reply from the node")
+                self._retry(pending, "no reply from the node",
+                            resend=pending.resend_unanswered)
         if self._in_flight is None and self.link_up:
             self._send_next(now)
         self._arm_timer(now)
@@ -321,11 +332,11 @@ class Scheduler:
         except OSError as error:
             log.warning("write failed: %s", error)
 
-    def _retry(self, pending: _Pending, reason: str) -> None:
+    def _retry(self, pending: _Pending, reason: str, resend: bool = True) -> None:
         pending.reasons.append(reason)
         if pending.future.done():
             return
-        if pending.attempts >= pending.max_attempts:
+        if pending.attempts >= pending.max_attempts or not resend:
             self.stats.failures += 1
             tries = f"{pending.attempts} attempt{'s' if pending.attempts > 1 else ''}"
             pending.future.set_exception(NodeError(

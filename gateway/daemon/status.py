@@ -21,6 +21,7 @@ def report(gateway: Gateway) -> dict[str, Any]:
         "gateway": {"version": VERSION, "uptime": round(now - gateway.started, 3),
                     "time": now, "publish_endpoint": config.publish.endpoint,
                     "control_endpoint": config.control.endpoint,
+                    "heartbeat_s": config.publish.heartbeat_s,
                     "published": gateway.publisher.sent,
                     "publish_failures": gateway.publisher.failed,
                     "control_requests": gateway.control.requests,

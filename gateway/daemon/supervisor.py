@@ -24,6 +24,9 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from dataclasses import dataclass
 
 from aspp import commands
 from aspp.commands import EEPROM_DIVIDER
@@ -48,6 +51,15 @@ WATCH_MIN_SLEEP = 0.25
 read before any stream is judged silent."""
 WATCH_MAX_SLEEP = 1.0
 """The most it sleeps: no stream armed meanwhile can fall silent sooner (SILENCE_MIN)."""
+
+
+@dataclass
+class Held:
+    """A node kept quiet for a command: the record it streamed before (None: none),
+    and the record started again afterwards (None: none, or not yet)."""
+
+    streamed: str | None
+    restored: str | None = None
 
 
 class Supervisor:
@@ -88,6 +100,8 @@ class Supervisor:
                 node.rebooted_quietly()
                 self._pursue(node)
                 return
+        if node.state is State.BUSY:
+            return  # (its replies and any stragglers of its stream: not a stream now)
         if node.state is State.STOPPING:
             policy = self._stops.get(node.address)
             if policy is not None:
@@ -170,6 +184,42 @@ class Supervisor:
             self._pursue(node)
             raise
 
+    @asynccontextmanager
+    async def quiet(self, node: Node) -> AsyncIterator[Held]:
+        """The node without its stream, for a command that needs it quiet (a bias
+        capture, a self-test): a stream it runs is stopped first, and what it should
+        stream is started again afterwards (in the background if the command failed)."""
+        await self._halt(node)
+        held = Held(node.record)
+        if held.streamed is not None:
+            await self._stop(node, Priority.OPERATOR)
+        node.busy()
+        try:
+            yield held
+        except BaseException:
+            node.settled()
+            task = asyncio.get_running_loop().create_task(self._restore(node, held.streamed))
+            self._pursuits[node.address] = task
+            raise
+        node.settled()
+        held.restored = await self._restore(node, held.streamed)
+
+    async def _restore(self, node: Node, streamed: str | None) -> str | None:
+        """Start again what the node should stream after a quiet command: its desired
+        stream, or the one it ran on its own if nothing is desired. The record started,
+        or None."""
+        record = streamed if node.desired is None else node.desired
+        if record is None or record == OFF:
+            return None
+        try:
+            await self._start(node, record, Priority.OPERATOR)
+        except NodeError as error:
+            log.warning("node %s: %s stream not started again: %s", node.label, record,
+                        error)
+            self._pursue(node)
+            return None
+        return record
+
     # -- pursuing what a node should do ---------------------------------------------------
 
     def _pursue(self, node: Node) -> None:
@@ -225,7 +275,9 @@ class Supervisor:
         """Read the node's rate, then start its stream."""
         node.arming()
         answer = await self.scheduler.ask(node, commands.read_eeprom(EEPROM_DIVIDER),
-                                          priority=Priority.BACKGROUND)
+                                          priority=Priority.BACKGROUND,
+                                          what="reading its data-rate divider (EEPROM "
+                                               "0xFCA2) to arm its stream")
         node.divider_read(answer.record["value"])  # type: ignore[arg-type]
         await self._start(node, record, Priority.BACKGROUND)
         log.info("node %s streams %s at %.1f Hz", node.label, record, 1 / node.period)
@@ -266,8 +318,8 @@ class Supervisor:
                         log.info("%s", error)
                 elif isinstance(action, Stopped):
                     node.polled()
-                    log.info("node %s stopped after %d attempts", node.label,
-                             action.attempts)
+                    log.info("node %s stopped after %d attempt%s", node.label,
+                             action.attempts, "" if action.attempts == 1 else "s")
                     return {"node": node.address, "attempts": action.attempts,
                             "elapsed": round(action.elapsed, 3)}
                 elif isinstance(action, GaveUp):

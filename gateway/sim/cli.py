@@ -24,7 +24,7 @@ from gateway.common.yamlfile import ConfigError
 
 from .config import SimConfig
 from .node import GX2, INERTIA_LINK
-from .server import Simulator
+from .server import LinkInUse, Simulator
 
 PROG = "gx2-sim"
 UNPLUG_SECONDS = 2.0
@@ -131,6 +131,8 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signum, lambda *_: done.set())
     try:
         sim = simulator_from(config, args.link).start()
+    except LinkInUse as error:
+        fail(PROG, f"--link {error}", 2)
     except OSError as error:
         fail(PROG, f"cannot create the port: {error}", 1)
     signal.signal(signal.SIGUSR1, lambda *_: [sim.reboot(n.address) for n in config.nodes])

@@ -11,6 +11,11 @@ nodes:
     stream: accel_angrate     # auto-start record (EEPROM 0xFCA6), or omit for polled
     divider: 512              # 51200 / 512 = 100 Hz
     timer_start: 0.0          # seconds on the timer at power-up (215: near the wrap)
+    gyro: ADXRS610            # rate sensor model (its temperature output)
+    gyro_bias_error: [0.002, -0.001, 0.0015]   # rad/s: what a bias capture estimates
+    accel_noise: 0.002        # g, standard deviation of each accelerometer
+    rate_noise: 0.005         # rad/s, the same for each rate sensor
+    bit_faults: [rate_y]      # outputs that fail the built-in test (accel_x .. rate_z)
     radio: {in_range: true, command_loss: 0.0, data_loss: 0.0, stop_loss: 0.0,
             lqi: 200, rssi: -45}
 ```
@@ -23,6 +28,7 @@ from urllib.parse import parse_qsl, urlsplit
 from pydantic import Field, ValidationError, field_validator, model_validator
 
 from aspp.records import checked
+from aspp.temperature import DEFAULT_GYRO, gyro_model
 from aspp.timing import DEFAULT_DIVIDER, MAX_DIVIDER, MIN_DIVIDER
 from gateway.common.strict import Strict, describe
 
@@ -62,7 +68,27 @@ class SimNodeEntry(Strict):
     divider: int = Field(default=DEFAULT_DIVIDER, ge=MIN_DIVIDER, le=MAX_DIVIDER)
     timer_start: float = Field(default=0.0, ge=0.0)
     serial: str = Field(default="", max_length=16)
+    gyro: str = DEFAULT_GYRO
+    gyro_bias_error: list[float] = Field(default=[0.0, 0.0, 0.0], min_length=3, max_length=3)
+    accel_noise: float = Field(default=0.0, ge=0.0, le=1.0)
+    rate_noise: float = Field(default=0.0, ge=0.0, le=1.0)
+    bit_faults: list[str] = Field(default_factory=list)
     radio: RadioConfig = RadioConfig()
+
+    @field_validator("gyro")
+    @classmethod
+    def _known_gyro(cls, value: str) -> str:
+        gyro_model(value)
+        return value
+
+    @field_validator("bit_faults")
+    @classmethod
+    def _known_outputs(cls, values: list[str]) -> list[str]:
+        known = [f"{o}_{a}" for o in ("accel", "rate") for a in "xyz"]
+        for value in values:
+            if value not in known:
+                raise ValueError(f"{value!r} is not one of {', '.join(known)}")
+        return values
 
     @field_validator("model")
     @classmethod
@@ -79,7 +105,10 @@ class SimNodeEntry(Strict):
     def build(self) -> NodeSettings:
         return NodeSettings(address=self.address, model=self.model, stream=self.stream,
                             divider=self.divider, timer_start=self.timer_start,
-                            serial=self.serial)
+                            serial=self.serial, gyro=self.gyro,
+                            gyro_bias_error=tuple(self.gyro_bias_error),  # type: ignore[arg-type]
+                            accel_noise=self.accel_noise, rate_noise=self.rate_noise,
+                            bit_faults=frozenset(self.bit_faults))
 
 
 class SimConfig(Strict):

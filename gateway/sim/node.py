@@ -18,8 +18,10 @@ from dataclasses import dataclass, field
 from aspp import commands as gx2
 from aspp.commands import EEPROM_AUTO_START, EEPROM_DIVIDER
 from aspp.errors import CommandError
-from aspp.orientation import accel_temperature_code, euler_from_matrix, gyro_temperature_code
+from aspp.fields import Vector
+from aspp.orientation import euler_from_matrix
 from aspp.records import STREAMABLE, encode, lookup
+from aspp.temperature import DEFAULT_GYRO, accel_code, gyro_code
 from aspp.timing import (
     DEFAULT_DIVIDER,
     TICKS_PER_SECOND,
@@ -34,6 +36,9 @@ INERTIA_LINK = "inertia-link"
 GX2 = "3dm-gx2"
 FIRMWARE_VERSION = 2113  # 2.1.13: the first with every command of the reference (0xD3)
 _NAN3 = (math.nan, math.nan, math.nan)
+BIT_STEP = 0.1
+"""What the built-in test adds to a stepped output: g for accelerometers, rad/s for
+rate sensors (the reference gives no size)."""
 
 
 @dataclass
@@ -49,6 +54,17 @@ class NodeSettings:
     """Seconds on the timer at power-up (215 starts it 3.45 s before the wrap)."""
     serial: str = ""
     motion: Motion = field(default_factory=Motion)
+    gyro: str = DEFAULT_GYRO
+    """The rate sensor model, which sets how its temperature output reads."""
+    gyro_bias_error: Vector = (0.0, 0.0, 0.0)
+    """rad/s the rate sensors read beyond the true rate: what a bias capture estimates."""
+    accel_noise: float = 0.0
+    """Standard deviation of each accelerometer output, g."""
+    rate_noise: float = 0.0
+    """Standard deviation of each rate sensor output, rad/s."""
+    bit_faults: frozenset[str] = frozenset()
+    """Outputs that do not step under the built-in test ("accel_x" .. "rate_z"): a
+    sensor that fails its self-test."""
 
 
 @dataclass
@@ -73,6 +89,9 @@ class SimNode:
         self.first_write_failure_rate = 0.0
         self.log = NodeLog()
         self.eeprom: dict[int, int] = {EEPROM_DIVIDER: settings.divider, EEPROM_AUTO_START: 0}
+        self.nonvolatile: dict[int, Vector] = {1: (0.0, 0.0, 0.0), 2: (0.0, 0.0, 0.0)}
+        """What 0xD0 stored, loaded at power-up: 1 the accel bias, 2 the gyro bias."""
+        self.bit_faults = set(settings.bit_faults)
         if settings.stream:
             self.eeprom[EEPROM_AUTO_START] = gx2.AUTO_START_WIRELESS | lookup(settings.stream).code
         self.power_up(now)
@@ -80,15 +99,17 @@ class SimNode:
     # -- life cycle ------------------------------------------------------------------
 
     def power_up(self, now: float) -> None:
-        """Power-on (or a reboot): timer restarts, RAM state is lost, EEPROM kept."""
+        """Power-on (or a reboot): timer restarts, RAM state is lost, EEPROM and the
+        stored biases kept."""
         self.powered_at = now
         self._rebase(now)
         self.pending: deque[gx2.Command] = deque()
-        self.accel_bias = (0.0, 0.0, 0.0)
-        self.gyro_bias = (0.0, 0.0, 0.0)
+        self.accel_bias = self.nonvolatile[1]
+        self.gyro_bias = self.nonvolatile[2]
         self.test_config = 0
         self.wrote_eeprom = False
-        self.capture_due: tuple[float, int] | None = None
+        self.capture_due: tuple[float, float] | None = None
+        """A bias capture under way: (when it ends, when it began)."""
         auto = self.eeprom.get(EEPROM_AUTO_START, 0) & 0xFF
         self.continuous = auto if auto in STREAMABLE else 0
         self.log.power_ups += 1
@@ -169,11 +190,14 @@ class SimNode:
             self.gyro_bias = args["gyro_bias"]  # type: ignore[assignment]
             return encode(code, gyro_bias=self.gyro_bias, timer=timer)
         if code == 0xCD:
-            self.capture_due = (t + args["sampling_time"] / 1000, timer)  # type: ignore[operator]
+            self.capture_due = (t + args["sampling_time"] / 1000, t)  # type: ignore[operator]
             return None
         if code == 0xD0:
             quantity = args["quantity"]
-            return encode(code, quantity=quantity if quantity in (1, 2) else 0xFFFF, timer=timer)
+            if quantity not in (1, 2):
+                return encode(code, quantity=0xFFFF, timer=timer)
+            self.nonvolatile[quantity] = self.accel_bias if quantity == 1 else self.gyro_bias  # type: ignore[index]
+            return encode(code, quantity=quantity, timer=timer)
         if code == 0xE4:
             stored = self._write_eeprom(args["address"], args["value"])
             if args["address"] == EEPROM_DIVIDER:
@@ -202,9 +226,16 @@ class SimNode:
         return self.eeprom.get(address, 0)
 
     def _capture_reply(self, t: float) -> bytes:
+        """The capture ends: the gyro bias is what the rate sensors read on average over
+        the sampling time, the body's own turning included (it must stand still)."""
         assert self.capture_due is not None
+        end, begin = self.capture_due
         self.capture_due = None
-        self.gyro_bias = (0.0012, -0.0008, 0.0005)
+        points = [begin + (end - begin) * i / 10 for i in range(11)]
+        sensed = [_plus3(self.settings.motion.ang_rate(p), self.settings.gyro_bias_error)
+                  for p in points]
+        self.gyro_bias = tuple(sum(v[axis] for v in sensed) / len(sensed)
+                               for axis in range(3))  # type: ignore[assignment]
         return encode(0xCD, gyro_bias=self.gyro_bias, timer=self.timer_at(t))
 
     def _identifier(self, selector: object) -> str:
@@ -216,12 +247,31 @@ class SimNode:
 
     # -- measurements -------------------------------------------------------------------
 
+    def _bit_steps(self) -> tuple[Vector, Vector]:
+        """Built-in test steps (accel g, rate rad/s) of each axis: bit 4 steps the
+        accelerometers and rate sensors positive, bit 5 the rate sensors negative; a
+        faulty output does not step."""
+        config = self.test_config
+        accel = BIT_STEP if config & 0x10 else 0.0
+        rate = BIT_STEP if config & 0x10 else (-BIT_STEP if config & 0x20 else 0.0)
+        return (tuple(0.0 if f"accel_{a}" in self.bit_faults else accel for a in "xyz"),  # type: ignore[return-value]
+                tuple(0.0 if f"rate_{a}" in self.bit_faults else rate for a in "xyz"))
+
+    def _noise(self, sigma: float) -> Vector:
+        if not sigma:
+            return (0.0, 0.0, 0.0)
+        gauss = self.rng.gauss
+        return (gauss(0.0, sigma), gauss(0.0, sigma), gauss(0.0, sigma))
+
     def record(self, code: int, t: float) -> bytes:
         """The data record ``code`` as measured at the end of the cycle at ``t``."""
         motion, period, timer = self.settings.motion, self.period, self.timer_at(t)
-        accel_step, rate_step = _bit_steps(self.test_config)
-        accel = _minus(_plus(motion.accel(t), accel_step), self.accel_bias)
-        rate = _minus(_plus(motion.ang_rate(t), rate_step), self.gyro_bias)
+        accel_step, rate_step = self._bit_steps()
+        accel = _minus(_plus3(_plus3(motion.accel(t), accel_step),
+                              self._noise(self.settings.accel_noise)), self.accel_bias)
+        rate = _minus(_plus3(_plus3(_plus3(motion.ang_rate(t), rate_step),
+                                    self.settings.gyro_bias_error),
+                             self._noise(self.settings.rate_noise)), self.gyro_bias)
         orientation = motion.orientation(t)
         mag = _NAN3 if self.settings.model == INERTIA_LINK else motion.mag(t)
         if code == 0xC1:
@@ -254,8 +304,8 @@ class SimNode:
             return encode(code, roll=roll, pitch=pitch, yaw=yaw, **extra, timer=timer)
         if code == 0xD1:
             warm = 25.0 + 0.5 * math.sin(t / 60)
-            board = accel_temperature_code(warm)
-            gyro = gyro_temperature_code(warm + 3.0)
+            board = accel_code(warm)
+            gyro = gyro_code(warm + 3.0, self.settings.gyro)
             return encode(code, temperature=(board, gyro, gyro + 2, gyro - 1), timer=timer)
         if code == 0xD2:
             return encode(code, stab_accel=accel, ang_rate=rate, stab_mag=mag, timer=timer)
@@ -276,13 +326,5 @@ def _raw(v: tuple[float, ...], codes_per_unit: float) -> tuple[float, float, flo
             32768 + v[2] * codes_per_unit)
 
 
-def _plus(v: tuple[float, ...], k: float) -> tuple[float, float, float]:
-    return (v[0] + k, v[1] + k, v[2] + k)
-
-
-def _bit_steps(test_config: int) -> tuple[float, float]:
-    """Built-in test steps (accel g, rate rad/s): bit 4 steps the accelerometers and
-    rate sensors positive, bit 5 the rate sensors negative."""
-    accel = 0.1 if test_config & 0x10 else 0.0
-    rate = 0.1 if test_config & 0x10 else (-0.1 if test_config & 0x20 else 0.0)
-    return accel, rate
+def _plus3(a: tuple[float, ...], b: tuple[float, ...]) -> tuple[float, float, float]:
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])

@@ -43,8 +43,17 @@ arrives when it is full is lost, as on a port nobody reads."""
 T = TypeVar("T")
 
 
+class LinkInUse(ValueError):
+    """The ``--link`` path is something that is not ours to replace."""
+
+
 class PtyPort:
-    """One pseudo-terminal pair standing in for the base station's USB serial port."""
+    """One pseudo-terminal pair standing in for the base station's USB serial port.
+
+    Its link is made only where nothing is, or over a symlink of its own (a replug) or
+    one that points at nothing (left by a simulator that was killed); never over a file,
+    nor over the link of a pty that is open (another simulator's). It is removed only
+    while it still points at this port's pty."""
 
     def __init__(self, link: str | Path | None = None) -> None:
         self.link = Path(link) if link else None
@@ -61,13 +70,32 @@ class PtyPort:
         os.set_blocking(master, False)
         # packet mode: the master also reads the host's flushes (see read)
         fcntl.ioctl(master, termios.TIOCPKT, struct.pack("i", 1))
+        if self.link:
+            try:
+                self._check_link(self.link)
+            except LinkInUse:
+                os.close(master)
+                os.close(slave)
+                raise
         self.master, self._slave, self.path = master, slave, os.ttyname(slave)
         if self.link:
             temporary = self.link.with_name(self.link.name + ".new")
-            with contextlib.suppress(FileNotFoundError):
+            if temporary.is_symlink():
                 temporary.unlink()
             temporary.symlink_to(self.path)
             temporary.replace(self.link)  # atomic: the link never dangles mid-update
+
+    def _check_link(self, link: Path) -> None:
+        if not link.is_symlink():
+            if link.exists():
+                raise LinkInUse(f"{link} exists and is not a symlink: it is not replaced "
+                                "(choose another --link path)")
+            return
+        target = os.readlink(link)
+        if target != self.path and os.path.exists(target):
+            raise LinkInUse(f"{link} points at {target}, a pty that is open (another "
+                            "simulator's?): it is not taken over (stop that one, or "
+                            "choose another --link path)")
 
     def close(self) -> None:
         if self.link and self.link.is_symlink() and os.readlink(self.link) == self.path:

@@ -1,4 +1,5 @@
-"""Euler <-> matrix and the temperature conversions, against the reference's formulas."""
+"""Euler <-> matrix and the temperature conversions, against the reference's formulas
+(and its gyro temperature erratum)."""
 
 from __future__ import annotations
 
@@ -8,14 +9,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from aspp.orientation import (
-    accel_temperature_c,
-    accel_temperature_code,
-    euler_from_matrix,
-    gyro_temperature_c,
-    gyro_temperature_code,
-    matrix_from_euler,
-)
+from aspp.orientation import euler_from_matrix, matrix_from_euler
+from aspp.temperature import GYRO_NAMES, accel_celsius, accel_code, gyro_celsius, gyro_code
 
 
 def test_identity_is_level_and_north():
@@ -50,14 +45,14 @@ def test_pitch_clamped_at_the_singularity():
 
 def test_temperature_conversions():
     # 0.5 V is 0 deg C on the board sensor: 0.5 / (3.3/4096) = 620.6 codes
-    assert accel_temperature_c(621) == pytest.approx(0.03, abs=0.01)
-    assert accel_temperature_c(accel_temperature_code(25.0)) == pytest.approx(25.0, abs=0.1)
+    assert accel_celsius(621) == pytest.approx(0.03, abs=0.01)
+    assert accel_celsius(accel_code(25.0)) == pytest.approx(25.0, abs=0.1)
     # ADXRS610: 2.5 V at 25 deg C
-    assert gyro_temperature_c(round(2.5 / (3.3 / 4096))) == pytest.approx(25.0, abs=0.1)
+    assert gyro_celsius(round(2.5 / (3.3 / 4096))) == pytest.approx(25.0, abs=0.1)
     # ADXRS300: 8.4 mV/K, so a room-temperature part reads near 2.5 V and ~25 deg C
-    assert gyro_temperature_c(3103, "ADXRS300") == pytest.approx(24.6, abs=0.5)
-    for model in ("ADXRS300", "ADXRS610"):
-        assert gyro_temperature_c(gyro_temperature_code(40.0, model), model) == \
-            pytest.approx(40.0, abs=0.2)
+    # (with the reference's printed "+ 273" it would read about 570 deg C)
+    assert gyro_celsius(3103, "ADXRS300") == pytest.approx(24.6, abs=0.5)
+    for model in GYRO_NAMES:
+        assert gyro_celsius(gyro_code(40.0, model), model) == pytest.approx(40.0, abs=0.2)
     with pytest.raises(ValueError, match="gyro model"):
-        gyro_temperature_c(100, "MPU6050")
+        gyro_celsius(100, "MPU6050")

@@ -48,7 +48,8 @@ def test_info_reads_the_firmware_and_the_four_strings() -> None:
         async with Wired([NodeSettings(76, serial="0042")], [{"address": 76}]) as gw:
             info = await gw.run("info", node=76)
             assert info == {"node": 76, "firmware": FIRMWARE_VERSION,
-                            "model_number": "6226-0001", "serial_number": "0042",
+                            "firmware_version": "2.1.13", "model_number": "6226-0001",
+                            "serial_number": "0042",
                             "model_name": "Inertia-Link", "options": "Wireless"}
     run(scenario)
 

@@ -1,0 +1,168 @@
+"""The ops that measure, correct and check what a node senses: bias capture (0xCD),
+bias corrections (0xC9, 0xCA), keeping them (0xD0), temperatures (0xD1) and the
+built-in test (0xFB). Each is a function registered under its row of the op table.
+
+A bias capture and a self-test need the node quiet: its stream is stopped first and
+started again afterwards (:meth:`Supervisor.quiet`). Writing a bias correction or
+storing it changes what the node measures and keeps, so both are refused unless
+``control.allow_eeprom_write`` is true, like EEPROM writes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import logging
+from typing import Any
+
+from aspp import commands
+from aspp.selftest import BIT_OFF, NEGATIVE_RATE_BIT, POSITIVE_BIT, Sample, judge
+from aspp.temperature import accel_celsius, gyro_celsius
+
+from .errors import NodeError, OpError
+from .nodes import Node
+from .operations import Operations, Result, handles
+from .scheduler import Priority
+
+log = logging.getLogger("gx2.calibration")
+SAMPLES = 10
+"""Readings of the outputs in each phase of a self-test (after one discarded)."""
+BIT_OFF_BACKOFF = (0.5, 1.0, 2.0, 5.0, 10.0, 30.0)
+"""Between attempts to switch BIT off on a node that stopped answering in a self-test."""
+QUANTITY = {"accel": 1, "gyro": 2}
+"""0xD0's Transfer Quantity for each bias."""
+
+
+@handles("bias_capture")
+async def bias_capture(gw: Operations, request: Any) -> Result:
+    node = gw.node(request.node)
+    seconds = request.ms / 1000
+    async with gw.supervisor.quiet(node) as held:
+        # the reply comes only after the sampling time, and a capture is never sent
+        # twice: the node would start sampling again
+        answer = await gw.scheduler.send(node, commands.capture_gyro_bias(request.ms),
+                                         takes=seconds, resend_unanswered=False,
+                                         what=f"capture gyro bias ({seconds:g} s)")
+    bias = answer.reply.record["gyro_bias"]
+    return {"node": node.address, "ms": request.ms, "gyro_bias": list(bias),
+            "stream": held.streamed, "restored": held.restored}
+
+
+@handles("bias_set")
+async def bias_set(gw: Operations, request: Any) -> Result:
+    node = gw.node(request.node)
+    gw.check_writes_allowed(f"writing the {request.sensor} bias correction")
+    vector = (request.x, request.y, request.z)
+    command = (commands.write_accel_bias(vector) if request.sensor == "accel"
+               else commands.write_gyro_bias(vector))
+    field = command.spec.arguments[0].name
+    echoed = tuple((await gw.scheduler.ask(node, command)).record[field])  # type: ignore[arg-type]
+    sent = tuple(command.arguments[field])  # type: ignore[arg-type]
+    if echoed != sent:  # (as float32, the precision the node keeps)
+        raise NodeError(f"node {node.address}: sent {request.sensor} bias {list(sent)}, "
+                        f"it echoed {list(echoed)}")
+    return {"node": node.address, "sensor": request.sensor, "bias": list(echoed)}
+
+
+@handles("store")
+async def store(gw: Operations, request: Any) -> Result:
+    node = gw.node(request.node)
+    gw.check_writes_allowed(f"storing the {request.sensor} bias in non-volatile memory")
+    quantity = QUANTITY[request.sensor]
+    stored = (await gw.scheduler.ask(node, commands.store_nonvolatile(quantity))
+              ).record["quantity"]
+    if stored != quantity:
+        what = "nothing (it answered 0xFFFF)" if stored == 0xFFFF else f"quantity {stored}"
+        raise NodeError(f"node {node.address}: asked to store the {request.sensor} bias "
+                        f"(quantity {quantity}), it stored {what}")
+    return {"node": node.address, "sensor": request.sensor, "quantity": quantity}
+
+
+async def read_temperatures(gw: Operations, node: Node) -> Result:
+    codes = (await gw.scheduler.ask(node, commands.poll(0xD1))).record["temperature"]
+    gyro = node.config.gyro
+    return {"node": node.address, "codes": list(codes),  # type: ignore[arg-type]
+            "accel_c": round(accel_celsius(codes[0]), 2),  # type: ignore[index]
+            "gyro_c": [round(gyro_celsius(code, gyro), 2) for code in codes[1:]],  # type: ignore[index]
+            "gyro_model": gyro}
+
+
+@handles("temperature")
+async def temperature(gw: Operations, request: Any) -> Result:
+    return await read_temperatures(gw, gw.node(request.node))
+
+
+# -- the built-in test ----------------------------------------------------------------------
+
+async def _samples(gw: Operations, node: Node) -> list[Sample]:
+    """SAMPLES readings of accel and angular rate (the first, which may predate the
+    last change of BIT, discarded)."""
+    readings = []
+    for _ in range(SAMPLES + 1):
+        record = (await gw.scheduler.ask(node, commands.poll(0xC2))).record
+        readings.append(Sample(record["accel"], record["ang_rate"]))  # type: ignore[arg-type]
+    return readings[1:]
+
+
+async def _set_bit(gw: Operations, node: Node, config: int,
+                   priority: Priority = Priority.OPERATOR) -> int:
+    """0xFB with ``config``; the TestConfig echoed (NodeError unless it is ``config``)."""
+    echoed = (await gw.scheduler.ask(node, commands.built_in_test(config), priority=priority,
+                                     what=f"built-in test 0x{config:02X}")
+              ).record["test_config"]
+    if echoed != config:
+        raise NodeError(f"node {node.address}: set BIT to 0x{config:02X}, it echoed "
+                        f"0x{echoed:02X}")
+    return echoed  # type: ignore[no-any-return]
+
+
+async def _switch_bit_off(gw: Operations, node: Node) -> int | None:
+    """BIT off, whatever happened before: a background task switches it off now and
+    keeps trying until the node confirms it, and the request's cancellation cannot stop
+    it. The TestConfig echoed at the first attempt, or None if it was not confirmed."""
+    first: asyncio.Future[int | None] = asyncio.get_running_loop().create_future()
+    gw.spawn(_bit_off_until_confirmed(gw, node, first))
+    return await asyncio.shield(first)
+
+
+async def _bit_off_until_confirmed(gw: Operations, node: Node,
+                                   first: asyncio.Future[int | None]) -> None:
+    for delay in itertools.chain([0.0], BIT_OFF_BACKOFF, itertools.repeat(BIT_OFF_BACKOFF[-1])):
+        await asyncio.sleep(delay)
+        try:
+            echo = await _set_bit(gw, node, BIT_OFF,
+                                  Priority.BACKGROUND if first.done() else Priority.OPERATOR)
+        except OpError as error:  # no answer, or no base station: BIT may still be on
+            if not first.done():
+                first.set_result(None)
+            log.warning("%s; switching BIT off again in a while", error)
+            continue
+        if not first.done():
+            first.set_result(echo)
+        else:
+            log.info("node %s: BIT is off", node.label)
+        return
+
+
+@handles("selftest")
+async def selftest(gw: Operations, request: Any) -> Result:
+    node = gw.node(request.node)
+    async with gw.supervisor.quiet(node) as held:
+        off = await _samples(gw, node)
+        temperatures = await read_temperatures(gw, node)
+        try:
+            await _set_bit(gw, node, POSITIVE_BIT)
+            positive = await _samples(gw, node)
+            await _set_bit(gw, node, NEGATIVE_RATE_BIT)
+            negative = await _samples(gw, node)
+        finally:
+            echo = await _switch_bit_off(gw, node)
+        if echo is None:
+            raise NodeError(f"node {node.address}: BIT was not confirmed off (the gateway "
+                            "keeps switching it off)")
+        after = await _samples(gw, node)
+    checks = judge(off, positive, negative, after,
+                   [temperatures["accel_c"], *temperatures["gyro_c"]], echo)
+    return {"node": node.address, "passed": all(c.passed for c in checks),
+            "checks": [c.as_dict() for c in checks], "stream": held.streamed,
+            "restored": held.restored}
