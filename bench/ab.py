@@ -11,12 +11,14 @@ in a process of its own whose imports come from one tree or the other, in turn:
    payload, msgpack, PUB) fed perf.py's mixed stream, every record counted by a SUB in
    another process (as bench/perf.py measures it), each node's stream known to the
    gateway as it is once armed;
-2. CPU at a saturated line: the gateway of each tree, started as its console script
-   would be, on gx2-sim (this tree's) with 3 nodes of 0xC2 at 96 Hz, its CPU time over
-   ``--seconds`` (% of one core). With ``--record``, B runs with ``record:`` configured
-   (only a tree that has recording knows that key).
+2. CPU at a saturated line: the gateways of both trees at the same time, each started
+   as its console script would be on a gx2-sim of its own (this tree's) with 3 nodes of
+   0xC2 at 96 Hz, their CPU time over ``--seconds`` (% of one core, from the kernel's
+   per-thread nanoseconds). Running side by side, they share whatever the machine is
+   doing: measured one after the other, rounds on this VM differed by 20% either way.
+   With ``--record``, B runs with ``record:`` configured (a tree that records).
 
-Each round measures A then B (the order alternates each round, so neither side always
+The pipeline measures A then B (the order alternates each round, so neither side always
 goes first); the table gives each round's figures and the median of the rounds' B/A
 ratios, so a neighbour that slows the machine for a while slows both sides of a round.
 """
@@ -24,7 +26,6 @@ ratios, so a neighbour that slows the machine for a while slows both sides of a 
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
 import subprocess
 import sys
@@ -90,9 +91,6 @@ assert got == packets, (got, packets)
 print(packets / cpu)
 '''
 
-TICKS = os.sysconf("SC_CLK_TCK")
-
-
 def worktree(rev: str, into: Path) -> Path:
     subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", "-q", str(into),
                     rev], check=True)
@@ -114,38 +112,53 @@ def pipeline(tree: Path, packets: int) -> float:
     return float(run.stdout.strip().splitlines()[-1])
 
 
-def saturated_cpu(tree: Path, seconds: float, record: bool) -> float:
-    """The tree's gateway on this tree's simulator: % of one core over ``seconds``."""
-    work = Path(tempfile.mkdtemp(prefix="gx2-ab-"))
-    nodes = [NodeSettings(a, divider=533, stream="accel_angrate") for a in (76, 77, 78)]
-    config = {"base_station": {"port": str(work / "gx2")},
-              "publish": {"endpoint": f"tcp://127.0.0.1:{free_port()}"},
-              "control": {"endpoint": f"tcp://127.0.0.1:{free_port()}"},
-              "nodes": [{"address": n.address, "stream": "accel_angrate"} for n in nodes]}
-    if record:
-        config["record"] = {"directory": str(work / "recordings")}
-    (work / "nodes.yaml").write_text(yaml.safe_dump(config))
+def gateway_command(tree: Path, config: Path) -> list[str]:
+    """The tree's gx2-gateway, started as its console script would be."""
     module, function = entry_point(tree).split(":")
     code = (f"import sys; sys.path.insert(0, {str(tree)!r}); import {module} as m; "
             f"sys.argv[0] = 'gx2-gateway'; sys.exit(m.{function}())")
-    with Simulator(nodes, link=work / "gx2"):
-        proc = subprocess.Popen([sys.executable, "-c", code, "--config",
-                                 str(work / "nodes.yaml"), "--log-level", "WARNING"],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        try:
-            time.sleep(5.0)  # started, armed and streaming (a settling period, not a sync)
-            cpu0, t0 = cpu_seconds(proc.pid), time.monotonic()
-            time.sleep(seconds)
-            share = (cpu_seconds(proc.pid) - cpu0) / (time.monotonic() - t0)
-        finally:
+    return [sys.executable, "-c", code, "--config", str(config), "--log-level", "WARNING"]
+
+
+def saturated_cpu(trees: dict[str, Path], seconds: float, record: bool) -> dict[str, float]:
+    """Each tree's gateway on a simulator of its own (this tree's), all at once, so
+    that they share whatever the machine is doing: % of one core over ``seconds``,
+    from the kernel's nanosecond count of each process's threads."""
+    started: list[tuple[str, Simulator, subprocess.Popen[bytes]]] = []
+    try:
+        for side, tree in trees.items():
+            work = Path(tempfile.mkdtemp(prefix=f"gx2-ab-{side}-"))
+            nodes = [NodeSettings(a, divider=533, stream="accel_angrate") for a in (76, 77, 78)]
+            config = {"base_station": {"port": str(work / "gx2")},
+                      "publish": {"endpoint": f"tcp://127.0.0.1:{free_port()}"},
+                      "control": {"endpoint": f"tcp://127.0.0.1:{free_port()}"},
+                      "nodes": [{"address": n.address, "stream": "accel_angrate"}
+                                for n in nodes]}
+            if record and side == "B":
+                config["record"] = {"directory": str(work / "recordings")}
+            (work / "nodes.yaml").write_text(yaml.safe_dump(config))
+            sim = Simulator(nodes, link=work / "gx2").start()
+            started.append((side, sim, subprocess.Popen(
+                gateway_command(tree, work / "nodes.yaml"), stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL)))
+        time.sleep(6.0)  # started, armed and streaming (a settling period, not a sync)
+        before = {side: cpu_ns(proc.pid) for side, _, proc in started}
+        t0 = time.monotonic()
+        time.sleep(seconds)
+        elapsed = time.monotonic() - t0
+        return {side: (cpu_ns(proc.pid) - before[side]) / 1e9 / elapsed * 100
+                for side, _, proc in started}
+    finally:
+        for _, sim, proc in started:
             proc.terminate()
             proc.wait(10)
-    return share * 100
+            sim.stop()
 
 
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
-    return (int(fields[11]) + int(fields[12])) / TICKS
+def cpu_ns(pid: int) -> int:
+    """CPU time of every thread of ``pid`` (ZeroMQ's I/O thread included), in ns."""
+    return sum(int((task / "schedstat").read_text().split()[0])
+               for task in Path(f"/proc/{pid}/task").iterdir())
 
 
 def main() -> int:
@@ -180,8 +193,7 @@ def main() -> int:
                 if not args.skip_pipeline:
                     got = {side: pipeline(trees[side], args.packets) for side in order}
                     rows["pipeline"].append((got["A"], got["B"]))
-                got = {side: saturated_cpu(trees[side], args.seconds,
-                                           args.record and side == "B") for side in order}
+                got = saturated_cpu(trees, args.seconds, args.record)
                 rows["cpu"].append((got["A"], got["B"]))
                 print(f"round {round_ + 1}: " + ", ".join(
                     f"{name} A {a:,.1f} B {b:,.1f}" for name, values in rows.items()
