@@ -1,0 +1,202 @@
+"""A node's clock as the host sees it: where each record's device time falls on the
+host's clock. Pure: fed (device seconds, host seconds) pairs, it keeps no clock.
+
+The model, for each packet: host = offset + (1 + drift) * device + delay. Every node's
+crystal runs at its own rate (drift, tens of ppm), and delay, the packet's way from
+the node to the host's read, is never negative but heavy-tailed: a packet may wait
+behind others in the base station or the USB adapter for milliseconds, or for
+hundreds in a stall. An average of host - device carries the mean delay as a bias and
+follows every stall; the packets that came through fastest say far more.
+
+So, as the issue and the literature on one-way delay propose (Moon, Skelly and
+Towsley, "Estimation and removal of clock skew from network delay measurements",
+INFOCOM 1999): in the plane of x = device and y = host - device, every packet lies on
+or above the line y = offset + drift * x, and the packets that waited least are the
+lower convex hull of the points. Of the lines below every point, the one that is
+closest to all of them on average (a linear programme) supports the hull where x is
+the middle of the window; its slope is the drift, clamped to MAX_DRIFT. The window
+slides (about a minute, so a drift that changes with temperature is followed); late
+packets lie above the hull and move nothing.
+
+Cost: points are kept as the lower hull of each BLOCK of device time (a monotone
+chain, amortised O(1) a point), and the window's hull is rebuilt from the blocks'
+vertices when a block closes; a point that falls below the line meanwhile (a faster
+packet than any before, or a drift that changed) lowers the line to it at once. A
+refit touches only a few hundred vertices, once every BLOCK seconds.
+"""
+
+from __future__ import annotations
+
+import bisect
+from collections import deque
+from dataclasses import dataclass
+
+MAX_DRIFT = 500e-6
+"""A crystal is within a few hundred ppm of its nominal rate; beyond this the fit is
+wrong (too few points), not the crystal."""
+WINDOW = 60.0
+"""Seconds of device time the hull spans."""
+BLOCK = 2.0
+"""Seconds of device time whose points are reduced to their own lower hull."""
+LOCK_SPAN = 1.0
+"""Seconds of points before the estimate counts as locked (the drift then has a base
+line: an error of 50 ppm over the span is 50 us, well inside the spread)."""
+LOCK_POINTS = 10
+EARLY = 4 * BLOCK
+"""Seconds from the first point during which the line is fitted at every point: the
+drift's base line is still short, and the hull small."""
+RESIDUALS = 256
+"""Recent residuals (delay above the line) kept for the spread."""
+SLEW = 0.5
+"""When the line drops below the last time given (a faster packet than any before),
+times advance at least at this share of the device's rate until they meet it again:
+never backwards, never twice the same."""
+
+Point = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """What status shows of a node's clock: host time at device time 0 (on the clock
+    the pairs came in), drift, the spread of recent delays above the line, and since
+    when (host time) the estimate has been locked."""
+
+    offset: float
+    drift: float
+    spread: float
+    locked: bool
+    locked_since: float | None
+
+
+def _push(hull: list[Point], x: float, y: float) -> None:
+    """Add (x, y), x not below any x in ``hull``, keeping ``hull`` a lower hull."""
+    while hull:
+        last_x, last_y = hull[-1]
+        if x == last_x:  # (two records of one cycle: the lower one stays)
+            if y >= last_y:
+                return
+            hull.pop()
+            continue
+        if len(hull) >= 2:
+            x1, y1 = hull[-2]
+            if (last_x - x1) * (y - y1) - (last_y - y1) * (x - x1) <= 0:
+                hull.pop()  # (last_x, last_y) is not below the chord: not on the hull
+                continue
+        break
+    hull.append((x, y))
+
+
+class NodeClock:
+    """The estimate for one node; :meth:`reset` when its timer restarts."""
+
+    __slots__ = (
+        "_block_start",
+        "_blocks",
+        "_current",
+        "_drift",
+        "_first",
+        "_given",
+        "_last",
+        "_locked_since",
+        "_offset",
+        "_points",
+        "_residuals",
+    )
+
+    def __init__(self) -> None:
+        self._drift = 0.0
+        self.reset()
+
+    def reset(self) -> None:
+        """The node rebooted: its timer started again. The drift is kept (it is the
+        crystal's); everything else starts over."""
+        self._blocks: deque[tuple[float, list[Point]]] = deque()
+        self._current: list[Point] = []
+        self._block_start = 0.0
+        self._offset = 0.0
+        self._points = 0
+        self._first = 0.0
+        self._last = 0.0
+        self._locked_since: float | None = None
+        self._residuals: deque[float] = deque(maxlen=RESIDUALS)
+        self._given: tuple[float, float] | None = None
+        """The last (device, host) time given: times are strictly increasing."""
+
+    def update(self, device: float, host: float) -> float:
+        """Add one packet: its device time and when it reached the host (seconds on a
+        clock that never steps). Returns the host time at which a packet sent at
+        ``device`` arrives with the least delay seen (the line evaluated there), or,
+        if the line has just dropped below the last time given, a time advancing from
+        that one at SLEW of the device's rate."""
+        if self._points and (device < self._last or device - self._last > WINDOW):
+            if device < self._last:  # not in order (a reset missed): it says nothing
+                return self._give(device, device + self._offset + self._drift * device)
+            self._restart()  # after a long outage: the old points no longer bound
+        y = host - device
+        _push(self._current, device, y)
+        self._points += 1
+        self._last = device
+        if self._points == 1:
+            self._first = self._block_start = device
+            self._offset = y - self._drift * device
+        elif device - self._block_start >= BLOCK:
+            self._close_block(device)
+        elif device - self._first < EARLY:
+            self._fit()
+        elif y < self._offset + self._drift * device:
+            self._offset = y - self._drift * device  # lowered to it; refit at the block's end
+        line = self._offset + self._drift * device
+        self._residuals.append(y - line)
+        if self._locked_since is None and self._points >= LOCK_POINTS \
+                and device - self._first >= LOCK_SPAN:
+            self._locked_since = host
+        return self._give(device, device + line)
+
+    def _give(self, device: float, time: float) -> float:
+        given = self._given
+        if given is not None and device >= given[0]:
+            time = max(time, given[1] + SLEW * (device - given[0]) + 1e-9)
+        self._given = (device, time)
+        return time
+
+    def _restart(self) -> None:
+        drift, given = self._drift, self._given
+        self.reset()
+        self._drift, self._given = drift, given
+
+    def _close_block(self, device: float) -> None:
+        self._blocks.append((self._block_start, self._current))
+        self._current = []
+        self._block_start = device
+        while self._blocks and self._blocks[0][1][-1][0] < device - WINDOW:
+            self._blocks.popleft()
+        self._first = self._blocks[0][1][0][0]
+        self._fit()
+
+    def _fit(self) -> None:
+        """The line below every point that supports the hull at the window's middle."""
+        hull: list[Point] = []
+        for _, vertices in self._blocks:
+            for x, y in vertices:
+                _push(hull, x, y)
+        for x, y in self._current:
+            _push(hull, x, y)
+        if hull[-1][0] - hull[0][0] < LOCK_SPAN:  # too short a base line for a slope
+            self._offset = min(y - self._drift * x for x, y in hull)
+            return
+        middle = (hull[0][0] + hull[-1][0]) / 2
+        edge = min(max(bisect.bisect_left(hull, (middle,)), 1), len(hull) - 1)
+        (x1, y1), (x2, y2) = hull[edge - 1], hull[edge]
+        drift = (y2 - y1) / (x2 - x1)
+        if abs(drift) <= MAX_DRIFT:
+            self._drift, self._offset = drift, y1 - drift * x1
+            return
+        self._drift = max(-MAX_DRIFT, min(MAX_DRIFT, drift))
+        self._offset = min(y - self._drift * x for x, y in hull)
+
+    def estimate(self) -> Estimate:
+        """The current estimate (for status)."""
+        ordered = sorted(self._residuals)
+        spread = ordered[int(0.9 * (len(ordered) - 1))] if ordered else 0.0
+        return Estimate(self._offset, self._drift, spread, self._locked_since is not None,
+                        self._locked_since)

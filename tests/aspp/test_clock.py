@@ -1,0 +1,147 @@
+"""The clock estimate on synthetic streams whose truth is known: the delays are never
+negative and heavy-tailed (bursts of hundreds of late packets, stalls), and whatever
+they are, the error is bounded by how close the fastest packets came to the floor."""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from aspp.clock import BLOCK, MAX_DRIFT, WINDOW, NodeClock
+
+PERIOD = 0.01
+FLOOR = 0.003
+"""The delay no packet is faster than (radio, line): the line the estimate finds."""
+NEAR = 20e-6
+"""How close to the floor the fastest packet of every half second comes (outside
+stalls, in which none is fast)."""
+WARM = 10.0
+"""Seconds before the first stall: the drift's base line by then is long enough to carry
+the estimate through 4 s without a fast packet."""
+
+
+def stream(seconds: float, drift: float, offset: float, seed: int, *, bursts: int = 3,
+           burst_len: int = 400, every: int = 50) -> list[tuple[float, float, float]]:
+    """(device, host, excess delay) for a node at 100 Hz: exponential delays (mean
+    2 ms) above the floor, one packet of every ``every`` within NEAR of it, and
+    ``bursts`` runs of ``burst_len`` packets held back then flushed (a stall)."""
+    rng = random.Random(seed)
+    count = int(seconds / PERIOD)
+    excess = [rng.expovariate(1 / 0.002) for _ in range(count)]
+    for start in range(0, count, every):
+        excess[start + rng.randrange(min(every, count - start))] = rng.uniform(0, NEAR)
+    for _ in range(bursts):
+        begin = rng.randrange(min(count - 1, int(WARM / PERIOD)), count)
+        for i in range(begin, min(count, begin + burst_len)):
+            excess[i] = 0.4 - (i - begin) * PERIOD + rng.uniform(0, 0.001)  # held, flushed
+            excess[i] = max(excess[i], NEAR)
+    return [(i * PERIOD, offset + (1 + drift) * i * PERIOD + FLOOR + e, e)
+            for i, e in enumerate(excess)]
+
+
+def stalls_from(found: list[tuple[float, float]]) -> float:
+    """Device time of the first estimate off by more than NEAR after the warm-up: where
+    a stall began (or the end)."""
+    return next((d for d, e in found if d >= WARM and e > NEAR), found[-1][0] + 1)
+
+
+def errors(points: list[tuple[float, float, float]], drift: float, offset: float,
+           clock: NodeClock | None = None) -> list[tuple[float, float]]:
+    """(device time, estimate - truth) for every packet."""
+    clock = clock or NodeClock()
+    return [(d, clock.update(d, h) - (offset + (1 + drift) * d + FLOOR)) for d, h, _ in points]
+
+
+@settings(max_examples=25, deadline=None)
+@given(drift=st.floats(-200e-6, 200e-6), offset=st.floats(0, 1e5),
+       seed=st.integers(0, 2**32 - 1))
+def test_the_error_is_bounded_by_the_fastest_packets_whatever_the_others(drift, offset,
+                                                                         seed):
+    """From the first second, while the drift's base line is short and the fast packets
+    few, within 1 ms (the worst the estimate may be off); after the warm-up within three
+    times NEAR of the truth, and within four through stalls of 4 s in which no packet is
+    fast (400 late packets held back, then flushed)."""
+    found = errors(stream(90, drift, offset, seed), drift, offset)
+    early = [abs(e) for d, e in found if 1.0 <= d < WARM]
+    late = [abs(e) for d, e in found if d >= WARM]
+    assert max(early) <= 1e-3, max(early)
+    assert max(late) <= 4 * NEAR + 1e-9, max(late)
+    assert max(abs(e) for d, e in found if WARM <= d < stalls_from(found)) <= 3 * NEAR + 1e-9
+
+
+def test_the_first_estimate_is_usable_and_then_it_locks() -> None:
+    points = stream(5, 40e-6, 1000.0, seed=1, bursts=0)
+    clock = NodeClock()
+    first = clock.update(*points[0][:2]) - (1000.0 + FLOOR)
+    assert first == pytest.approx(points[0][2])  # as late as the first packet, no later
+    assert not clock.estimate().locked
+    for d, h, _ in points[1:]:
+        clock.update(d, h)
+        if clock.estimate().locked:
+            assert d <= 1.5
+            break
+    assert clock.estimate().locked
+
+
+def test_drift_is_recovered() -> None:
+    for drift in (-180e-6, -25e-6, 0.0, 60e-6, 199e-6):
+        clock = NodeClock()
+        for d, h, _ in stream(60, drift, 50.0, seed=7):
+            clock.update(d, h)
+        assert clock.estimate().drift == pytest.approx(drift, abs=1e-6)
+
+
+def test_a_drift_that_changes_slowly_is_followed() -> None:
+    """20 ppm in ten minutes (a node warming up): still within the bound."""
+    clock, host, found = NodeClock(), 100.0, []
+    rng = random.Random(3)
+    for i in range(int(600 / PERIOD)):
+        drift = 20e-6 + 20e-6 * i / (600 / PERIOD)
+        host += PERIOD * (1 + drift)
+        excess = rng.uniform(0, NEAR) if i % 50 == 0 else rng.expovariate(500)
+        found.append(clock.update(i * PERIOD, host + FLOOR + excess) - (host + FLOOR))
+    assert max(abs(e) for e in found[int(60 / PERIOD):]) <= 3 * NEAR + 2e-6
+
+
+def test_a_reboot_starts_again_and_a_long_outage_keeps_the_drift() -> None:
+    clock = NodeClock()
+    errors(stream(30, 80e-6, 10.0, seed=2), 80e-6, 10.0, clock)
+    clock.reset()  # the node rebooted: its timer is at 0 again, with a new offset
+    after = errors(stream(30, 80e-6, 55.0, seed=3), 80e-6, 55.0, clock)
+    assert max(abs(e) for d, e in after if 1.0 <= d < WARM) <= 1e-3
+    assert max(abs(e) for d, e in after if d >= WARM) <= 4 * NEAR + 1e-9
+    # out of range for ten minutes: the device time (unwrapped) goes on, 600 s later
+    gap = [(d + 630.0, 55.0 + (1 + 80e-6) * (d + 630.0) + FLOOR + e, e)
+           for d, _, e in stream(10, 80e-6, 0.0, seed=4)]
+    again = errors(gap, 80e-6, 55.0, clock)
+    assert max(abs(e) for d, e in again if d >= 631.0) <= 4 * NEAR + 1e-9
+    assert clock.estimate().drift == pytest.approx(80e-6, abs=8e-6)  # kept, not reset
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.floats(0, 0.5), min_size=2, max_size=400), st.floats(-400e-6, 400e-6))
+def test_times_are_strictly_increasing_whatever_the_delays(delays, drift):
+    clock = NodeClock()
+    times = [clock.update(i * PERIOD, 7.0 + (1 + drift) * i * PERIOD + delay)
+             for i, delay in enumerate(delays)]
+    assert all(b > a for a, b in zip(times, times[1:], strict=False))
+
+
+def test_two_records_of_one_cycle_get_two_times() -> None:
+    clock = NodeClock()
+    first = clock.update(1.0, 5.0)
+    assert clock.update(1.0, 5.001) > first  # the polled reply behind the stream's
+
+
+def test_an_impossible_drift_is_clamped() -> None:
+    clock = NodeClock()
+    for i in range(300):  # a node whose host times run 2% fast: no crystal does that
+        clock.update(i * PERIOD, 1.02 * i * PERIOD)
+    assert abs(clock.estimate().drift) == pytest.approx(MAX_DRIFT)
+
+
+def test_the_window_and_blocks_are_what_the_docs_say() -> None:
+    assert WINDOW / BLOCK == 30
