@@ -4,6 +4,7 @@ they are, the error is bounded by how close the fastest packets came to the floo
 
 from __future__ import annotations
 
+import itertools
 import random
 
 import pytest
@@ -127,7 +128,7 @@ def test_times_are_strictly_increasing_whatever_the_delays(delays, drift):
     clock = NodeClock()
     times = [clock.update(i * PERIOD, 7.0 + (1 + drift) * i * PERIOD + delay)
              for i, delay in enumerate(delays)]
-    assert all(b > a for a, b in zip(times, times[1:], strict=False))
+    assert all(b > a for a, b in itertools.pairwise(times))
 
 
 def test_two_records_of_one_cycle_get_two_times() -> None:
