@@ -43,8 +43,23 @@ LOCK_SPAN = 1.0
 line: an error of 50 ppm over the span is 50 us, well inside the spread)."""
 LOCK_POINTS = 10
 EARLY = 4 * BLOCK
-"""Seconds from the first point during which the line is fitted at every point: the
-drift's base line is still short, and the hull small."""
+"""Seconds from the first point during which the line is fitted every EARLY_STEP (and
+at every point below it): the drift's base line is still short, and the hull small."""
+EARLY_STEP = 0.1
+# How fast the drift may move. A long run of late packets would otherwise move the
+# hull's middle edge: two nodes at one rate drift past each other by their crystals'
+# difference, and for as long as one node's packet is ready just before the other's,
+# the other's packets all wait behind it on the serial line: tens of seconds of a
+# floor that jumps by a packet's time and ramps back down (gx2-sim shows it at 90% of
+# the line; no packet of that node comes near the true floor meanwhile). A drift
+# fitted over T seconds is uncertain by about FLOOR_NOISE / T, so once fitted over
+# SETTLE_SPAN it moves at most max(DRIFT_RATE, FLOOR_NOISE / T**2) a second: quickly
+# while the base line is short, then no faster than a crystal follows its temperature
+# (about a ppm per kelvin; DRIFT_RATE allows 6 ppm a minute). T is kept through a
+# reset: the drift is the crystal's, not the power-up's.
+SETTLE_SPAN = 10.0
+DRIFT_RATE = 0.1e-6
+FLOOR_NOISE = 0.5e-3
 RESIDUALS = 256
 """Recent residuals (delay above the line) kept for the spread."""
 SLEW = 0.5
@@ -95,6 +110,8 @@ class NodeClock:
         "_current",
         "_drift",
         "_first",
+        "_fitted",
+        "_fitted_at",
         "_given",
         "_last",
         "_locked_since",
@@ -105,6 +122,9 @@ class NodeClock:
 
     def __init__(self) -> None:
         self._drift = 0.0
+        self._fitted = 0.0
+        """Device seconds over which the drift has been fitted (kept through a reset:
+        the drift is the crystal's)."""
         self.reset()
 
     def reset(self) -> None:
@@ -114,6 +134,7 @@ class NodeClock:
         self._current: list[Point] = []
         self._block_start = 0.0
         self._offset = 0.0
+        self._fitted_at: float | None = None
         self._points = 0
         self._first = 0.0
         self._last = 0.0
@@ -141,7 +162,8 @@ class NodeClock:
             self._offset = y - self._drift * device
         elif device - self._block_start >= BLOCK:
             self._close_block(device)
-        elif device - self._first < EARLY:
+        elif device - self._first < EARLY and (device - (self._fitted_at or 0.0) >= EARLY_STEP
+                                               or y < self._offset + self._drift * device):
             self._fit()
         elif y < self._offset + self._drift * device:
             self._offset = y - self._drift * device  # lowered to it; refit at the block's end
@@ -187,12 +209,21 @@ class NodeClock:
         middle = (hull[0][0] + hull[-1][0]) / 2
         edge = min(max(bisect.bisect_left(hull, (middle,)), 1), len(hull) - 1)
         (x1, y1), (x2, y2) = hull[edge - 1], hull[edge]
-        drift = (y2 - y1) / (x2 - x1)
-        if abs(drift) <= MAX_DRIFT:
-            self._drift, self._offset = drift, y1 - drift * x1
-            return
-        self._drift = max(-MAX_DRIFT, min(MAX_DRIFT, drift))
-        self._offset = min(y - self._drift * x for x, y in hull)
+        drift = max(-MAX_DRIFT, min(MAX_DRIFT, (y2 - y1) / (x2 - x1)))
+        now = hull[-1][0]
+        step = 0.0 if self._fitted_at is None else max(now - self._fitted_at, 0.0)
+        self._fitted += step
+        if self._fitted >= SETTLE_SPAN:
+            room = max(DRIFT_RATE, FLOOR_NOISE / self._fitted ** 2) * step
+            drift = max(self._drift - room, min(self._drift + room, drift))
+        self._fitted_at = now
+        self._drift = drift
+        self._offset = min(y - drift * x for x, y in hull)
+
+    @property
+    def points(self) -> int:
+        """Packets since the last reset (or restart after an outage)."""
+        return self._points
 
     def estimate(self) -> Estimate:
         """The current estimate (for status)."""

@@ -41,18 +41,22 @@ from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
 
 PIPELINE = r'''
-import asyncio, multiprocessing, sys, time
+import asyncio, inspect, multiprocessing, sys, time
 sys.path.insert(0, sys.argv[1])
 sys.path.insert(1, sys.argv[2])
 import aspp, gateway  # from the tree measured, before anything puts this one first
 try:
     from gateway.daemon.app import Gateway
     from gateway.daemon.config import GatewayConfig
+    from gateway.daemon.reader import Reader
     def feeder(gw): return gw.reader.on_data
+    # a read's UNIX time, and its monotonic time where the reader takes one too
+    CLOCKS = 2 if "monotonic" in inspect.signature(Reader.on_data).parameters else 1
 except ImportError:
     from gateway.daemon import Gateway
     from gateway.config import GatewayConfig
     def feeder(gw): return gw._on_data
+    CLOCKS = 1
 for module in (aspp, gateway, sys.modules[Gateway.__module__]):
     assert module.__file__.startswith(sys.argv[1]), module.__file__
 from perf import count_messages
@@ -80,7 +84,7 @@ async def run():
     time.sleep(0.5)
     cpu = time.process_time()
     for chunk in chunks:
-        feed(chunk, time.time())
+        feed(chunk, *(time.time(),) * CLOCKS)
     gw.publisher.close()
     gw._context.destroy(linger=5000)
     return time.process_time() - cpu

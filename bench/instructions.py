@@ -25,18 +25,22 @@ from pathlib import Path
 
 BENCH = Path(__file__).resolve().parent
 RUN = r'''
-import asyncio, sys
+import asyncio, inspect, sys
 tree, packets = sys.argv[1], int(sys.argv[2])
 sys.path.insert(0, tree)
 import aspp, gateway
 try:
     from gateway.daemon.app import Gateway
     from gateway.daemon.config import GatewayConfig
+    from gateway.daemon.reader import Reader
     def feeder(gw): return gw.reader.on_data
+    # a read's UNIX time, and its monotonic time where the reader takes one too
+    CLOCKS = 2 if "monotonic" in inspect.signature(Reader.on_data).parameters else 1
 except ImportError:  # a tree from before the daemon's package
     from gateway.daemon import Gateway
     from gateway.config import GatewayConfig
     def feeder(gw): return gw._on_data
+    CLOCKS = 1
 sys.path.insert(1, sys.argv[3])
 from decoder_throughput import mixed_stream
 stream = mixed_stream(40000)
@@ -53,8 +57,11 @@ async def run():
     for address, record in ((76, "accel_angrate"), (77, "accel_angrate_mag_orientation"),
                             (95, "euler")):
         gw.nodes[address].streaming(record)
-    for chunk in chunks:
-        feed(chunk, 1.7e9)
+    # reads of the host's clock advancing with the stream's own timers (100 Hz a node),
+    # so that a node's clock estimate sees the pairs it sees on a line
+    seconds = len(stream) and 40000 * 0.01 / 3 / len(stream)
+    for index, chunk in enumerate(chunks):
+        feed(chunk, *(1.7e9 + (index + 1) * 4096 * seconds,) * CLOCKS)
     gw.publisher.close()
     gw._context.destroy(linger=0)
 asyncio.run(run())

@@ -201,7 +201,7 @@ def pipeline_round(chunks: list[bytes], packets: int) -> tuple[float, float]:
         time.sleep(0.5)  # the subscription reaches the PUB (ZeroMQ's slow joiner)
         start, cpu = time.perf_counter(), time.process_time()
         for chunk in chunks:
-            gateway.reader.on_data(chunk, time.time())
+            gateway.reader.on_data(chunk, time.time(), time.monotonic())
         gateway.publisher.close()
         gateway._context.destroy(linger=5000)  # returns once every message is out
         return start, time.process_time() - cpu

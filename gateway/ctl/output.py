@@ -139,7 +139,17 @@ def _count(value: Any, unit: str) -> str:
 
 NODE_COLUMNS = ("node", "name", "state", "record", "configured", "desired", "rate Hz",
                 "packets", "published", "lost radio", "lost gateway", "reboots",
-                "silences", "LQI", "RSSI", "last seen")
+                "silences", "LQI", "RSSI", "last seen", "clock")
+
+
+def clock_cell(clock: Any) -> str:
+    """A node's clock estimate in a few characters: its drift and whether it is locked
+    ("+40.1 ppm" locked, "~+40.1 ppm" still settling, "-" before a timed record)."""
+    if not isinstance(clock, Mapping):
+        return "-"
+    drift = number(clock.get("drift_ppm"))
+    shown = "?" if drift is None else f"{drift:+.1f} ppm"
+    return shown if clock.get("locked") is True else f"~{shown}"
 
 
 def status_lines(result: Mapping[str, Any], now: float) -> list[str]:
@@ -166,7 +176,7 @@ def status_lines(result: Mapping[str, Any], now: float) -> list[str]:
              cell(node.get("published")), cell(node.get("lost_radio")),
              cell(node.get("lost_gateway")), cell(node.get("reboots")),
              cell(node.get("silences")), cell(node.get("lqi")), cell(node.get("rssi")),
-             ago(node.get("last_seen"), now)]
+             ago(node.get("last_seen"), now), clock_cell(node.get("clock"))]
             for node in (nodes if isinstance(nodes, list) else []) if isinstance(node, Mapping)]
     if rows:
         lines.append("")

@@ -50,7 +50,10 @@ class Gateway:
     def __init__(self, config: GatewayConfig) -> None:
         self.config = config
         self.started = time.time()
-        self.nodes = {n.address: Node(n) for n in config.nodes}
+        station = config.base_station
+        self.nodes = {n.address: Node(n, byte_time=10 / station.baudrate,
+                                      latency=station.latency_ms / 1000)
+                      for n in config.nodes}
         self.systemd = Notifier()
         self._ready = False
         self._context = zmq.asyncio.Context()

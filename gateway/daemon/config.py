@@ -37,6 +37,12 @@ class BaseStationConfig(Strict):
     baudrate: Annotated[int, Field(ge=1200, le=4_000_000)] = 115200
     idle_ms: Annotated[float, Field(ge=1, le=1000)] = 30.0
     """Added: a line silent this long has finished what it was sending."""
+    latency_ms: Annotated[float, Field(ge=0, le=1000)] = 3.0
+    """Added: milliseconds from a sample to its packet leaving the base station when
+    nothing waits: the radio's part of a packet's delay, which the host cannot see.
+    3 ms: a 0xC2 reply is about 57 bytes on the air with 802.15.4's framing, 1.8 ms at
+    250 kbit/s, plus the node's and the base station's handling (README says how to
+    measure it)."""
 
 
 class PublishConfig(Strict):

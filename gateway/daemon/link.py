@@ -1,7 +1,8 @@
 """The base station's serial port, read by the event loop: the one place bytes enter.
 
 Opened exclusively and raw (pyserial sets raw mode on a tty); each time the fd is
-readable, everything waiting is read in one call and stamped with the host time.
+readable, everything waiting is read in one call and stamped with the host time, on
+the UNIX clock and on the monotonic one.
 Writes go straight to the non-blocking fd; what it cannot take at once waits in a
 small buffer that is flushed when the fd becomes writable, so a busy host or a full
 driver buffer is never mistaken for a lost port (pyserial's own write timeout counts a
@@ -34,7 +35,8 @@ packet of at most 110 bytes in flight, so this many means the port stopped takin
 class SerialLink:
     """Owns the port: open, read what is waiting, write, and reopen after a loss."""
 
-    def __init__(self, port: str, baudrate: int, on_data: Callable[[bytes, float], None],
+    def __init__(self, port: str, baudrate: int,
+                 on_data: Callable[[bytes, float, float], None],
                  on_state: Callable[[bool], None]) -> None:
         self.port = port
         self.baudrate = baudrate
@@ -167,7 +169,7 @@ class SerialLink:
             self._lost("the port reported end of file")
             return
         self.bytes_read += len(data)
-        self._on_data(data, time.time())
+        self._on_data(data, time.time(), time.monotonic())
 
     def _poll_url(self) -> None:
         try:
@@ -177,7 +179,7 @@ class SerialLink:
             return
         if data:
             self.bytes_read += len(data)
-            self._on_data(data, time.time())
+            self._on_data(data, time.time(), time.monotonic())
         self._poll_handle = asyncio.get_running_loop().call_later(0.005, self._poll_url)
 
     def _lost(self, why: str) -> None:

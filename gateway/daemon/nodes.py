@@ -15,6 +15,7 @@ import time
 from enum import StrEnum
 from typing import Any, NamedTuple
 
+from aspp.clock import NodeClock
 from aspp.events import LINK_QUALITY
 from aspp.records import Record
 from aspp.timing import (
@@ -75,8 +76,16 @@ class Delivery(NamedTuple):
 class Node:
     """One configured node."""
 
-    def __init__(self, config: NodeEntry) -> None:
+    def __init__(self, config: NodeEntry, *, byte_time: float = 10 / 115200,
+                 latency: float = 0.0) -> None:
         self.config = config
+        self.clock = NodeClock()
+        """Where its timer falls on the host's clock (see :mod:`aspp.clock`)."""
+        self._byte_time = byte_time
+        """Seconds a byte takes on the serial line (10 bits at the baud rate)."""
+        self._latency = latency
+        """Seconds from a sample to its packet leaving the base station, at the least:
+        the radio's part, which the host cannot see (base_station.latency_ms)."""
         self.address = config.address
         self.name = config.name
         self.label = config.label
@@ -127,10 +136,11 @@ class Node:
 
     # -- the per-record path -------------------------------------------------------------
 
-    def tally(self, raw: bytes, record: Record, host_time: float) -> dict[str, Any]:
+    def tally(self, raw: bytes, record: Record, host_time: float,
+              monotonic: float) -> dict[str, Any]:
         """Count one record of this node (seq, packets, link quality, rate, device time,
-        samples lost over the air) and return its published payload (CONTRACT section 4).
-        ``raw`` is the packet it came in."""
+        sample time, samples lost over the air) and return its published payload. ``raw``
+        is the packet it came in, read at ``host_time`` (UNIX) and ``monotonic``."""
         self.seq = seq = self.seq + 1
         self.packets += 1
         self.lqi, self.rssi = lqi, rssi = LINK_QUALITY.unpack_from(raw, len(raw) - 4)
@@ -149,13 +159,20 @@ class Node:
         timer = payload.get("timer")
         if timer is not None:
             unwrapper = self._unwrapper
-            payload["device_time"] = unwrapper.update(timer, host_time)
+            payload["device_time"] = device = unwrapper.update(timer, monotonic)
             if unwrapper.last_was_reset:
                 if not self._reboot_announced:  # a reboot seen only in the timer
                     self.reboots += 1
                     self.timer_reset = True
                 self._reboot_announced = False
                 self._last_stream_timer = None  # no gap across a power-up
+                self.clock.reset()
+            # the clock runs on the monotonic clock, fed when the packet began to reach
+            # the host (its own bytes on the line before the read); the sample was taken
+            # the radio's latency before it left, and goes out on the UNIX clock of the
+            # read, so a step of that clock moves it by the step and no more
+            payload["time"] = (self.clock.update(device, monotonic - len(raw) * self._byte_time)
+                               - self._latency + host_time - monotonic)
             if is_stream:
                 self._count_gaps(timer)
         if is_stream:
@@ -255,8 +272,10 @@ class Node:
             self.settled()
 
     def rebooted(self) -> None:
-        """A discovery packet: the node lost power; whatever it streamed is gone."""
+        """A discovery packet: the node lost power; whatever it streamed is gone, and
+        its timer starts again."""
         self.reboots += 1
+        self.clock.reset()
         self._reboot_announced = True  # its timer going back is the same reboot
         self.record = None
         self._state = State.REBOOTED
@@ -297,6 +316,20 @@ class Node:
 
     # -- status --------------------------------------------------------------------------
 
+    def clock_status(self, now: float) -> dict[str, Any] | None:
+        """The clock estimate on the UNIX clock at ``now`` (None before a timed record):
+        ``offset`` is when its timer read 0 (its power-up), less the latency."""
+        if self.clock.points == 0:
+            return None
+        estimate = self.clock.estimate()
+        shift = now - time.monotonic()
+        return {"offset": estimate.offset - self._latency + shift,
+                # how fast its timer runs against the host's clock (positive: fast)
+                "drift_ppm": round((1 / (1 + estimate.drift) - 1) * 1e6, 3),
+                "spread_ms": round(estimate.spread * 1e3, 4), "locked": estimate.locked,
+                "since": None if estimate.locked_since is None
+                else estimate.locked_since + shift}
+
     def status(self, now: float) -> dict[str, Any]:
         if self.last_seen is not None and now - self.last_seen > 2 * RATE_WINDOW:
             self.rate_hz = 0.0
@@ -306,4 +339,5 @@ class Node:
                 "divider": self.divider, "packets": self.packets, "published": self.seq,
                 "lost_radio": self.lost_radio, "lost_gateway": self.lost_gateway,
                 "reboots": self.reboots, "silences": self.silences, "lqi": self.lqi,
-                "rssi": self.rssi, "last_seen": self.last_seen, "seq": self.seq}
+                "rssi": self.rssi, "last_seen": self.last_seen, "seq": self.seq,
+                "clock": self.clock_status(now)}

@@ -38,26 +38,27 @@ class Reader:
         self.bad_records = 0
         self._idle: asyncio.TimerHandle | None = None
 
-    def on_data(self, data: bytes, host_time: float) -> None:
-        """One read from the port, and when it was made (UNIX seconds)."""
-        self._dispatch(self.decoder.feed(data), host_time)
+    def on_data(self, data: bytes, host_time: float, monotonic: float) -> None:
+        """One read from the port, and when it was made: UNIX seconds, and seconds on
+        the clock that never steps (the clock estimates run on it)."""
+        self._dispatch(self.decoder.feed(data), host_time, monotonic)
         if self._idle is not None:
             self._idle.cancel()
             self._idle = None
         if self.decoder.pending:  # a line quiet this long has finished what it sent
             self._idle = asyncio.get_running_loop().call_later(
-                self.idle_seconds, self._line_idle, host_time)
+                self.idle_seconds, self._line_idle, host_time, monotonic)
 
-    def _line_idle(self, host_time: float) -> None:
+    def _line_idle(self, host_time: float, monotonic: float) -> None:
         self._idle = None
-        self._dispatch(self.decoder.line_idle(), host_time)
+        self._dispatch(self.decoder.line_idle(), host_time, monotonic)
 
-    def _dispatch(self, events: list[Event], host_time: float) -> None:
+    def _dispatch(self, events: list[Event], host_time: float, monotonic: float) -> None:
         scheduler = self.scheduler
         for event in events:
             kind = type(event)
             if kind is Reply:
-                self._on_reply(event, host_time)  # type: ignore[arg-type]
+                self._on_reply(event, host_time, monotonic)  # type: ignore[arg-type]
             elif kind is Ack:
                 scheduler.on_ack()
             elif kind is Nack:
@@ -69,7 +70,7 @@ class Reader:
                 if node is not None:
                     self.supervisor.discovery(node)
 
-    def _on_reply(self, event: Reply, host_time: float) -> None:
+    def _on_reply(self, event: Reply, host_time: float, monotonic: float) -> None:
         node = self.nodes.get(event.node)
         if node is None:
             self.unknown_node_packets += 1
@@ -81,7 +82,7 @@ class Reader:
             self.bad_records += 1
             log.debug("node %d: %s", event.node, error)
             return
-        payload = node.tally(raw, record, host_time)
+        payload = node.tally(raw, record, host_time, monotonic)
         if not self.publisher.publish(node.address, record.spec.name, payload):
             node.publish_failed()
         if node.unusual:  # (the next record of a known stream needs no supervision)

@@ -23,7 +23,10 @@ from aspp.host_side import CommandPacket, Garbled, HostStreamDecoder, PingReques
 from .node import FIRMWARE_VERSION, SimNode
 
 RADIO_LATENCY = 0.003
-"""One way over the air, base station to node or back (seconds)."""
+"""One way over the air, base station to node or back, at the least (seconds): the
+floor of every packet's delay, which the gateway's ``latency_ms`` stands for."""
+JITTER_MAX = 0.02
+"""The random part of a packet's radio delay is cut at this (seconds)."""
 PING_TIMEOUT = 0.030
 """How long the base station waits for a node before answering a ping with 0x21."""
 GLUE_WAIT = 0.050
@@ -47,6 +50,10 @@ class LineFaults:
     nack: float = 0.0
     """Chance that a well-formed command packet is NACKed anyway (received garbled)
     and not broadcast: the host must send it again."""
+    stall_rate: float = 0.0
+    """Stalls per second: the base station holds its output back for ``stall_ms``, then
+    sends what it held (packets beyond its buffer are lost meanwhile)."""
+    stall_ms: float = 50.0
 
 
 @dataclass
@@ -60,6 +67,9 @@ class RadioLink:
     """Extra loss for 0xFA alone: a node busy streaming often misses it."""
     lqi: int = 200
     rssi: int = -45
+    jitter: float = 0.0005
+    """Mean of the random part of a packet's radio delay (exponential, seconds), on top
+    of RADIO_LATENCY."""
 
 
 @dataclass
@@ -74,6 +84,7 @@ class StationStats:
     packets_dropped_full: int = 0
     bytes_sent: int = 0
     faults_injected: int = 0
+    stalls: int = 0
     line_idle: float = 0.0
     """Seconds the UART had nothing to send between two chunks (model time, so it does
     not depend on how promptly the simulator's thread runs)."""
@@ -100,6 +111,14 @@ class BaseStation:
         self._line_free_at = 0.0
         self._held_ack_since: float | None = None
         self._held_acks = 0
+        self._arrived: dict[int, float] = {}  # node -> when its last packet arrived
+        self._in_air: list[tuple[float, int, int, bytes]] = []  # (arrival, seq, node, reply)
+        self._jitter = {a: random.Random(self.rng.random()) for a in self.nodes}
+        """A stream of random numbers per node: a node's delays are the same however
+        the simulator's thread batches its work."""
+        self._next_stall: float | None = None
+        """When the output next stalls (drawn at the first packet: the clock's zero is
+        arbitrary)."""
 
     # -- host side --------------------------------------------------------------------
 
@@ -185,15 +204,31 @@ class BaseStation:
             self._queue(self._release_acks(), now, control=True)
 
     def _replies_until(self, t: float) -> None:
-        """The replies of every cycle whose record reaches the base station by ``t``."""
-        replies = []
+        """The replies that reach the base station by ``t``, in the order they arrive:
+        each cycle's record is in the air from when it is made until its arrival."""
         for address, node in self.nodes.items():
-            replies.extend((c + RADIO_LATENCY, address, reply)
-                           for c, reply in node.run_until(t - RADIO_LATENCY))
-        # by time only: sorted() is stable, so a node's replies keep the order the node
-        # made them in (a cycle's continuous record before its polled reply)
-        for c, address, reply in sorted(replies, key=lambda item: item[0]):
-            self._send_packet(address, reply, c)
+            for c, reply in node.run_until(t - RADIO_LATENCY):
+                self._seq += 1  # (a node's replies keep the order it made them in)
+                heapq.heappush(self._in_air, (self._arrival(address, c), self._seq,
+                                              address, reply))
+        while self._in_air and self._in_air[0][0] <= t:
+            arrival, _, address, reply = heapq.heappop(self._in_air)
+            self._send_packet(address, reply, arrival)
+
+    def _arrival(self, address: int, sent: float) -> float:
+        """When a packet the node sent at ``sent`` reaches the base station: the radio's
+        floor and a random part, never before the node's previous packet (a node's
+        packets arrive in order)."""
+        jitter = self.radio[address].jitter
+        extra = min(self._jitter[address].expovariate(1 / jitter), JITTER_MAX) if jitter \
+            else 0.0
+        arrival = max(sent + RADIO_LATENCY + extra, self._arrived.get(address, 0.0))
+        self._arrived[address] = arrival
+        return arrival
+
+    def _stall_after(self, t: float) -> float:
+        rate = self.line.stall_rate
+        return t + self.rng.expovariate(rate) if rate else float("inf")
 
     def _release_acks(self) -> bytes:
         acks = bytes((ACK,)) * self._held_acks
@@ -234,6 +269,13 @@ class BaseStation:
     def _queue(self, chunk: bytes, t: float, control: bool = False) -> bool:
         """Schedule ``chunk`` on the UART; False if the buffer is full (never for
         ``control`` bytes, the base station's own answers)."""
+        if self._next_stall is None:
+            self._next_stall = self._stall_after(t)
+        while t >= self._next_stall:  # a stall: the output is held back, then sent
+            stall = self._next_stall
+            self._line_free_at = max(self._line_free_at, stall) + self.line.stall_ms / 1000
+            self.stats.stalls += 1
+            self._next_stall = self._stall_after(stall)
         backlog = (self._line_free_at - t) / self.byte_time
         if backlog + len(chunk) > BUFFER_BYTES and not control:
             return False
@@ -269,6 +311,8 @@ class BaseStation:
             times.append(self._to_nodes[0][0])
         if self._held_ack_since is not None:
             times.append(self._held_ack_since + GLUE_WAIT)
+        if self._in_air:
+            times.append(self._in_air[0][0])
         for node in self.nodes.values():
             if node.continuous or node.pending or node.capture_due:
                 times.append(node.next_cycle_time() + RADIO_LATENCY)

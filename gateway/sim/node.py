@@ -36,6 +36,7 @@ INERTIA_LINK = "inertia-link"
 GX2 = "3dm-gx2"
 FIRMWARE_VERSION = 2113  # 2.1.13: the first with every command of the reference (0xD3)
 _NAN3 = (math.nan, math.nan, math.nan)
+SAMPLED_MAX = 200_000
 BIT_STEP = 0.1
 """What the built-in test adds to a stepped output: g for accelerometers, rad/s for
 rate sensors (the reference gives no size)."""
@@ -54,6 +55,9 @@ class NodeSettings:
     """Seconds on the timer at power-up (215 starts it 3.45 s before the wrap)."""
     serial: str = ""
     motion: Motion = field(default_factory=Motion)
+    ppm: float | None = None
+    """Its crystal's error: the timer and the calculation cycles run this many parts per
+    million fast (negative: slow). None: a few tens, different for each address."""
     gyro: str = DEFAULT_GYRO
     """The rate sensor model, which sets how its temperature output reads."""
     gyro_bias_error: Vector = (0.0, 0.0, 0.0)
@@ -92,6 +96,9 @@ class SimNode:
         self.nonvolatile: dict[int, Vector] = {1: (0.0, 0.0, 0.0), 2: (0.0, 0.0, 0.0)}
         """What 0xD0 stored, loaded at power-up: 1 the accel bias, 2 the gyro bias."""
         self.bit_faults = set(settings.bit_faults)
+        self.sampled: dict[int, float] = {}
+        """Timer reading -> the host-clock instant (time.monotonic()) its record was
+        taken, for the newest SAMPLED_MAX timed records."""
         if settings.stream:
             self.eeprom[EEPROM_AUTO_START] = gx2.AUTO_START_WIRELESS | lookup(settings.stream).code
         self.power_up(now)
@@ -118,11 +125,20 @@ class SimNode:
     def period(self) -> float:
         return sample_period(self.divider)
 
+    @property
+    def ppm(self) -> float:
+        """The crystal's error; by default spread over -30..+30 ppm by address."""
+        if self.settings.ppm is not None:
+            return self.settings.ppm
+        return float((self.address * 37) % 61 - 30)
+
     def _rebase(self, t: float) -> None:
         """Count cycles from ``t`` at the current period (after power-up, or when the
-        divider changes: cycles already run keep the times they had)."""
+        divider changes: cycles already run keep the times they had). A fast crystal
+        makes its cycles short in true time: the timer still counts divider * 384 ticks
+        a cycle."""
         self._cycles_from = t
-        self._cycle_period = self.period
+        self._cycle_period = self.period / (1 + self.ppm * 1e-6)
         self.cycle = 0
 
     @property
@@ -134,7 +150,7 @@ class SimNode:
         return self._cycles_from + (self.cycle + 1) * self._cycle_period
 
     def timer_at(self, now: float) -> int:
-        seconds = self.settings.timer_start + (now - self.powered_at)
+        seconds = self.settings.timer_start + (now - self.powered_at) * (1 + self.ppm * 1e-6)
         return round(seconds * TICKS_PER_SECOND) % TIMER_MODULUS
 
     # -- the host's commands ------------------------------------------------------------
@@ -151,6 +167,14 @@ class SimNode:
             self.continuous = 0  # no reply; takes effect from the next cycle
         else:
             self.pending.append(command)
+
+    def _remember(self, t: float, reply: bytes) -> None:
+        """When a timed record was really taken (the truth a test compares with)."""
+        if lookup(reply[0]).timed:
+            sampled = self.sampled
+            sampled[int.from_bytes(reply[-4:], "big")] = t
+            if len(sampled) > SAMPLED_MAX:
+                del sampled[next(iter(sampled))]
 
     def run_until(self, now: float) -> list[tuple[float, bytes]]:
         """Complete every calculation cycle due by ``now``; return (time, reply) pairs."""
@@ -171,6 +195,8 @@ class SimNode:
                 if reply is not None:
                     out.append((t, reply))
         self.log.records_sent += len(out)
+        for t, reply in out:
+            self._remember(t, reply)
         return out
 
     def execute(self, command: gx2.Command, t: float) -> bytes | None:

@@ -152,7 +152,9 @@ def status_result(publish: str) -> dict[str, Any]:
              "configured": "euler", "desired": "accel_angrate", "rate_hz": 100.0,
              "packets": 5000, "published": 4990, "lost_radio": 3,
              "lost_gateway": 0, "reboots": 1, "silences": 2, "lqi": 255, "rssi": -44,
-             "last_seen": now - 1.5, "seq": 4990},
+             "last_seen": now - 1.5, "seq": 4990,
+             "clock": {"offset": now - 3600.0, "drift_ppm": -12.34, "spread_ms": 0.05,
+                       "locked": True, "since": now - 60.0}},
             {"node": 95, "name": None, "state": "unknown", "record": None, "rate_hz": NAN,
              "packets": 0, "lost_radio": 0, "lqi": None, "rssi": None, "last_seen": None,
              "future_key": {"a": 1}},
@@ -325,10 +327,10 @@ READABLE: dict[str, tuple[list[str], str]] = {
                r"link     sim:// up for 1 min 3\d s, reconnects 2, read 123456 bytes, "
                r"discarded 7 bytes\n\n"
                r"node +name +state +record +configured +desired +rate Hz +packets +published +"
-               r"lost radio +lost gateway +reboots +silences +LQI +RSSI +last seen\n"
+               r"lost radio +lost gateway +reboots +silences +LQI +RSSI +last seen +clock\n"
                r"76 +left-wing +streaming +accel_angrate +euler +accel_angrate +100 +5000 +4990 "
-               r"+3 +0 +1 +2 +255 +-44 +1\.\d s ago\n"
-               r"95 +- +unknown +- +- +- +- +0 +- +0 +- +- +- +- +- +never\n"),
+               r"+3 +0 +1 +2 +255 +-44 +1\.\d s ago +-12\.3 ppm\n"
+               r"95 +- +unknown +- +- +- +- +0 +- +0 +- +- +- +- +- +never +-\n"),
 }
 
 
@@ -658,3 +660,10 @@ def test_tail_on_a_dead_gateway_exits_3(tmp_path: Path) -> None:
                          capture_output=True, text=True, timeout=30)
     assert run.returncode == 3 and time.monotonic() - start < 1 + PROCESS_ALLOWANCE
     assert run.stderr.count("\n") == 1 and "published nothing" in run.stderr
+
+
+def test_status_shows_each_nodes_clock_drift_and_whether_it_is_locked():
+    from gateway.ctl.output import clock_cell
+    assert clock_cell({"drift_ppm": 40.06, "locked": True}) == "+40.1 ppm"
+    assert clock_cell({"drift_ppm": -3.0, "locked": False}) == "~-3.0 ppm"
+    assert clock_cell(None) == "-" and clock_cell({"locked": True}) == "?"

@@ -43,7 +43,7 @@ def test_a_port_that_does_not_take_bytes_yet_is_not_lost(pty_pair) -> None:
     states: list[bool] = []
 
     async def scenario() -> bytes:
-        link = SerialLink(path, 115200, lambda data, t: None, states.append)
+        link = SerialLink(path, 115200, lambda data, t, m: None, states.append)
         link.open()
         sent = bytearray()
         packet = bytes(range(100))
@@ -70,7 +70,7 @@ def test_a_port_that_takes_nothing_at_all_is_lost(pty_pair, monkeypatch) -> None
     states: list[bool] = []
 
     async def scenario() -> None:
-        link = SerialLink(path, 115200, lambda data, t: None, states.append)
+        link = SerialLink(path, 115200, lambda data, t, m: None, states.append)
         link.open()
         with pytest.raises(OSError, match="stopped taking bytes"):
             while True:
@@ -88,7 +88,7 @@ def test_the_master_closing_is_a_lost_port(pty_pair) -> None:
     states: list[bool] = []
 
     async def scenario() -> None:
-        link = SerialLink(path, 115200, lambda data, t: None, states.append)
+        link = SerialLink(path, 115200, lambda data, t, m: None, states.append)
         link.open()
         os.close(master)
         await wait_for_async(lambda: not link.up, 5, "the link to go down")

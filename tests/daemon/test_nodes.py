@@ -34,7 +34,7 @@ def test_polled_mode_is_not_watched() -> None:
 def stream_record(node: Node, timer: int, at: float) -> dict:
     raw = encode_reply_packet(node.address, encode("accel_angrate", accel=(0, 0, -1),
                                                    ang_rate=(0, 0, 0), timer=timer))
-    return node.tally(raw, decode(raw, 7, len(raw) - 4), at)
+    return node.tally(raw, decode(raw, 7, len(raw) - 4), at, at)
 
 
 def test_the_divider_follows_the_streams_own_timer() -> None:
@@ -70,3 +70,26 @@ def test_a_timer_that_goes_back_is_a_reboot_for_the_supervisor() -> None:
     stream_record(node, 100 * TICKS_PER_SECOND, 1000.0)
     stream_record(node, 1 * TICKS_PER_SECOND, 1000.01)  # back by 99 s: a power-up
     assert node.reboots == 1 and node.take_timer_reset() and not node.take_timer_reset()
+
+
+def test_time_is_the_sample_instant_and_a_step_of_the_host_clock_moves_it_by_the_step():
+    """100 Hz, every packet 3 ms (the latency) plus its 40 bytes on the line after its
+    sample: ``time`` is the sample's instant. Then NTP steps the UNIX clock 10 s ahead
+    (the monotonic clock goes on): ``time`` moves by the 10 s and no more, and it keeps
+    increasing."""
+    byte_time = 10 / 115200
+    node = Node(NodeEntry(address=76), byte_time=byte_time, latency=0.003)
+    node.streaming("accel_angrate")
+    unix, mono, start = 1.7e9, 5000.0, 12.0
+    found = []
+    for i in range(500):
+        sampled = i * 0.01
+        at = mono + sampled + 0.003 + 40 * byte_time + (0.02 if i % 7 else 0.0)
+        step = 10.0 if i >= 400 else 0.0
+        raw = encode_reply_packet(76, encode(0xC2, accel=(0.0, 0.0, -1.0),
+                                             ang_rate=(0.0, 0.0, 0.0),
+                                             timer=round((start + sampled) * TICKS_PER_SECOND)))
+        payload = node.tally(raw, decode(raw, 7, len(raw) - 4), unix + at - mono + step, at)
+        found.append(payload["time"] - (unix + sampled + step))
+    assert max(abs(e) for e in found[100:]) < 1e-6
+    assert node.status(time.time())["clock"]["locked"] is True

@@ -79,7 +79,7 @@ class Wired:
             self.station.advance(now)
             out = self.station.take_output(now)
             if out:
-                self.reader.on_data(out, time.time())
+                self.reader.on_data(out, time.time(), time.monotonic())
             await asyncio.sleep(max(0.0, min(self.station.next_due(now) - time.monotonic(),
                                              PUMP)))
 

@@ -19,7 +19,8 @@ T0 = 1000.0
 
 
 def node(**settings) -> SimNode:
-    return SimNode(NodeSettings(address=76, **settings), now=T0)
+    """Node 76 with a perfect crystal unless told otherwise: these tests count ticks."""
+    return SimNode(NodeSettings(**{"address": 76, "ppm": 0.0, **settings}), now=T0)
 
 
 def norm(v) -> float:
@@ -215,3 +216,16 @@ def test_a_divider_change_long_after_power_up_keeps_the_stream_going():
     assert 24 <= len(out) <= 26  # 25 Hz from the change on
     timers = [decode(reply).timer for _, reply in out]
     assert {b - a for a, b in pairwise(timers)} == {2048 * 384}
+
+
+def test_a_crystal_off_by_some_ppm_runs_its_timer_and_its_cycles_that_much_fast() -> None:
+    """Over 100 s of true time a +40 ppm node counts 100.004 s and makes its cycles
+    that much more often; each record is still exactly one divider of ticks on."""
+    fast = node(ppm=40.0, stream="euler")
+    sent = fast.run_until(T0 + 100.0)
+    timers = [decode(reply).timer for _, reply in sent]
+    assert fast.timer_at(T0 + 100.0) == round(100.004 * TICKS_PER_SECOND)
+    assert len(sent) == int(100.004 * 100)  # 100 Hz of its own clock
+    assert {b - a for a, b in pairwise(timers)} <= {512 * 384 - 1, 512 * 384, 512 * 384 + 1}
+    assert node().ppm == 0.0 and SimNode(NodeSettings(76), T0).ppm != \
+        SimNode(NodeSettings(77), T0).ppm  # by default different for each node

@@ -4,6 +4,7 @@ pings, radio loss, line pacing at the baud rate, faults and reboots."""
 from __future__ import annotations
 
 import random
+from itertools import pairwise
 
 import pytest
 
@@ -12,7 +13,9 @@ from aspp.frame import encode_command_packet, encode_ping
 from gateway.sim.base_station import (
     BUFFER_BYTES,
     GLUE_WAIT,
+    JITTER_MAX,
     PING_TIMEOUT,
+    RADIO_LATENCY,
     BaseStation,
     LineFaults,
     RadioLink,
@@ -198,3 +201,57 @@ def test_a_station_that_runs_late_sends_what_a_prompt_one_would():
     assert PingOk() in events and "euler" in [decode(r.payload).name for r in replies(events)]
     assert dropped_prompt == dropped_late == 0
     assert late == prompt
+
+
+def timed_replies(bench: Bench, seconds: float, step: float = 0.0002) -> list[tuple[float, Reply]]:
+    """(when its last byte left the UART, reply) for each reply over ``seconds``."""
+    out = []
+    end = bench.now + seconds
+    while bench.now < end:
+        bench.now += step
+        bench.station.advance(bench.now)
+        chunk = bench.station.take_output(bench.now)
+        out += [(bench.now, e) for e in bench.decoder.feed(chunk) if type(e) is Reply]
+    return out
+
+
+def test_each_record_arrives_the_radio_floor_and_a_random_part_after_it_was_sampled():
+    """The truth the sample-time tests compare with: a node's ``sampled`` holds when
+    each timer reading was taken; its packet reaches the host RADIO_LATENCY, plus an
+    exponential part of mean ``jitter``, plus its own time on the line, after that."""
+    bench = Bench(NodeSettings(76, stream="accel_angrate", divider=1024, ppm=25.0),
+                  radio={76: RadioLink(jitter=0.0005)})
+    got = timed_replies(bench, 20.0)
+    sampled = bench.station.nodes[76].sampled
+    line_time = 40 * bench.station.byte_time  # a 0xC2 packet: 40 bytes
+    delays = [at - line_time - sampled[decode(r.payload).timer] for at, r in got]
+    assert len(delays) > 900
+    assert min(delays) >= RADIO_LATENCY - 1e-9
+    assert min(delays) <= RADIO_LATENCY + 0.0003  # (the clock's step, 0.2 ms)
+    assert sum(delays) / len(delays) - RADIO_LATENCY == pytest.approx(0.0006, abs=0.0002)
+    assert max(delays) <= RADIO_LATENCY + JITTER_MAX + 0.0003
+    timers = [decode(r.payload).timer for _, r in got]
+    assert timers == sorted(timers), "a node's packets arrive in the order it sent them"
+    # the instants are the node's cycles: 1024 / 51200 s of its own clock, 25 ppm fast
+    instants = [sampled[t] for t in timers]
+    assert (instants[-1] - instants[0]) / (len(instants) - 1) == pytest.approx(
+        0.02 / (1 + 25e-6), rel=1e-9)
+
+
+def test_a_stall_holds_the_output_back_then_sends_what_it_held():
+    bench = Bench(NodeSettings(76, stream="accel_angrate", divider=512, ppm=0.0),
+                  radio={76: RadioLink(jitter=0.0)}, line=LineFaults(stall_rate=2.0,
+                                                                     stall_ms=60.0))
+    got = timed_replies(bench, 30.0)
+    gaps = [b - a for (a, _), (b, _) in pairwise(got)]
+    stalls = bench.station.stats.stalls
+    assert 30 <= stalls <= 100  # 2 a second on average
+    # at 100 Hz a packet leaves every 10 ms unless the output is held back
+    assert sum(1 for gap in gaps if gap > 0.040) == pytest.approx(stalls, abs=stalls // 5)
+    assert max(gaps) <= 2 * 0.060 + 0.011
+    assert bench.station.stats.packets_dropped_full == 0  # (the buffer holds 60 ms)
+    # (what is still held back at the end: at most a stall's worth)
+    assert 0 <= bench.station.stats.packets_sent[76] - len(got) <= 7
+    quiet = Bench(NodeSettings(76, stream="accel_angrate", divider=512, ppm=0.0),
+                  radio={76: RadioLink(jitter=0.0)})
+    assert max(b - a for (a, _), (b, _) in pairwise(timed_replies(quiet, 5.0))) < 0.011
