@@ -59,9 +59,9 @@ async def run():
         gw.nodes[address].streaming(record)
     # reads of the host's clock advancing with the stream's own timers (100 Hz a node),
     # so that a node's clock estimate sees the pairs it sees on a line
-    seconds = len(stream) and 40000 * 0.01 / 3 / len(stream)
+    seconds_a_byte = 40000 * 0.01 / 3 / len(stream)
     for index, chunk in enumerate(chunks):
-        feed(chunk, *(1.7e9 + (index + 1) * 4096 * seconds,) * CLOCKS)
+        feed(chunk, *(1.7e9 + (index + 1) * 4096 * seconds_a_byte,) * CLOCKS)
     gw.publisher.close()
     gw._context.destroy(linger=0)
 asyncio.run(run())

@@ -181,9 +181,8 @@ def count_messages(endpoint: str, expected: int, ready, result) -> None:
 
 def pipeline_round(chunks: list[bytes], packets: int) -> tuple[float, float]:
     """One run: (records per CPU-second of this process, records/s to the SUB)."""
-    from gateway.config import GatewayConfig
-
-    from gateway.daemon import Gateway
+    from gateway.daemon.app import Gateway
+    from gateway.daemon.config import GatewayConfig
     endpoint = f"tcp://127.0.0.1:{free_port()}"
     config = GatewayConfig.model_validate({
         "base_station": {"port": "loop://"},
