@@ -48,13 +48,15 @@ def simulator(tmp_path: Path) -> Iterator[Callable[..., Simulator]]:
 def gateway(tmp_path: Path, zmq_context: zmq.Context) -> Iterator[Callable[..., RunningGateway]]:
     """``gateway(port, nodes, **sections)``: gx2-gateway running on that port, ready
     (its control endpoint answers and the base station is open); ``wait=False`` returns
-    at once, ``env`` replaces its environment."""
+    at once, ``env`` replaces its environment, ``preexec`` runs in the child before it
+    starts (resource limits)."""
     started: list[RunningGateway] = []
 
     def start(port: str, nodes: list[dict[str, Any]], *, wait: bool = True,
-              env: dict[str, str] | None = None, **sections: Any) -> RunningGateway:
+              env: dict[str, str] | None = None, preexec: Callable[[], None] | None = None,
+              **sections: Any) -> RunningGateway:
         running = RunningGateway(gateway_config(port, nodes, **sections), tmp_path,
-                                 zmq_context, env)
+                                 zmq_context, env, preexec)
         started.append(running)
         if not wait:
             return running

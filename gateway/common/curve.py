@@ -93,6 +93,15 @@ def public_key(text: str) -> bytes:
     return _read(path)[0]
 
 
+def load_client_keys(client_secret: str | Path, server: str) -> ClientKeys:
+    """A client's keys: its ``.key_secret`` file, and the gateway's public key (Z85
+    text, its ``.key`` file, or its ``.key_secret`` file); CurveError if unusable."""
+    pair = load_key_pair(client_secret)
+    server_public = (load_key_pair(server).public if server.endswith(SECRET_SUFFIX)
+                     else public_key(server))
+    return ClientKeys(pair, server_public)
+
+
 def public_sibling(secret_path: str | Path) -> Path:
     """``server.key`` for ``server.key_secret``: where the public half is kept."""
     path = Path(secret_path)

@@ -20,3 +20,11 @@ def topic(node: int, record: str) -> bytes:
 def node_prefix(node: int) -> str:
     """What to subscribe to for every record of ``node``."""
     return f"gx2/{node}/"
+
+
+def parse(name: str) -> tuple[int, str] | None:
+    """``(address, record)`` of a node's topic, None for any other."""
+    parts = name.split("/")
+    if len(parts) == 3 and parts[0] == "gx2" and parts[1].isdecimal() and parts[2]:
+        return int(parts[1]), parts[2]
+    return None

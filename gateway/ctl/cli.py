@@ -62,6 +62,16 @@ def build_parser() -> ArgumentParser:
         "gx2/gateway/... messages are not printed). The publish endpoint comes from "
         "--config, or else from the gateway's status reply.").add_argument(
         "nodes", nargs="*", type=node_address, metavar="NODE")
+    recorder = commands.add_parser(
+        "record", help="record the published stream to an MCAP file",
+        description="Record every published record (of the NODEs given, or of all) and the "
+        "gateway's status to FILE, an MCAP file with one JSON channel per topic, until "
+        "SIGINT/SIGTERM or --seconds. Shows records, rate and gaps on stderr. Exit 0 when "
+        "the file was written; 3 if the gateway falls silent (the file keeps what came).")
+    recorder.add_argument("file", metavar="FILE.mcap", help="a new file")
+    recorder.add_argument("nodes", nargs="*", type=node_address, metavar="NODE")
+    recorder.add_argument("--seconds", type=bounded(float, 0.1, 1e7), metavar="S",
+                          help="stop after S seconds (default: until interrupted)")
     commands.add_parser(
         "keygen", help="write a new CURVE key pair: PREFIX.key (public, 0644) and "
         "PREFIX.key_secret (0600); never overwrites").add_argument("prefix", metavar="PREFIX")
@@ -149,12 +159,9 @@ def client_keys(client_key: str | None, server_key: str | None,
         raise CtlError(f"--client-key is given: give the gateway's public key with "
                        f"--server-key KEY or ${SERVER_KEY_ENV}", Exit.USAGE)
     try:
-        pair = curve.load_key_pair(client_key)
-        server = (curve.load_key_pair(server_key).public
-                  if server_key.endswith(curve.SECRET_SUFFIX) else curve.public_key(server_key))
+        return curve.load_client_keys(client_key, server_key)
     except curve.CurveError as error:
         raise CtlError(str(error), Exit.USAGE) from None
-    return curve.ClientKeys(pair, server)
 
 
 # --- commands ---------------------------------------------------------------------------
@@ -212,13 +219,16 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "tail":
             from .tail import run_tail
             return run_tail(args.nodes, where, args.timeout)
+        if args.command == "record":
+            from .record import run_record
+            return run_record(args.file, args.nodes, args.seconds, where, args.timeout)
         return run_op(args.op, args, where)
     except CtlError as error:
         if getattr(args, "json", False):  # a script reading stdout learns of it too
             emit([json_line({"ok": False, "error": str(error), "exit": int(error.status)})])
         fail(PROG, str(error), error.status)
     except KeyboardInterrupt:
-        return Exit.OK if args.command == "tail" else 130
+        return Exit.OK if args.command in ("tail", "record") else 130
     except BrokenPipeError:  # a reader such as `head` has gone: not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return Exit.OK

@@ -7,17 +7,14 @@ rather than failing, so a newer or older gateway never makes gx2ctl crash.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import msgpack
-
+from gateway.common.jsontext import json_line
 from gateway.common.ops import BY_NAME
-from gateway.common.topics import NODE_TOPIC
 
 MISSING = "-"
 
@@ -54,27 +51,6 @@ def show(op: str, fields: Mapping[str, Any], result: Mapping[str, Any],
     if as_json or shown is None:
         return Shown([json_line(result)], shown.failure if shown else None)
     return shown
-
-
-def strict(value: Any) -> Any:
-    """A value JSON can carry strictly: NaN and infinities become null, bytes hex, keys
-    strings (msgpack allows all of these; strict JSON parsers reject them)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if value is None or isinstance(value, (bool, int, str)):
-        return value
-    if isinstance(value, Mapping):
-        return {str(key): strict(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [strict(item) for item in value]
-    if isinstance(value, (bytes, bytearray, memoryview)):
-        return bytes(value).hex()
-    return str(value)
-
-
-def json_line(value: Any) -> str:
-    """One strict JSON object on one line (never NaN, never a newline inside)."""
-    return json.dumps(strict(value), allow_nan=False, ensure_ascii=False)
 
 
 def cell(value: Any) -> str:
@@ -356,31 +332,3 @@ def _selftest(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
                   *_stream_line(node, result, "test")],
                  f"node {node} failed its self-test: {', '.join(failed)}"
                  if failed or not rows else None)
-
-
-class BadMessage(Exception):
-    """A published message tail cannot print; ``str()`` says which and why."""
-
-
-def printable(data: bytes, limit: int = 80) -> str:
-    """Bytes from the network, safe in a one-line message."""
-    text = repr(bytes(data[:limit]))[2:-1]
-    return text + ("..." if len(data) > limit else "")
-
-
-def tail_line(frames: Sequence[bytes], nodes_only: bool) -> str | None:
-    """The JSON line for one published message; None for one not to print (another
-    topic); raises BadMessage for one that is not [topic, msgpack map]."""
-    topic = frames[0] if frames else b""
-    if nodes_only and not NODE_TOPIC.match(topic):
-        return None
-    where = f"on {printable(topic)}" if topic else "without a topic"
-    if len(frames) != 2:
-        raise BadMessage(f"{where}: {len(frames)} frames, not 2 (topic, payload)")
-    try:
-        data = msgpack.unpackb(frames[1], raw=False, strict_map_key=False)
-    except Exception:  # msgpack raises several unrelated types
-        raise BadMessage(f"{where}: the payload is not msgpack") from None
-    if not isinstance(data, dict):
-        raise BadMessage(f"{where}: the payload is a {type(data).__name__}, not a map")
-    return json_line(data)

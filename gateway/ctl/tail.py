@@ -1,23 +1,23 @@
-"""``gx2ctl tail``: published records as JSON lines, until interrupted."""
+"""``gx2ctl tail``: published records as JSON lines, until interrupted; and what it
+shares with ``gx2ctl record``: finding the gateway's publish endpoint, subscribing
+through :mod:`gateway.client`, stopping on a signal."""
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import sys
 import time
+from collections.abc import Iterator
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
-import zmq
-
-from gateway.common import curve
+from gateway.client import GatewayError, Malformed, Subscriber
 from gateway.common.endpoints import connectable
-from gateway.common.protocol import MAX_REPLY_BYTES, Exit
-from gateway.common.topics import PREFIX, STATUS_TOPIC, node_prefix
+from gateway.common.protocol import Exit
 
 from . import PROG
 from .client import Client, CtlError
-from .output import BadMessage, tail_line
 
 if TYPE_CHECKING:
     from .cli import Endpoints
@@ -58,6 +58,34 @@ def run_tail(nodes: list[int], where: Endpoints, timeout: float) -> int:
     The gateway's heartbeat (gx2/gateway/status, not printed) proves it is alive even
     when no node streams: nothing at all for ``timeout`` seconds (and three heartbeats)
     exits 3. A node the gateway does not have is a usage error (exit 2)."""
+    stop = Stop()
+    with subscribe(nodes, where, timeout) as (sub, silence):
+        flushed = time.monotonic()
+        while not stop.requested:
+            message = sub.receive(FLUSH_S)
+            now = time.monotonic()
+            if message is not None:
+                print(message.json())  # type: ignore[union-attr]
+            if message is None or now - flushed >= FLUSH_S:
+                sys.stdout.flush()
+                flushed = now
+            if message is None and sub.silent_for() > silence:
+                raise CtlError(f"the gateway at {sub.endpoints[0]} published nothing for "
+                               f"{silence:g} s (not even its heartbeat)", Exit.NO_ANSWER)
+    sys.stdout.flush()
+    return Exit.OK
+
+
+FLUSH_S = 0.1
+"""Printed lines reach a pipe at least this often."""
+
+
+@contextlib.contextmanager
+def subscribe(nodes: list[int], where: Endpoints, timeout: float,
+              **options: Any) -> Iterator[tuple[Subscriber, float]]:
+    """A subscriber to ``nodes`` (all if empty) of the gateway ``where`` names, and the
+    silence after which that gateway is taken for dead. Its publish endpoint, key and
+    nodes come from the configuration, or else from its status reply."""
     found, secured = where.publish, where.publish_secured
     heartbeat, configured = where.heartbeat_s, where.nodes
     if found is None or configured is None:
@@ -76,50 +104,15 @@ def run_tail(nodes: list[int], where: Endpoints, timeout: float) -> int:
                        f"{', '.join(map(str, configured)) or 'none'})", Exit.USAGE)
     silence = max(timeout, HEARTBEATS_MISSED * heartbeat if heartbeat else 0.0)
     address = connectable(found, where.control)
-    stop = Stop()
-    context = zmq.Context()
-    sub = context.socket(zmq.SUB)
     try:
-        sub.setsockopt(zmq.LINGER, 0)
-        sub.setsockopt(zmq.MAXMSGSIZE, MAX_REPLY_BYTES)  # records are far smaller
-        if secured and where.keys is not None:
-            curve.connect_as(sub, where.keys)
-        try:
-            sub.connect(address)
-        except zmq.ZMQError as error:
-            raise CtlError(f"cannot use publish endpoint {address}: {error}",
-                           Exit.USAGE) from None
-        prefixes = [node_prefix(node) for node in dict.fromkeys(nodes)] or [PREFIX]
-        for prefix in prefixes:
-            sub.setsockopt(zmq.SUBSCRIBE, prefix.encode())
-        sub.setsockopt(zmq.SUBSCRIBE, STATUS_TOPIC)
-        heard = time.monotonic()
-        while not stop.requested:
-            if sub.poll(100, zmq.POLLIN):
-                _print_batch(sub, stop)
-                heard = time.monotonic()
-            elif time.monotonic() - heard > silence:
-                raise CtlError(f"the gateway at {address} published nothing for "
-                               f"{silence:g} s (not even its heartbeat)", Exit.NO_ANSWER)
-    finally:
-        sub.close(linger=0)
-        context.term()
-    return Exit.OK
+        sub = Subscriber(address, nodes, keys=where.keys if secured else None,
+                         on_malformed=_warn, **options)
+    except GatewayError as error:
+        raise CtlError(str(error), Exit.USAGE) from None
+    with sub:
+        yield sub, silence
 
 
-def _print_batch(sub: zmq.Socket, stop: Stop) -> None:
-    """Every message already queued, printed, then one flush."""
-    while not stop.requested:
-        try:
-            frames = sub.recv_multipart(zmq.NOBLOCK)
-        except zmq.Again:
-            break
-        try:
-            line = tail_line(frames, nodes_only=True)
-        except BadMessage as problem:
-            sys.stdout.flush()
-            print(f"{PROG}: skipped a message {problem}", file=sys.stderr, flush=True)
-            continue
-        if line is not None:
-            print(line)
+def _warn(endpoint: str, problem: Malformed) -> None:
     sys.stdout.flush()
+    print(f"{PROG}: skipped a message {problem}", file=sys.stderr, flush=True)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import gc
+import json
 import logging
 import time
 from typing import Any
@@ -23,6 +24,7 @@ import zmq.asyncio
 from zmq.auth.asyncio import AsyncioAuthenticator
 
 from gateway.common.curve import AllowList, KeyPair
+from gateway.common.version import VERSION
 
 from . import status
 from .config import GatewayConfig
@@ -33,6 +35,8 @@ from .operations import Operations
 from .ports import Port
 from .publisher import Publisher
 from .reader import Reader
+from .recorder import Recorder
+from .replay import ReplayLink
 from .scheduler import Scheduler
 from .sd_notify import Notifier
 from .supervisor import Supervisor
@@ -66,11 +70,15 @@ class Gateway:
             self._auth = AsyncioAuthenticator(self._context)
             self._auth.start()
             self._auth.configure_curve_callback("*", self.allow_list)
+        # checked by the configuration already: this cannot fail, and opens nothing
+        replay = Port.replay_of(station.port)
+        self.replaying = replay is not None
         self.scheduler = Scheduler(self._write)
-        self.supervisor = Supervisor(self.scheduler, self.nodes)
+        self.supervisor = Supervisor(self.scheduler, self.nodes, passive=self.replaying)
         self.ops = Operations(self.scheduler, self.supervisor, self.status,
                               allow_eeprom_write=config.control.allow_eeprom_write,
-                              allow_any_eeprom_address=config.control.allow_any_eeprom_address)
+                              allow_any_eeprom_address=config.control.allow_any_eeprom_address,
+                              replaying=self.replaying)
         endpoint = config.publish.endpoint
         try:
             self.publisher = Publisher(self._context, endpoint, config.publish.high_water_mark,
@@ -83,15 +91,29 @@ class Gateway:
             self._context.destroy(linger=0)
             raise StartupError(f"cannot bind {endpoint}: {error.strerror}") from None
         self.reader = Reader(self.nodes, self.publisher, self.supervisor, self.scheduler,
-                             config.base_station.idle_ms / 1000)
+                             config.base_station.idle_ms / 1000, idle_timer=not replay)
+        self.recorder: Recorder | None = None
+        on_data = self.reader.on_data
+        if config.record is not None:
+            self.recorder = Recorder(config.record, self._recording_metadata())
+            self.publisher.record = self.recorder.published
+            on_data = self._read_and_record
         # only once nothing above can fail: the embedded simulator makes a directory
         self.port = Port(config.base_station.port, list(self.nodes))
-        self.link = SerialLink(self.port.path, config.base_station.baudrate,
-                               self.reader.on_data, self._on_link_state)
+        self.link: SerialLink | ReplayLink
+        if replay is not None:
+            self.link = ReplayLink(replay, on_data, self._on_link_state, self._replay_ended)
+        else:
+            self.link = SerialLink(self.port.path, config.base_station.baudrate, on_data,
+                                   self._on_link_state)
+        self._stop: asyncio.Event | None = None
 
     # -- running --------------------------------------------------------------------------
 
     async def run(self, stop: asyncio.Event) -> None:
+        self._stop = stop
+        if self.recorder is not None:
+            self.recorder.start()
         self.port.start()
         self.link.start()
         if self.link.up:
@@ -120,7 +142,7 @@ class Gateway:
     async def _shutdown(self) -> None:
         self.supervisor.close()
         self.ops.close()
-        if self.config.shutdown.stop_streams and self.link.up:
+        if self.config.shutdown.stop_streams and self.link.up and not self.replaying:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(self.supervisor.stop_all_streams(), EXIT_BUDGET)
         self.control.close()
@@ -129,6 +151,9 @@ class Gateway:
         self._stop_auth()
         self._context.destroy(linger=0)
         self.port.close()
+        if self.recorder is not None:
+            # off the loop, which has nothing left to do: the last second, and the index
+            await asyncio.get_running_loop().run_in_executor(None, self.recorder.close)
         log.info("stopped")
 
     def _stop_auth(self) -> None:
@@ -138,6 +163,28 @@ class Gateway:
 
     def _write(self, data: bytes) -> None:
         self.link.write(data)
+        if self.recorder is not None:
+            self.recorder.sent(data, time.time(), time.monotonic())
+
+    def _read_and_record(self, data: bytes, host_time: float, monotonic: float) -> None:
+        self.recorder.serial(data, host_time, monotonic)  # type: ignore[union-attr]
+        self.reader.on_data(data, host_time, monotonic)
+
+    def _recording_metadata(self) -> dict[str, str]:
+        """What a recording says about the gateway that made it."""
+        config = self.config
+        return {"version": VERSION, "port": config.base_station.port,
+                "baudrate": str(config.base_station.baudrate),
+                "latency_ms": f"{config.base_station.latency_ms:g}",
+                "nodes": json.dumps([{"address": n.address, "name": n.name,
+                                      "stream": n.stream} for n in config.nodes])}
+
+    def _replay_ended(self) -> None:
+        self.reader.end_of_input()
+        self.publisher.status(self.status())
+        if self.port.replay is not None and self.port.replay.exit and self._stop is not None:
+            log.info("the recording is done: exiting (exit=true)")
+            self._stop.set()
 
     def _on_link_state(self, up: bool) -> None:
         self.scheduler.link_up = up

@@ -103,6 +103,20 @@ class ShutdownConfig(Strict):
     default: a restarted gateway re-arms them, so leaving them on loses no data."""
 
 
+class RecordConfig(Strict):
+    """Recording to MCAP files (README, "Recording and replay")."""
+
+    directory: Annotated[str, Field(min_length=1)]
+    """Created if missing."""
+    rotate_minutes: Annotated[float, Field(gt=0, le=7 * 24 * 60)] = 60.0
+    """A new file at least this often."""
+    rotate_mb: Annotated[float, Field(gt=0, le=1_000_000)] = 256.0
+    """Or when a file reaches this size (MB of 10^6 bytes)."""
+    queue: Annotated[int, Field(ge=100, le=10_000_000)] = 100_000
+    """Added: messages waiting for the disk before new ones are dropped (and counted):
+    about four minutes of a saturated link, some 60 MB at most."""
+
+
 class NodeEntry(Strict):
     address: Annotated[int, Field(ge=MIN_NODE, le=MAX_NODE, strict=True)]
     name: Annotated[str, Field(min_length=1, max_length=64)] | None = None
@@ -134,6 +148,7 @@ class GatewayConfig(Strict):
     control: ControlConfig = ControlConfig()
     shutdown: ShutdownConfig = ShutdownConfig()
     curve: CurveConfig | None = None
+    record: RecordConfig | None = None
     nodes: Annotated[list[NodeEntry], Field(min_length=1)]
 
     @model_validator(mode="after")

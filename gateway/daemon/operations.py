@@ -46,17 +46,23 @@ class Operations:
 
     def __init__(self, scheduler: Scheduler, supervisor: Supervisor,
                  status: Callable[[], Result], *, allow_eeprom_write: bool,
-                 allow_any_eeprom_address: bool = False) -> None:
+                 allow_any_eeprom_address: bool = False, replaying: bool = False) -> None:
         self.scheduler = scheduler
         self.supervisor = supervisor
         self.nodes = supervisor.nodes
         self.status = status
         self.allow_eeprom_write = allow_eeprom_write
         self.allow_any_eeprom_address = allow_any_eeprom_address
+        self.replaying = replaying
+        """Playing a recording: nothing may be sent to a node."""
         self._tasks: set[asyncio.Task[None]] = set()
 
     async def run(self, request: RequestBase) -> Result:
-        return await HANDLERS[request.op](self, request)  # type: ignore[attr-defined]
+        op = request.op  # type: ignore[attr-defined]
+        if self.replaying and ops.BY_NAME[op].talks_to_node:
+            raise Refused(f"{op}: this gateway is replaying a recording and sends "
+                          "nothing to any node")
+        return await HANDLERS[op](self, request)
 
     def node(self, address: int) -> Node:
         state = self.nodes.get(address)

@@ -4,6 +4,8 @@ plain serial device.
 - a device path (``/dev/ttyUSB0``, ``/dev/gx2-basestation``): opened exclusively and raw;
 - a pyserial URL (``rfc2217://host:port``, ``socket://``, ``loop://``), for a base
   station behind a network serial server;
+- ``replay://PATH[?speed=N&exit=true]``: a recording played back
+  (:mod:`gateway.daemon.replay`);
 - ``sim://[?faults]``: gx2-sim, run inside the gateway for the configured nodes behind
   a pty with a private path, so the daemon opens it exactly as it opens hardware. Query
   parameters select faults: ``sim://?data_loss=0.05&garbage=0.01&stop_loss=0.5``.
@@ -19,6 +21,9 @@ from pathlib import Path
 
 import serial
 
+from .replay import SCHEME as REPLAY_SCHEME
+from .replay import Replay
+
 SIM_SCHEME = "sim://"
 
 
@@ -28,6 +33,8 @@ def check_url(url: str, nodes: list[int]) -> str:
     if url.startswith(SIM_SCHEME):
         from gateway.sim.config import from_url
         from_url(url, nodes)
+    elif url.startswith(REPLAY_SCHEME):
+        Replay.from_url(url)
     elif "://" in url:
         try:
             serial.serial_for_url(url, do_not_open=True)
@@ -66,12 +73,18 @@ class Port:
         """What pyserial opens."""
         self._directory: Path | None = None
         self._simulator = None
+        self.replay = self.replay_of(url)
+        """A recording to play instead of a port."""
         if url.startswith(SIM_SCHEME):
             from gateway.sim.cli import simulator_from
             from gateway.sim.config import from_url
             self._directory = Path(tempfile.mkdtemp(prefix="gx2-sim-"))
             self.path = str(self._directory / "base-station")
             self._simulator = simulator_from(from_url(url, nodes), self.path)
+
+    @staticmethod
+    def replay_of(url: str) -> Replay | None:
+        return Replay.from_url(url) if url.startswith(REPLAY_SCHEME) else None
 
     def start(self) -> None:
         if self._simulator is not None:

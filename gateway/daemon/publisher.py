@@ -51,6 +51,8 @@ class Publisher:
         self._socket_send = compiled_send(self.socket)
         self.sent = 0
         self.failed = 0
+        self.record: Callable[[bytes, dict[str, Any]], None] | None = None
+        """Given every message published, when the gateway records."""
 
     def publish(self, node: int, record: str, payload: dict[str, Any]) -> bool:
         """Publish one record; False if ZeroMQ refused it (counted, never raised). A
@@ -66,6 +68,8 @@ class Publisher:
         return self._send(STATUS_TOPIC, payload)
 
     def _send(self, name: bytes, payload: dict[str, Any]) -> bool:
+        if self.record is not None:
+            self.record(name, payload)
         try:
             self._socket_send(name, _MORE)
             self._socket_send(self._pack(payload), _LAST)

@@ -27,13 +27,17 @@ log = logging.getLogger("gx2.reader")
 
 class Reader:
     def __init__(self, nodes: dict[int, Node], publisher: Publisher, supervisor: Supervisor,
-                 scheduler: Scheduler, idle_seconds: float) -> None:
+                 scheduler: Scheduler, idle_seconds: float, idle_timer: bool = True) -> None:
         self.decoder = Decoder()
         self.nodes = nodes
         self.publisher = publisher
         self.supervisor = supervisor
         self.scheduler = scheduler
         self.idle_seconds = idle_seconds
+        self.idle_timer = idle_timer
+        """False in a replay: the line's silences are judged by the recorded times only."""
+        self._pending_read: tuple[float, float] | None = None
+        """When the read that left bytes in the decoder was made."""
         self.unknown_node_packets = 0
         self.bad_records = 0
         self._idle: asyncio.TimerHandle | None = None
@@ -41,17 +45,34 @@ class Reader:
     def on_data(self, data: bytes, host_time: float, monotonic: float) -> None:
         """One read from the port, and when it was made: UNIX seconds, and seconds on
         the clock that never steps (the clock estimates run on it)."""
+        # A line quiet for idle_seconds has finished what it sent. The timer says so
+        # when the line stays quiet; a read that comes after such a silence says so
+        # first, whether or not the timer has run yet (a stalled loop runs I/O first).
+        # Judged by the reads' own times, a replay of the same reads decodes the same.
+        if self._pending_read is not None:
+            if self._idle is not None:
+                self._idle.cancel()
+                self._idle = None
+            if monotonic - self._pending_read[1] >= self.idle_seconds:
+                self._line_idle()
+            self._pending_read = None
         self._dispatch(self.decoder.feed(data), host_time, monotonic)
-        if self._idle is not None:
-            self._idle.cancel()
-            self._idle = None
-        if self.decoder.pending:  # a line quiet this long has finished what it sent
-            self._idle = asyncio.get_running_loop().call_later(
-                self.idle_seconds, self._line_idle, host_time, monotonic)
+        if self.decoder.pending:
+            self._pending_read = (host_time, monotonic)
+            if self.idle_timer:
+                self._idle = asyncio.get_running_loop().call_later(self.idle_seconds,
+                                                                   self._line_idle)
 
-    def _line_idle(self, host_time: float, monotonic: float) -> None:
+    def end_of_input(self) -> None:
+        """Nothing more will be read (a replay has played its recording)."""
+        self._line_idle()
+
+    def _line_idle(self) -> None:
+        """The line went quiet after the pending read: what the decoder holds is all."""
         self._idle = None
-        self._dispatch(self.decoder.line_idle(), host_time, monotonic)
+        read, self._pending_read = self._pending_read, None
+        if read is not None:
+            self._dispatch(self.decoder.line_idle(), *read)
 
     def _dispatch(self, events: list[Event], host_time: float, monotonic: float) -> None:
         scheduler = self.scheduler

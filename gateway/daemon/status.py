@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING, Any
 
 from gateway.common.version import VERSION
 
+from .replay import ReplayLink
+
 if TYPE_CHECKING:
     from .app import Gateway
 
@@ -42,4 +44,7 @@ def report(gateway: Gateway) -> dict[str, Any]:
                  "failures": scheduler.stats.failures,
                  "unexpected_answers": scheduler.stats.unexpected},
         "nodes": [node.status(now) for node in gateway.nodes.values()],
+        "recording": gateway.recorder.status() if gateway.recorder is not None else None,
+        "replay": ({"files": len(link.replay.files), "reads": link.reads,
+                    "finished": link.finished} if isinstance(link, ReplayLink) else None),
     }

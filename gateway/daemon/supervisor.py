@@ -63,9 +63,12 @@ class Held:
 
 
 class Supervisor:
-    def __init__(self, scheduler: Scheduler, nodes: dict[int, Node]) -> None:
+    def __init__(self, scheduler: Scheduler, nodes: dict[int, Node],
+                 passive: bool = False) -> None:
         self.scheduler = scheduler
         self.nodes = nodes
+        self.passive = passive
+        """Watch, never act (a replay: nothing may be sent)."""
         self.link_up = False
         self._pursuits: dict[int, asyncio.Task[None]] = {}
         self._stops: dict[int, StopPolicy] = {}
@@ -228,7 +231,7 @@ class Supervisor:
         old = self._pursuits.pop(node.address, None)
         if old is not None:
             old.cancel()
-        if not self.link_up:
+        if not self.link_up or self.passive:
             return
         desired = node.desired
         if desired is None or (desired == OFF and node.record is None):

@@ -118,7 +118,8 @@ class Subscriber:
 
 class RunningGateway:
     def __init__(self, config: dict[str, Any], directory: Path, context: zmq.Context,
-                 env: dict[str, str] | None = None) -> None:
+                 env: dict[str, str] | None = None,
+                 preexec: Callable[[], None] | None = None) -> None:
         self.config = config
         self.path = directory / "nodes.yaml"
         self.path.write_text(yaml.safe_dump(config))
@@ -127,7 +128,7 @@ class RunningGateway:
         self.proc = subprocess.Popen([script("gx2-gateway"), "--config", str(self.path),
                                       "--log-level", "DEBUG"],
                                      stdout=self._log, stderr=subprocess.STDOUT,
-                                     stdin=subprocess.DEVNULL, env=env)
+                                     stdin=subprocess.DEVNULL, env=env, preexec_fn=preexec)
         self.context = context
         self.control_endpoint = config["control"]["endpoint"]
         self.publish_endpoint = config["publish"]["endpoint"]

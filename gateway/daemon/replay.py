@@ -1,0 +1,162 @@
+"""A recording played back in place of the base station: ``replay://PATH``.
+
+It stands where :class:`~gateway.daemon.link.SerialLink` stands: each recorded read
+goes to the reader with the times it was read at (UNIX and monotonic), so the reader,
+the nodes' clock estimates and the publisher do exactly what they did live. It takes
+nothing: a write is an error (the gateway sends nothing during a replay).
+
+Pace: the recorded one divided by ``speed``; ``speed=0`` plays as fast as the gateway
+takes it, letting the loop run other work every YIELD_EVERY reads. Playing starts
+``delay`` seconds after the gateway does (default DELAY_S): a PUB socket drops what it
+publishes before a subscriber has connected, and a subscriber started with the gateway
+needs a moment to.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from urllib.parse import parse_qs
+
+from gateway.recording.files import (
+    SERIAL,
+    RecordingError,
+    check_readable,
+    read_all,
+    recording_files,
+)
+
+log = logging.getLogger("gx2.replay")
+SCHEME = "replay://"
+YIELD_EVERY = 200
+DELAY_S = 1.0
+OPTIONS = ("speed", "exit", "delay")
+
+
+@dataclass(frozen=True)
+class Replay:
+    """What a ``replay://PATH[?speed=N&exit=true&delay=S]`` URL asks for."""
+
+    files: tuple[Path, ...]
+    speed: float = 1.0
+    exit: bool = False
+    delay: float = DELAY_S
+
+    @classmethod
+    def from_url(cls, url: str) -> Replay:
+        """ValueError (one line) for a URL that cannot be played."""
+        body = url[len(SCHEME):]
+        path, _, query = body.partition("?")
+        if not path:
+            raise ValueError(f"{url!r} names no recording: replay://PATH[?speed=N&exit=true]")
+        try:
+            options = parse_qs(query, keep_blank_values=True, strict_parsing=bool(query))
+        except ValueError:
+            raise ValueError(f"{url!r}: the query is not name=value pairs") from None
+        unknown = sorted(set(options) - set(OPTIONS))
+        if unknown:
+            raise ValueError(f"{url!r}: unknown option {unknown[0]!r} "
+                             f"({', '.join(OPTIONS)})")
+        speed = _number(url, options, "speed", 1.0, 1e6, "0: as fast as possible")
+        delay = _number(url, options, "delay", DELAY_S, 3600, "seconds before playing")
+        leave = False
+        if "exit" in options:
+            text = options["exit"][-1].lower()
+            if text not in ("true", "false", "1", "0", "yes", "no"):
+                raise ValueError(f"{url!r}: exit must be true or false, not {text!r}")
+            leave = text in ("true", "1", "yes")
+        try:
+            files = recording_files([path])
+            for file in files:
+                check_readable(file)
+        except RecordingError as error:
+            raise ValueError(str(error)) from None
+        return cls(tuple(files), speed, leave, delay)
+
+
+def _number(url: str, options: dict[str, list[str]], name: str, default: float,
+            most: float, meaning: str) -> float:
+    if name not in options:
+        return default
+    text = options[name][-1]
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 0 <= value <= most:
+        raise ValueError(f"{url!r}: {name} must be a number from 0 to {most:g} ({meaning}), "
+                         f"not {text!r}")
+    return value
+
+
+class ReplayLink:
+    """Plays the ``serial`` channel of a recording into ``on_data``."""
+
+    def __init__(self, replay: Replay, on_data: Callable[[bytes, float, float], None],
+                 on_state: Callable[[bool], None], on_end: Callable[[], None]) -> None:
+        self.replay = replay
+        self.port = f"{SCHEME}{replay.files[0]}"
+        self._on_data = on_data
+        self._on_state = on_state
+        self._on_end = on_end
+        self._task: asyncio.Task[None] | None = None
+        self.up = False
+        self.since = time.time()
+        self.reconnects = 0
+        self.bytes_read = 0
+        self.reads = 0
+        self.last_error = ""
+        self.finished = False
+        self.reopening = False
+        self.unsent = 0
+
+    def start(self) -> None:
+        self.up = True
+        self.since = time.time()
+        self._on_state(True)
+        self._task = asyncio.get_running_loop().create_task(self._play())
+
+    def write(self, data: bytes) -> None:
+        raise OSError("replaying a recording: nothing is sent to the base station")
+
+    async def _play(self) -> None:
+        loop = asyncio.get_running_loop()
+        speed = self.replay.speed
+        incomplete: list[Path] = []
+        origin: tuple[float, float] | None = None
+        await asyncio.sleep(self.replay.delay)
+        try:
+            for entry in read_all(self.replay.files, (SERIAL,), incomplete):
+                host_time = entry.log_time / 1e9
+                monotonic = (entry.publish_time or entry.log_time) / 1e9
+                if speed > 0:
+                    if origin is None:
+                        origin = (host_time, loop.time())
+                    delay = origin[1] + (host_time - origin[0]) / speed - loop.time()
+                    if delay > 0:
+                        await asyncio.sleep(delay)
+                elif self.reads % YIELD_EVERY == 0:
+                    await asyncio.sleep(0)
+                self.reads += 1
+                self.bytes_read += len(entry.data)
+                self._on_data(entry.data, host_time, monotonic)
+        except RecordingError as error:
+            self.last_error = str(error)
+            log.error("replay: %s", error)
+        for path in incomplete:
+            log.warning("replay: %s ends early (its writer was stopped without warning); "
+                        "played up to there", path)
+        self.finished = True
+        log.info("replay finished: %d reads, %d bytes from %d file%s", self.reads,
+                 self.bytes_read, len(self.replay.files),
+                 "" if len(self.replay.files) == 1 else "s")
+        self._on_end()
+
+    def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+        self.up = False
