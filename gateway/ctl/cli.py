@@ -23,6 +23,7 @@ from gateway.common.protocol import Exit
 
 from . import PROG
 from .client import Client, CtlError
+from .offline import add_commands as add_offline_commands
 from .output import json_line, show
 
 DEFAULT_TIMEOUT = 5.0
@@ -72,6 +73,7 @@ def build_parser() -> ArgumentParser:
     recorder.add_argument("nodes", nargs="*", type=node_address, metavar="NODE")
     recorder.add_argument("--seconds", type=bounded(float, 0.1, 1e7), metavar="S",
                           help="stop after S seconds (default: until interrupted)")
+    add_offline_commands(commands)
     commands.add_parser(
         "keygen", help="write a new CURVE key pair: PREFIX.key (public, 0644) and "
         "PREFIX.key_secret (0600); never overwrites").add_argument("prefix", metavar="PREFIX")
@@ -215,6 +217,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "keygen":
             return run_keygen(args.prefix)
+        if args.command in ("export", "plot"):
+            from .offline import run_export, run_plot
+            return (run_export if args.command == "export" else run_plot)(args)
         where = endpoints(args)
         if args.command == "tail":
             from .tail import run_tail

@@ -1,0 +1,205 @@
+"""Tables from recordings: one per node and record, a row per record.
+
+Columns: ``time``, ``host_time``, ``device_time``, ``seq``, ``lqi``, ``rssi``, then the
+record's fields in the order of its layout (:mod:`aspp.records`), vectors as
+``<field>_x/_y/_z``, matrices as ``<field>_11`` .. ``<field>_33`` (row, column), a
+record's list of integers as ``<field>_1`` .. ``<field>_n``. A value a record does not
+have (an untimed record's ``time``) or NaN (JSON's null) is an empty cell or a null.
+
+Rows are written as they are read: a CSV export holds one row in memory at a time, a
+Parquet one a batch of BATCH rows per table.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
+from typing import IO, Any
+
+from aspp.records import BY_NAME
+from gateway.common.topics import parse
+
+from .files import Entry, RecordingError, read_all
+
+LEADING = ("time", "host_time", "device_time", "seq", "lqi", "rssi")
+BOOKKEEPING = frozenset((*LEADING, "node", "record", "command"))
+FORMATS = ("csv", "parquet")
+BATCH = 10_000
+AXES = ("x", "y", "z")
+MATRIX = tuple(f"{row}{column}" for row in (1, 2, 3) for column in (1, 2, 3))
+INSTALL_PARQUET = "pip install 'gx2-gateway[parquet]'"
+
+
+class MissingExtra(Exception):
+    """An optional dependency is not installed: one line saying how to install it."""
+
+
+def field_columns(record: str, payload: Mapping[str, Any]) -> list[tuple[str, str, int]]:
+    """(column, field, index) for each field column of ``record``: the layout's order
+    for a known record, the payload's own order for one this version does not know
+    (index -1: the value itself, not an element of it)."""
+    spec = BY_NAME.get(record)
+    if spec is not None:
+        shapes = [(f.name, f.type.shape, f.type.items) for f in spec.reply]
+    else:
+        shapes = [(name, _shape(value), len(value) if isinstance(value, list) else 1)
+                  for name, value in payload.items() if name not in BOOKKEEPING]
+    columns: list[tuple[str, str, int]] = []
+    for name, shape, items in shapes:
+        if name in BOOKKEEPING:
+            continue
+        if shape == "vector":
+            columns += [(f"{name}_{axis}", name, i) for i, axis in enumerate(AXES)]
+        elif shape == "matrix":
+            columns += [(f"{name}_{cell}", name, i) for i, cell in enumerate(MATRIX)]
+        elif shape == "ints":
+            columns += [(f"{name}_{i + 1}", name, i) for i in range(items)]
+        else:
+            columns.append((name, name, -1))
+    return columns
+
+
+def _shape(value: Any) -> str:
+    if isinstance(value, list) and len(value) == 3 and all(isinstance(r, list) for r in value):
+        return "matrix"
+    if isinstance(value, list):
+        return "vector" if len(value) == 3 else "ints"
+    return "scalar"
+
+
+def _element(value: Any, index: int) -> Any:
+    """Element ``index`` of a vector, a matrix (row-major) or a list; None if absent."""
+    if index < 0:
+        return None if isinstance(value, (list, dict)) else value
+    if isinstance(value, list) and value and isinstance(value[0], list):
+        value = [item for row in value for item in row]
+    if isinstance(value, list) and index < len(value):
+        item = value[index]
+        return None if isinstance(item, (list, dict)) else item
+    return None
+
+
+class Table:
+    """One node's one record: its columns, fixed by its first row."""
+
+    def __init__(self, node: int, record: str, first: Mapping[str, Any]) -> None:
+        self.node, self.record = node, record
+        self.fields = field_columns(record, first)
+        self.columns = [*LEADING, *(column for column, _, _ in self.fields)]
+        self.rows = 0
+
+    def row(self, payload: Mapping[str, Any]) -> list[Any]:
+        return [*(payload.get(name) for name in LEADING),
+                *(_element(payload.get(name), index) for _, name, index in self.fields)]
+
+
+class Writer:
+    """Where a format puts one table's rows."""
+
+    def add(self, row: list[Any]) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class CsvWriter(Writer):
+    def __init__(self, path: Path, columns: list[str]) -> None:
+        self._file: IO[str] = path.open("w", newline="", encoding="utf-8")
+        self._csv = csv.writer(self._file)
+        self._csv.writerow(columns)
+
+    def add(self, row: list[Any]) -> None:
+        # repr of a float reads back to the same float; None (null, NaN) is empty
+        self._csv.writerow(["" if v is None else repr(v) if isinstance(v, float) else v
+                            for v in row])
+
+    def close(self) -> None:
+        self._file.close()
+
+
+class ParquetWriter(Writer):
+    def __init__(self, path: Path, columns: list[str]) -> None:
+        self._pa, self._pq = parquet_modules()
+        self._path, self._columns = path, columns
+        self._rows: list[list[Any]] = []
+        self._writer: Any = None
+
+    def add(self, row: list[Any]) -> None:
+        self._rows.append(row)
+        if len(self._rows) >= BATCH:
+            self._flush()
+
+    def _flush(self) -> None:
+        if not self._rows:
+            return
+        columns = list(zip(*self._rows, strict=True))
+        arrays = [self._pa.array(_column(values)) for values in columns]
+        batch = self._pa.table(arrays, names=self._columns)
+        if self._writer is None:
+            self._writer = self._pq.ParquetWriter(self._path, batch.schema)
+        elif batch.schema != self._writer.schema:
+            batch = batch.cast(self._writer.schema)
+        self._writer.write_table(batch)
+        self._rows = []
+
+    def close(self) -> None:
+        self._flush()
+        if self._writer is not None:
+            self._writer.close()
+
+
+def _column(values: tuple[Any, ...]) -> list[Any]:
+    """A column pyarrow types as float64 if any value is a float (ints become floats),
+    else as it finds it."""
+    if any(isinstance(v, float) for v in values):
+        return [float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
+                else None for v in values]
+    return list(values)
+
+
+def parquet_modules() -> tuple[Any, Any]:
+    try:
+        import pyarrow
+        import pyarrow.parquet
+    except ImportError:
+        raise MissingExtra(f"Parquet export needs pyarrow: {INSTALL_PARQUET}") from None
+    return pyarrow, pyarrow.parquet
+
+
+WRITERS: dict[str, Callable[[Path, list[str]], Writer]] = {
+    "csv": CsvWriter, "parquet": ParquetWriter}
+
+
+def export(paths: Iterable[Path], out: Path, form: str = "csv",
+           progress: Callable[[Entry], None] | None = None,
+           incomplete: list[Path] | None = None) -> list[tuple[Path, Table]]:
+    """Write the tables of the recordings ``paths`` into ``out``; (path, table) of each
+    table written, in the order first seen. RecordingError for a message that is not
+    a record's JSON object; MissingExtra for Parquet without pyarrow."""
+    if form == "parquet":
+        parquet_modules()
+    out.mkdir(parents=True, exist_ok=True)
+    tables: dict[tuple[int, str], tuple[Path, Table, Writer]] = {}
+    try:
+        for entry in read_all(paths, incomplete=incomplete):
+            if progress is not None:
+                progress(entry)
+            where = parse(entry.topic)
+            if where is None:
+                continue
+            payload = entry.payload()
+            open_table = tables.get(where)
+            if open_table is None:
+                table = Table(*where, payload)
+                path = out / f"{where[0]}_{where[1]}.{form}"
+                open_table = tables[where] = (path, table, WRITERS[form](path, table.columns))
+            _, table, writer = open_table
+            writer.add(table.row(payload))
+            table.rows += 1
+    finally:
+        for _, _, writer in tables.values():
+            writer.close()
+    return [(path, table) for path, table, _ in tables.values()]
+
+
+__all__ = ["FORMATS", "MissingExtra", "RecordingError", "export", "field_columns"]
