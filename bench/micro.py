@@ -14,6 +14,7 @@ worth its cost in readability.
 
 from __future__ import annotations
 
+import json
 import statistics
 import struct
 import sys
@@ -29,6 +30,7 @@ import zmq
 from aspp import Reply, encode
 from aspp.frame import encode_reply_packet
 from aspp.records import BY_NAME, Record
+from gateway.common.jsontext import compact, strict
 
 ROUNDS = 9
 Pair = tuple[str, Callable[[], None], Callable[[], None]]
@@ -76,7 +78,13 @@ def pairs() -> list[Pair]:
                        else items[start])
         return tuple(out)
 
+    record = {**dict(zip(names, values, strict=True)), **common, "device_time": 1.0,
+              "time": 1.0}
+    to_json = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+
     return [
+        ("compact json: the map as it is (strict on failure) vs always through strict()",
+         loop(lambda: compact(record)), loop(lambda: to_json(strict(record)))),
         ("record fields: one itemgetter call vs a loop over the layout",
          loop(lambda: getter(items)), loop(by_field)),
         ("Reply event: Reply(raw) vs tuple.__new__(Reply, (raw,))",

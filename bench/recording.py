@@ -97,8 +97,8 @@ def main() -> int:
     work = Path(tempfile.mkdtemp(prefix="gx2-bench-recording-"))
     try:
         size, records = record(work, args.seconds)
-        rate = records / args.seconds
-        print(f"recorded {records} records ({rate:.1f}/s) in {size:,} bytes: "
+        print(f"recorded {records} records in {size:,} bytes (serial, written, records, "
+              f"status): "
               f"{size / records:.1f} bytes a record, "
               f"{size / records * 100 * 3600 / 1e6:.1f} MB an hour at 100 Hz")
         played, seconds = replay(work)

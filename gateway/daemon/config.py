@@ -114,7 +114,8 @@ class RecordConfig(Strict):
     """Or when a file reaches this size (MB of 10^6 bytes)."""
     queue: Annotated[int, Field(ge=100, le=10_000_000)] = 100_000
     """Added: messages waiting for the disk before new ones are dropped (and counted):
-    about four minutes of a saturated link, some 60 MB at most."""
+    near three minutes of a saturated link (about 600 reads and records a second), and
+    53 MB of memory when full (tracemalloc, half reads, half 0xC2 records)."""
 
 
 class NodeEntry(Strict):
