@@ -145,6 +145,18 @@ def status_lines(result: Mapping[str, Any], now: float) -> list[str]:
                  f"{why}, reconnects {cell(link.get('reconnects'))}, "
                  f"read {_count(link.get('bytes_read'), 'bytes')}, "
                  f"discarded {_count(link.get('discarded_bytes'), 'bytes')}")
+    recording = result.get("recording")
+    if isinstance(recording, Mapping):
+        error = recording.get("error")
+        lines.append(f"record   {cell(recording.get('file') or recording.get('directory'))}, "
+                     f"written {cell(recording.get('written'))}, "
+                     f"dropped {cell(recording.get('dropped'))}"
+                     + (f" (last error: {cell(error)})" if isinstance(error, str) and error
+                        else ""))
+    replay = result.get("replay")
+    if isinstance(replay, Mapping):
+        lines.append(f"replay   {cell(replay.get('reads'))} reads played"
+                     f"{', finished' if replay.get('finished') is True else ''}")
     nodes = result.get("nodes")
     rows = [[cell(node.get("node")), cell(node.get("name")), cell(node.get("state")),
              cell(node.get("record")), cell(node.get("configured")),

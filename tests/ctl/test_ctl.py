@@ -667,3 +667,17 @@ def test_status_shows_each_nodes_clock_drift_and_whether_it_is_locked():
     assert clock_cell({"drift_ppm": 40.06, "locked": True}) == "+40.1 ppm"
     assert clock_cell({"drift_ppm": -3.0, "locked": False}) == "~-3.0 ppm"
     assert clock_cell(None) == "-" and clock_cell({"locked": True}) == "?"
+
+
+def test_status_shows_recording_and_replay_only_when_there_are_any():
+    from gateway.ctl.output import status_lines
+    plain = status_lines({"gateway": {}, "link": {}, "nodes": [], "recording": None,
+                          "replay": None}, 0.0)
+    assert not any(line.startswith(("record", "replay")) for line in plain)
+    lines = status_lines({"gateway": {}, "link": {}, "nodes": [],
+                          "recording": {"file": "/r/gx2-a.mcap", "written": 1200,
+                                        "dropped": 7, "error": "File too large"},
+                          "replay": {"reads": 55, "finished": True}}, 0.0)
+    assert "record   /r/gx2-a.mcap, written 1200, dropped 7 (last error: File too large)" \
+        in lines
+    assert "replay   55 reads played, finished" in lines
