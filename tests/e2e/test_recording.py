@@ -162,7 +162,9 @@ def test_a_gateway_killed_while_recording_leaves_a_file_readable_to_its_last_sec
         except Exception:  # the unfinished tail: what comes before it is what counts
             pass
     assert count > 100
-    assert killed_at - last / 1e9 < 1.5, f"lost {killed_at - last / 1e9:.2f} s"
+    # a chunk a second, written by a thread that wakes every 0.1 s: 1.1 s at most, and
+    # some room for a loaded CI machine's scheduler
+    assert killed_at - last / 1e9 < 2.0, f"lost {killed_at - last / 1e9:.2f} s"
 
 
 def test_files_rotate_by_size_each_finished_and_in_time_order(simulator, gateway, tmp_path):
@@ -214,7 +216,7 @@ def test_gx2ctl_record_writes_the_published_stream_of_the_nodes_asked(
     topics = {t for t, _, _ in messages(target)}
     assert topics == {"gx2/76/accel_angrate", "gx2/gateway/status"}
     count = sum(t == "gx2/76/accel_angrate" for t, _, _ in messages(target))
-    assert 150 < count < 260
+    assert 100 < count < 260  # 2 s at 100 Hz, less the subscription's first moments
     again = gx2ctl("--control", gw.control_endpoint, "record", str(target), "--seconds", "1")
     assert again.status == 2 and "exists" in again.stderr
 
