@@ -225,6 +225,11 @@ class NodeClock:
         """Packets since the last reset (or restart after an outage)."""
         return self._points
 
+    @property
+    def locked(self) -> bool:
+        """Whether a second of packets has been fitted since the last reset."""
+        return self._locked_since is not None
+
     def estimate(self) -> Estimate:
         """The current estimate (for status)."""
         ordered = sorted(self._residuals)

@@ -32,6 +32,8 @@ TICKS_PER_SECOND: Final = 19_660_800
 TICKS_PER_CLOCK: Final = TICKS_PER_SECOND // CLOCK_HZ
 """Timer ticks in one period of the 51,200 Hz clock (384): a stream's records are
 ``divider * TICKS_PER_CLOCK`` ticks apart."""
+BITS_PER_BYTE: Final = 10
+"""A byte on the serial line at 8N1: a start bit, eight data bits and a stop bit."""
 TIMER_MODULUS: Final = 1 << 32
 WRAP_SECONDS: Final = TIMER_MODULUS / TICKS_PER_SECOND  # 218.45 s
 _HALF_WRAP_SECONDS: Final = WRAP_SECONDS / 2
@@ -44,6 +46,11 @@ def ticks_to_seconds(ticks: int) -> float:
 def seconds_to_ticks(seconds: float) -> int:
     """Ticks for ``seconds``, wrapped into the u32 a node would report."""
     return round(seconds * TICKS_PER_SECOND) % TIMER_MODULUS
+
+
+def byte_time(baudrate: int) -> float:
+    """Seconds one byte takes on the serial line."""
+    return BITS_PER_BYTE / baudrate
 
 
 def valid_divider(divider: int) -> bool:

@@ -23,7 +23,7 @@ import math
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import msgpack
 import zmq
@@ -108,13 +108,14 @@ class Subscriber:
     """Records from one or more gateways' publish endpoints.
 
     ``nodes``/``records`` filter (empty: all); ``status=True`` also yields each
-    gateway's heartbeat. ``keys``: CURVE keys, when the gateway encrypts its stream
+    gateway's heartbeat, and ``status="only"`` nothing else (a monitor: no record
+    crosses the network to it). ``keys``: CURVE keys, when the gateway encrypts its stream
     (:func:`gateway.common.curve.load_client_keys`). Malformed messages are
     skipped, counted in ``malformed`` and given to ``on_malformed`` (default: logged).
     """
 
     def __init__(self, endpoints: str | Iterable[str], nodes: Iterable[int] = (),
-                 records: Iterable[str] = (), *, status: bool = False,
+                 records: Iterable[str] = (), *, status: bool | Literal["only"] = False,
                  keys: curve.ClientKeys | None = None,
                  on_malformed: Callable[[str, Malformed], None] | None = None,
                  context: zmq.Context | None = None) -> None:
@@ -123,7 +124,10 @@ class Subscriber:
             raise GatewayError("no publish endpoint to subscribe to")
         self.nodes = frozenset(nodes)
         self.records = frozenset(records)
-        self.yield_status = status
+        if status not in (False, True, "only"):
+            raise ValueError(f"status must be True, False or 'only', not {status!r}")
+        self.yield_status = bool(status)
+        self.only_status = status == "only"
         self.on_malformed = on_malformed or _log_malformed
         self._own_context = context is None
         self.context = context or zmq.Context()
@@ -157,7 +161,7 @@ class Subscriber:
         except zmq.ZMQError as error:
             raise GatewayError(f"cannot subscribe to {endpoint}: {error}") from None
         prefixes = [node_prefix(node) for node in sorted(self.nodes)] or [PREFIX]
-        for prefix in prefixes:
+        for prefix in () if self.only_status else prefixes:
             socket.setsockopt(zmq.SUBSCRIBE, prefix.encode())
         socket.setsockopt(zmq.SUBSCRIBE, STATUS_TOPIC)  # (heard from, restarts)
         self._poller.register(socket, zmq.POLLIN)

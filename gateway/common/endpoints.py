@@ -1,5 +1,5 @@
 """ZeroMQ endpoints: the defaults, what counts as one, and which ones other hosts can
-reach."""
+reach; and the metrics endpoint's HOST:PORT."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import ipaddress
 
 DEFAULT_PUBLISH = "tcp://127.0.0.1:5555"
 DEFAULT_CONTROL = "tcp://127.0.0.1:5556"
+DEFAULT_METRICS = "127.0.0.1:9105"
 WILDCARD_HOSTS = ("*", "0.0.0.0", "::", "[::]", "[*]")
 
 
@@ -49,3 +50,26 @@ def connectable(address: str, near: str) -> str:
     other = tcp_host(near)
     concrete = other if other and other not in WILDCARD_HOSTS else "127.0.0.1"
     return f"tcp://{concrete}:{address.rpartition(':')[2]}"
+
+
+def host_port(value: str) -> tuple[str, int]:
+    """``HOST:PORT`` -> (host, port): ``[::1]:9105`` for IPv6, and a bare ``:9105`` or
+    ``9105`` on the loopback. ValueError if it is not such an address."""
+    host, colon, port = value.rpartition(":")
+    if not colon:
+        host, port = "", value
+    bracketed = host.startswith("[") and host.endswith("]")
+    if bracketed:
+        host = host[1:-1]
+    if not (port.isascii() and port.isdecimal() and 1 <= int(port) <= 65535) or any(
+            c.isspace() or c in "/[]" for c in host):
+        raise ValueError(f"must be HOST:PORT with a port 1..65535, such as "
+                         f"{DEFAULT_METRICS}, not {value!r}")
+    if ":" in host and not bracketed:
+        raise ValueError(f"an IPv6 address goes in brackets: [{host}]:{port}")
+    return host or "127.0.0.1", int(port)
+
+
+def check_host_port(value: str) -> str:
+    host_port(value)
+    return value

@@ -54,6 +54,19 @@ class Param:
 
 
 @dataclass(frozen=True)
+class Switch:
+    """An option of the gx2ctl command alone, never sent to the gateway: it changes what
+    gx2ctl makes of the result (``status --check``)."""
+
+    name: str
+    help: str
+
+    @property
+    def flag(self) -> str:
+        return "--" + self.name.replace("_", "-")
+
+
+@dataclass(frozen=True)
 class Op:
     """One control op: its name on the wire, its words on gx2ctl's command line (``("eeprom",
     "read")``), what it does, its fields."""
@@ -73,6 +86,7 @@ class Op:
     notice: str = ""
     """What gx2ctl says (on stderr) before it sends the request; ``{field}`` is
     replaced by the request's field."""
+    switches: tuple[Switch, ...] = ()
     fields: tuple[str, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -89,7 +103,10 @@ _NODE = Param("node", NODE, "the node's address")
 OPS: tuple[Op, ...] = (
     Op("ping", ("ping",), "wireless ping; exit 0 if every node answered",
        (Param("nodes", NODE, "node addresses", many=MAX_PING_NODES),)),
-    Op("status", ("status",), "the gateway, the link and every node", talks_to_node=False),
+    Op("status", ("status",), "the gateway, the link and every node, with its health",
+       talks_to_node=False,
+       switches=(Switch("check", "exit 1 unless the link is up and every node is OK (for "
+                        "cron, a load balancer or a monitoring check)"),)),
     Op("start", ("start",), "continuous mode with RECORD (a name or 0xNN); the node keeps "
        "it through reboots until the next start or stop",
        (_NODE, Param("record", STREAMABLE_RECORD, "the record to stream"))),

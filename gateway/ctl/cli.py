@@ -63,6 +63,16 @@ def build_parser() -> ArgumentParser:
         "gx2/gateway/... messages are not printed). The publish endpoint comes from "
         "--config, or else from the gateway's status reply.").add_argument(
         "nodes", nargs="*", type=node_address, metavar="NODE")
+    commands.add_parser(
+        "top", help="a live table of every node, refreshed in place until q or Ctrl-C",
+        description="A live table of the gateway's link and every node (state, record, "
+        "rate against the expected rate, radio loss over the health window, losses in the "
+        "gateway, reboots, LQI/RSSI, clock drift, last seen, health), drawn from the "
+        "gateway's heartbeat and refreshed in place until q, Ctrl-C or SIGTERM. Columns "
+        "are dropped or cut to fit the terminal. Not a terminal: one plain frame per "
+        "heartbeat; with --json, each heartbeat as a JSON line. NO_COLOR turns colour "
+        "off.").add_argument("nodes", nargs="*", type=node_address, metavar="NODE",
+                             help="only these nodes (default: all)")
     recorder = commands.add_parser(
         "record", help="record the published stream to an MCAP file",
         description="Record every published record (of the NODEs given, or of all) and the "
@@ -107,6 +117,8 @@ def add_op(commands: Any, groups: dict[str, Any], op: Op) -> None:
             sub.add_argument(param.flag, dest=param.name, type=argtype(param.kind),
                              default=param.default, metavar=metavar.split("_")[-1],
                              help=f"{listed} (default {param.default})")
+    for switch in op.switches:
+        sub.add_argument(switch.flag, dest=switch.name, action="store_true", help=switch.help)
 
 
 # --- where the gateway is ---------------------------------------------------------------
@@ -189,7 +201,8 @@ def run_op(op: Op, args: argparse.Namespace, where: Endpoints) -> int:
         print(f"{PROG}: {op.notice.format(**fields)}", file=sys.stderr, flush=True)
     with Client(where.control, args.timeout, where.keys) as client:
         result = client.call(op.name, extra_time=op.extra_time(fields), **fields)
-    shown = show(op.name, fields, result, args.json)
+    switches = {switch.name: getattr(args, switch.name) for switch in op.switches}
+    shown = show(op.name, {**fields, **switches}, result, args.json)
     emit(shown.lines)
     if shown.failure:
         raise CtlError(shown.failure, Exit.NODE_FAILED)
@@ -224,6 +237,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "tail":
             from .tail import run_tail
             return run_tail(args.nodes, where, args.timeout)
+        if args.command == "top":
+            from .top import run_top
+            return run_top(args.nodes, where, args.timeout, args.json)
         if args.command == "record":
             from .record import run_record
             return run_record(args.file, args.nodes, args.seconds, where, args.timeout)
@@ -233,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
             emit([json_line({"ok": False, "error": str(error), "exit": int(error.status)})])
         fail(PROG, str(error), error.status)
     except KeyboardInterrupt:
-        return Exit.OK if args.command in ("tail", "record") else 130
+        return Exit.OK if args.command in ("tail", "record", "top") else 130
     except BrokenPipeError:  # a reader such as `head` has gone: not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return Exit.OK

@@ -104,7 +104,7 @@ def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
             .rstrip() for row in (header, *rows)]
 
 
-def _map(value: Any) -> Mapping[str, Any]:
+def as_map(value: Any) -> Mapping[str, Any]:
     return value if isinstance(value, Mapping) else {}
 
 
@@ -115,7 +115,8 @@ def _count(value: Any, unit: str) -> str:
 
 NODE_COLUMNS = ("node", "name", "state", "record", "configured", "desired", "rate Hz",
                 "packets", "published", "lost radio", "lost gateway", "reboots",
-                "silences", "LQI", "RSSI", "last seen", "clock")
+                "silences", "LQI", "RSSI", "last seen", "clock", "health")
+OK = "OK"
 
 
 def clock_cell(clock: Any) -> str:
@@ -130,8 +131,8 @@ def clock_cell(clock: Any) -> str:
 
 def status_lines(result: Mapping[str, Any], now: float) -> list[str]:
     """The gateway line, the link line and a table of nodes."""
-    gateway = _map(result.get("gateway"))
-    link = _map(result.get("link"))
+    gateway = as_map(result.get("gateway"))
+    link = as_map(result.get("link"))
     lines = [f"gateway  version {cell(gateway.get('version'))}, "
              f"up {duration(gateway.get('uptime'))}, "
              f"publish {cell(gateway.get('publish_endpoint'))}, "
@@ -157,21 +158,47 @@ def status_lines(result: Mapping[str, Any], now: float) -> list[str]:
     if isinstance(replay, Mapping):
         lines.append(f"replay   {cell(replay.get('reads'))} reads played"
                      f"{', finished' if replay.get('finished') is True else ''}")
-    nodes = result.get("nodes")
     rows = [[cell(node.get("node")), cell(node.get("name")), cell(node.get("state")),
              cell(node.get("record")), cell(node.get("configured")),
              cell(node.get("desired")), cell(node.get("rate_hz")), cell(node.get("packets")),
              cell(node.get("published")), cell(node.get("lost_radio")),
              cell(node.get("lost_gateway")), cell(node.get("reboots")),
              cell(node.get("silences")), cell(node.get("lqi")), cell(node.get("rssi")),
-             ago(node.get("last_seen"), now), clock_cell(node.get("clock"))]
-            for node in (nodes if isinstance(nodes, list) else []) if isinstance(node, Mapping)]
+             ago(node.get("last_seen"), now), clock_cell(node.get("clock")),
+             cell(node.get("health"))] for node in node_maps(result)]
     if rows:
         lines.append("")
         lines.extend(table(NODE_COLUMNS, rows))
+        lines.extend(f"{cell(node.get('node'))} {cell(node.get('health'))}: {why}"
+                     for node in node_maps(result) if (why := reasons(node)))
     else:
         lines.append("no nodes")
     return lines
+
+
+def node_maps(result: Mapping[str, Any]) -> list[Mapping[str, Any]]:
+    nodes = result.get("nodes")
+    return [node for node in (nodes if isinstance(nodes, list) else [])
+            if isinstance(node, Mapping)]
+
+
+def reasons(node: Mapping[str, Any]) -> str:
+    """Why a node is not OK, in one line ("" if it is, or if the gateway gave none)."""
+    given = node.get("reasons")
+    return "; ".join(cell(r) for r in given) if isinstance(given, list) else ""
+
+
+def unhealthy(result: Mapping[str, Any]) -> str | None:
+    """Why a status is not all well (the link down, a node not OK), or None."""
+    link = as_map(result.get("link"))
+    if link.get("state") != "up":
+        return f"the link is {cell(link.get('state'))}"
+    nodes = node_maps(result)
+    if not nodes:
+        return "the gateway reported no nodes"
+    bad = [f"{cell(n.get('node'))} {cell(n.get('health'))}" for n in nodes
+           if n.get("health") != OK]
+    return f"{len(bad)} of {len(nodes)} nodes not OK: {', '.join(bad)}" if bad else None
 
 
 def answered(result: Mapping[str, Any]) -> dict[Any, bool]:
@@ -184,7 +211,8 @@ def answered(result: Mapping[str, Any]) -> dict[Any, bool]:
 
 @prints("status")
 def _status(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
-    return Shown(status_lines(result, time.time()))
+    return Shown(status_lines(result, time.time()),
+                 unhealthy(result) if fields.get("check") else None)
 
 
 @prints("ping")

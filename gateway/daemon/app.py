@@ -23,13 +23,16 @@ import zmq
 import zmq.asyncio
 from zmq.auth.asyncio import AsyncioAuthenticator
 
+from aspp.timing import byte_time
 from gateway.common.curve import AllowList, KeyPair
 from gateway.common.version import VERSION
 
 from . import status
 from .config import GatewayConfig
 from .control import ControlServer
+from .health import SAMPLE_PERIOD, Health
 from .link import SerialLink
+from .metrics import MetricsServer
 from .nodes import Node
 from .operations import Operations
 from .ports import Port
@@ -55,9 +58,10 @@ class Gateway:
         self.config = config
         self.started = time.time()
         station = config.base_station
-        self.nodes = {n.address: Node(n, byte_time=10 / station.baudrate,
+        self.nodes = {n.address: Node(n, byte_time=byte_time(station.baudrate),
                                       latency=station.latency_ms / 1000)
                       for n in config.nodes}
+        self.health = Health(self.nodes.values(), config.health)
         self.systemd = Notifier()
         self._ready = False
         self._context = zmq.asyncio.Context()
@@ -86,10 +90,14 @@ class Gateway:
                                        else None)
             endpoint = config.control.endpoint
             self.control = ControlServer(self._context, endpoint, self.ops, server)
-        except zmq.ZMQError as error:
+            self.metrics: MetricsServer | None = None
+            if config.metrics is not None:
+                endpoint = config.metrics.endpoint
+                self.metrics = MetricsServer(endpoint)
+        except (zmq.ZMQError, OSError) as error:
             self._stop_auth()
             self._context.destroy(linger=0)
-            raise StartupError(f"cannot bind {endpoint}: {error.strerror}") from None
+            raise StartupError(f"cannot bind {endpoint}: {error.strerror or error}") from None
         self.reader = Reader(self.nodes, self.publisher, self.supervisor, self.scheduler,
                              config.base_station.idle_ms / 1000, idle_timer=not replay)
         self.recorder: Recorder | None = None
@@ -120,6 +128,7 @@ class Gateway:
             log.info("base station %s open", self.config.base_station.port)
         loop = asyncio.get_running_loop()
         tasks = [loop.create_task(self.control.serve()), loop.create_task(self._heartbeat()),
+                 loop.create_task(self._sample()),
                  loop.create_task(self.supervisor.watch_streams())]
         if self.systemd.watchdog_interval:
             tasks.append(loop.create_task(self._watchdog(self.systemd.watchdog_interval)))
@@ -140,6 +149,9 @@ class Gateway:
             await self._shutdown()
 
     async def _shutdown(self) -> None:
+        loop = asyncio.get_running_loop()
+        metrics = (loop.run_in_executor(None, self.metrics.close)  # (up to 0.5 s: meanwhile)
+                   if self.metrics is not None else None)
         self.supervisor.close()
         self.ops.close()
         if self.config.shutdown.stop_streams and self.link.up and not self.replaying:
@@ -153,7 +165,9 @@ class Gateway:
         self.port.close()
         if self.recorder is not None:
             # off the loop, which has nothing left to do: the last second, and the index
-            await asyncio.get_running_loop().run_in_executor(None, self.recorder.close)
+            await loop.run_in_executor(None, self.recorder.close)
+        if metrics is not None:
+            await metrics
         log.info("stopped")
 
     def _stop_auth(self) -> None:
@@ -214,5 +228,18 @@ class Gateway:
             await asyncio.sleep(self.config.publish.heartbeat_s)
             self.publisher.status(self.status())
 
+    async def _sample(self) -> None:
+        """Once a second: the counters each node's health is judged over, and a fresh
+        report for the metrics endpoint."""
+        while True:
+            self.health.sample(time.monotonic(), self.link.bytes_read)
+            if self.metrics is not None:
+                self.status()
+            await asyncio.sleep(SAMPLE_PERIOD)
+
     def status(self) -> dict[str, Any]:
-        return status.report(self)
+        """The status report (and the one the metrics endpoint serves from now on)."""
+        report = status.report(self)
+        if self.metrics is not None:
+            self.metrics.update(report)
+        return report

@@ -17,8 +17,10 @@ from aspp.temperature import DEFAULT_GYRO, gyro_model
 from gateway.common import curve
 from gateway.common.endpoints import (
     DEFAULT_CONTROL,
+    DEFAULT_METRICS,
     DEFAULT_PUBLISH,
     check_endpoint,
+    check_host_port,
     is_loopback,
 )
 from gateway.common.strict import Strict, load_model
@@ -118,6 +120,31 @@ class RecordConfig(Strict):
     53 MB of memory when full (tracemalloc, half reads, half 0xC2 records)."""
 
 
+class MetricsConfig(Strict):
+    """Prometheus metrics (README, "Watching it run")."""
+
+    endpoint: Annotated[str, AfterValidator(check_host_port)] = DEFAULT_METRICS
+    """HOST:PORT of the HTTP endpoint serving GET /metrics (a bare :PORT or PORT is on
+    127.0.0.1; [::1]:PORT for IPv6). Read-only: any address a scraper reaches will do."""
+
+
+class HealthConfig(Strict):
+    """Added: when a node is OK, WARN or ERROR (README, "Health")."""
+
+    window_s: Annotated[float, Field(ge=2, le=3600)] = 60.0
+    """The recent past that losses and RSSI are judged over: the last minute."""
+    rate_under_percent: Annotated[float, Field(gt=0, le=100)] = 5.0
+    """WARN when a stream's rate is more than this far under its expected rate."""
+    radio_loss_percent: Annotated[float, Field(ge=0, le=100)] = 5.0
+    """WARN when more than this share of a node's samples was lost over the radio in
+    the window."""
+    weak_rssi_dbm: Annotated[int, Field(ge=-128, le=0)] = -90
+    """WARN when the median RSSI over the window is under this."""
+    settle_s: Annotated[float, Field(ge=0, le=600)] = 10.0
+    """A stream (re)started this recently is not judged by its rate or its clock yet:
+    both need a few seconds of records to be measured."""
+
+
 class NodeEntry(Strict):
     address: Annotated[int, Field(ge=MIN_NODE, le=MAX_NODE, strict=True)]
     name: Annotated[str, Field(min_length=1, max_length=64)] | None = None
@@ -150,6 +177,8 @@ class GatewayConfig(Strict):
     shutdown: ShutdownConfig = ShutdownConfig()
     curve: CurveConfig | None = None
     record: RecordConfig | None = None
+    metrics: MetricsConfig | None = None
+    health: HealthConfig = HealthConfig()
     nodes: Annotated[list[NodeEntry], Field(min_length=1)]
 
     @model_validator(mode="after")

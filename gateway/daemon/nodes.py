@@ -23,6 +23,8 @@ from aspp.timing import (
     TICKS_PER_CLOCK,
     TIMER_MODULUS,
     TimerUnwrapper,
+    byte_time,
+    data_rate,
     sample_period,
     valid_divider,
 )
@@ -76,7 +78,7 @@ class Delivery(NamedTuple):
 class Node:
     """One configured node."""
 
-    def __init__(self, config: NodeEntry, *, byte_time: float = 10 / 115200,
+    def __init__(self, config: NodeEntry, *, byte_time: float = byte_time(115200),
                  latency: float = 0.0) -> None:
         self.config = config
         self.clock = NodeClock()
@@ -119,6 +121,9 @@ class Node:
         self._shortest_step = TIMER_MODULUS
         self._stream_seen = 0.0
         """time.monotonic() of the last record of the stream (or of its start)."""
+        self.stream_started = 0.0
+        """time.monotonic() when its stream last started, or resumed after a silence:
+        its rate and clock are judged only a while after (see :mod:`.health`)."""
         self._window_start = 0.0
         self._window_count = 0
 
@@ -129,6 +134,13 @@ class Node:
     @property
     def period(self) -> float:
         return sample_period(self.divider)
+
+    @property
+    def expected_hz(self) -> float | None:
+        """The rate its stream runs at, or None when it streams nothing."""
+        if self._state in (State.STREAMING, State.SILENT) and self.record is not None:
+            return data_rate(self.divider)
+        return None
 
     @property
     def silence_limit(self) -> float:
@@ -179,6 +191,7 @@ class Node:
             self._stream_seen = time.monotonic()
             if self._state is State.SILENT:
                 self._state = State.STREAMING  # (its timer gap was counted as lost_radio)
+                self.stream_started = self._stream_seen
         # anything but the next record of the stream a streaming node is known to stream
         # is for the supervisor to look at; saying so here, where it is known, saves the
         # reader a call for every record: 1.8% of the instructions a record takes
@@ -245,7 +258,7 @@ class Node:
     def _restart_stream(self) -> None:
         self._last_stream_timer = None
         self._steps, self._shortest_step = 0, TIMER_MODULUS
-        self._stream_seen = time.monotonic()
+        self._stream_seen = self.stream_started = time.monotonic()
 
     def settled(self) -> None:
         """Nothing to pursue: the node does what it is known to do."""

@@ -46,7 +46,8 @@ class Publisher:
             curve.serve(self.socket, server)
         self.socket.bind(endpoint)
         self.endpoint = endpoint
-        self._topics: dict[tuple[int, str], bytes] = {}
+        self._topics: dict[tuple[int, str], list[Any]] = {}
+        """(node, record) -> [its topic, messages published on it]."""
         self._pack = msgpack.Packer().pack
         self._socket_send = compiled_send(self.socket)
         self.sent = 0
@@ -59,10 +60,18 @@ class Publisher:
         subscriber past its high-water mark loses messages silently inside PUB: it sees
         them as gaps in ``seq``."""
         key = (node, record)
-        name = self._topics.get(key)
-        if name is None:
-            name = self._topics[key] = topic(node, record)
-        return self._send(name, payload)
+        entry = self._topics.get(key)
+        if entry is None:
+            entry = self._topics[key] = [topic(node, record), 0]
+        if self._send(entry[0], payload):
+            entry[1] += 1
+            return True
+        return False
+
+    def published(self, node: int) -> dict[str, int]:
+        """Messages published on each of ``node``'s topics, by record name."""
+        return {record: entry[1] for (address, record), entry in self._topics.items()
+                if address == node and entry[1]}
 
     def status(self, payload: dict[str, Any]) -> bool:
         return self._send(STATUS_TOPIC, payload)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING, Any
 
+from aspp.timing import BITS_PER_BYTE
 from gateway.common.version import VERSION
 
 from .replay import ReplayLink
@@ -15,10 +16,11 @@ if TYPE_CHECKING:
 
 
 def report(gateway: Gateway) -> dict[str, Any]:
-    now = time.time()
+    now, monotonic = time.time(), time.monotonic()
     config = gateway.config
     link, reader, scheduler = gateway.link, gateway.reader, gateway.scheduler
     stats = reader.decoder.stats
+    health, publisher = gateway.health, gateway.publisher
     return {
         "gateway": {"version": VERSION, "uptime": round(now - gateway.started, 3),
                     "time": now, "publish_endpoint": config.publish.endpoint,
@@ -35,6 +37,8 @@ def report(gateway: Gateway) -> dict[str, Any]:
         "link": {"port": config.base_station.port,
                  "state": "up" if link.up else "down", "since": link.since,
                  "reconnects": link.reconnects, "bytes_read": link.bytes_read,
+                 "bytes_per_s": round(health.bytes_per_s(monotonic, link.bytes_read), 1),
+                 "line_bytes_per_s": config.base_station.baudrate / BITS_PER_BYTE,
                  "error": link.last_error,
                  "discarded_bytes": stats.bytes_discarded,
                  "discarded": {str(k): v for k, v in stats.discarded_bytes.items()},
@@ -43,7 +47,9 @@ def report(gateway: Gateway) -> dict[str, Any]:
                  "retries": scheduler.stats.retries,
                  "failures": scheduler.stats.failures,
                  "unexpected_answers": scheduler.stats.unexpected},
-        "nodes": [node.status(now) for node in gateway.nodes.values()],
+        "nodes": [{**node.status(now), **health.status(node, monotonic),
+                   "by_record": publisher.published(node.address)}
+                  for node in gateway.nodes.values()],
         "recording": gateway.recorder.status() if gateway.recorder is not None else None,
         "replay": ({"files": len(link.replay.files), "reads": link.reads,
                     "finished": link.finished} if isinstance(link, ReplayLink) else None),

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 from aspp.frame import ACK, FLAGS_DISCOVERY, NACK, PING, encode_reply_packet
 from aspp.host_side import CommandPacket, Garbled, HostStreamDecoder, PingRequest
+from aspp.timing import byte_time
 
 from .node import FIRMWARE_VERSION, SimNode
 
@@ -97,7 +98,7 @@ class BaseStation:
         self.nodes = {node.address: node for node in nodes}
         self.radio = {a: (radio or {}).get(a, RadioLink()) for a in self.nodes}
         self.line = line or LineFaults()
-        self.byte_time = 10 / baudrate  # 8N1: ten bit times a byte
+        self.byte_time = byte_time(baudrate)
         self.rng = rng or random.Random(0)
         self.stats = StationStats()
         self.from_host_log: deque[tuple[float, CommandPacket | PingRequest]] = deque(

@@ -154,7 +154,8 @@ def status_result(publish: str) -> dict[str, Any]:
              "lost_gateway": 0, "reboots": 1, "silences": 2, "lqi": 255, "rssi": -44,
              "last_seen": now - 1.5, "seq": 4990,
              "clock": {"offset": now - 3600.0, "drift_ppm": -12.34, "spread_ms": 0.05,
-                       "locked": True, "since": now - 60.0}},
+                       "locked": True, "since": now - 60.0},
+             "health": "WARN", "reasons": ["radio loss 6.0% in 60 s", "RSSI -91 dBm"]},
             {"node": 95, "name": None, "state": "unknown", "record": None, "rate_hz": NAN,
              "packets": 0, "lost_radio": 0, "lqi": None, "rssi": None, "last_seen": None,
              "future_key": {"a": 1}},
@@ -327,10 +328,12 @@ READABLE: dict[str, tuple[list[str], str]] = {
                r"link     sim:// up for 1 min 3\d s, reconnects 2, read 123456 bytes, "
                r"discarded 7 bytes\n\n"
                r"node +name +state +record +configured +desired +rate Hz +packets +published +"
-               r"lost radio +lost gateway +reboots +silences +LQI +RSSI +last seen +clock\n"
+               r"lost radio +lost gateway +reboots +silences +LQI +RSSI +last seen +clock +"
+               r"health\n"
                r"76 +left-wing +streaming +accel_angrate +euler +accel_angrate +100 +5000 +4990 "
-               r"+3 +0 +1 +2 +255 +-44 +1\.\d s ago +-12\.3 ppm\n"
-               r"95 +- +unknown +- +- +- +- +0 +- +0 +- +- +- +- +- +never +-\n"),
+               r"+3 +0 +1 +2 +255 +-44 +1\.\d s ago +-12\.3 ppm +WARN\n"
+               r"95 +- +unknown +- +- +- +- +0 +- +0 +- +- +- +- +- +never +- +-\n"
+               r"76 WARN: radio loss 6\.0% in 60 s; RSSI -91 dBm\n"),
 }
 
 
@@ -407,6 +410,9 @@ def failing_runs(fake: FakeGateway, pool: ThreadPoolExecutor) -> dict[str, Futur
     for name, args in (("eeprom write", ["eeprom", "write", str(REFUSES_WRITES), "1", "2"]),
                        ("rate", ["rate", str(REFUSES_WRITES), "20"])):
         runs[f"refused {name}"] = pool.submit(run, "--control", fake.control, *args)
+    runs["status --check"] = pool.submit(run, "--control", fake.control, "status", "--check")
+    runs["status --check --json"] = pool.submit(run, "--control", fake.control, "--json",
+                                                "status", "--check")
     return runs
 
 
@@ -437,6 +443,31 @@ def test_a_refused_eeprom_write_exits_1_with_the_gateways_message(
         name: str, failing_runs: dict[str, Future[Run]]) -> None:
     result = failing_runs[f"refused {name}"].result()
     assert assert_one_error_line(result, 1) == f"gx2ctl: {REFUSAL}"
+
+
+def test_status_check_exits_1_naming_the_nodes_not_ok(
+        failing_runs: dict[str, Future[Run]]) -> None:
+    result = failing_runs["status --check"].result()
+    line = assert_one_error_line(result, 1)
+    assert line == "gx2ctl: 2 of 2 nodes not OK: 76 WARN, 95 -", result  # (95: no health)
+    assert "76 WARN: radio loss 6.0% in 60 s; RSSI -91 dBm" in result.stdout.splitlines()
+    as_json = failing_runs["status --check --json"].result()
+    assert as_json.status == 1, as_json
+    lines = [strict_json(line) for line in as_json.stdout.splitlines()]
+    assert lines[0]["nodes"][0]["health"] == "WARN"
+    assert lines[-1] == {"ok": False, "error": line.removeprefix("gx2ctl: "), "exit": 1}
+
+
+def test_check_passes_only_with_the_link_up_and_every_node_ok() -> None:
+    from gateway.ctl.output import unhealthy
+    up = {"state": "up"}
+    good = {"link": up, "nodes": [{"node": 76, "health": "OK"}, {"node": 77, "health": "OK"}]}
+    assert unhealthy(good) is None
+    assert unhealthy({**good, "link": {"state": "down"}}) == "the link is down"
+    assert unhealthy({"link": up, "nodes": []}) == "the gateway reported no nodes"
+    assert unhealthy({"link": up, "nodes": [{"node": 76, "health": "OK"},
+                                            {"node": 77, "health": "ERROR"}]}) \
+        == "1 of 2 nodes not OK: 77 ERROR"
 
 
 # --- usage errors ---------------------------------------------------------------------

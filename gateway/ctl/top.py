@@ -1,0 +1,326 @@
+"""``gx2ctl top``: every node of a running gateway at a glance, refreshed in place until
+``q`` or Ctrl-C.
+
+It draws the gateway's heartbeat (``gx2/gateway/status``, once a second by default),
+received through :mod:`gateway.client` with ``status="only"``: the gateway does no work
+for it, and no record crosses the network to it. When the gateway goes away the last
+table stays, marked stale; when it comes back the subscription reconnects by itself.
+
+A frame is a pure function of the status and the terminal's width, so the layout is
+tested without a terminal: columns are dropped or abbreviated to fit, never wrapped.
+Not a terminal (a pipe, a file): one plain frame per heartbeat, as ``top -b`` does.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import select
+import sys
+import termios
+import time
+import tty
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from rich.cells import cell_len, set_cell_size
+from rich.console import Console, Group
+from rich.live import Live
+from rich.text import Text
+
+from gateway.client import Status
+from gateway.common.jsontext import json_line
+from gateway.common.protocol import Exit
+
+from .output import MISSING, OK, as_map, cell, clock_cell, duration, node_maps, number, reasons
+from .tail import Stop, subscribe
+
+if TYPE_CHECKING:
+    from .cli import Endpoints
+
+TICK = 0.2
+"""Seconds between looks at the keyboard (and at the clock, for the ages shown)."""
+REDRAW = 1.0
+"""A frame is drawn on each heartbeat, and at least this often (ages move on)."""
+GAP = 1
+"""Spaces between columns."""
+HEALTH_STYLE = {"OK": "green", "WARN": "bold yellow", "ERROR": "bold red"}
+
+
+# --- the table -----------------------------------------------------------------------
+
+def _hz(node: Mapping[str, Any], now: float) -> str:
+    rate, expected = number(node.get("rate_hz")), number(node.get("expected_hz"))
+    shown = MISSING if rate is None else f"{rate:.1f}"
+    return f"{shown}/{expected:.4g}" if expected else shown
+
+
+def _lost(node: Mapping[str, Any], now: float) -> str:
+    """Lost over the radio in the recent window: the count and its share."""
+    recent = as_map(node.get("recent"))
+    count, share = number(recent.get("lost_radio")), number(recent.get("lost_radio_percent"))
+    if count is None:
+        return MISSING
+    return f"{count:.0f} {share:.1f}%" if share is not None else f"{count:.0f}"
+
+
+def _seen(node: Mapping[str, Any], now: float) -> str:
+    """How long ago, in at most five cells: ``0.3s``, ``42s``, ``12m``, ``5h``, ``3d``."""
+    seen = number(node.get("last_seen"))
+    if seen is None:
+        return "never" if node.get("last_seen") is None else MISSING
+    age = max(0.0, now - seen)
+    for unit, seconds in (("d", 86400), ("h", 3600), ("m", 60)):
+        if age >= 2 * seconds:
+            return f"{age / seconds:.0f}{unit}"
+    return f"{age:.1f}s" if age < 10 else f"{age:.0f}s"
+
+
+def _clock(node: Mapping[str, Any], now: float) -> str:
+    return clock_cell(node.get("clock")).removesuffix(" ppm")
+
+
+def _name(node: Mapping[str, Any], now: float) -> str:
+    name = node.get("name")
+    return f"{cell(node.get('node'))} {cell(name)}" if name else cell(node.get("node"))
+
+
+def _key(key: str) -> Callable[[Mapping[str, Any], float], str]:
+    return lambda node, now: cell(node.get(key))
+
+
+@dataclass(frozen=True)
+class Column:
+    header: str
+    cell: Callable[[Mapping[str, Any], float], str]
+    """The cell of a node's map, at ``now`` (UNIX time)."""
+    keep: int
+    """When the width runs short, the column with the lowest ``keep`` goes first."""
+    right: bool = False
+    least: int = 0
+    """Cut down to this many cells (with an ellipsis) before any column is dropped; 0:
+    never cut."""
+
+
+COLUMNS = (
+    Column("node", _name, 100, least=8),
+    Column("state", _key("state"), 90, least=9),
+    Column("record", _key("record"), 80, least=10),
+    Column("Hz", _hz, 85, right=True),
+    Column("lost", _lost, 70, right=True),
+    Column("gw", _key("lost_gateway"), 30, right=True),
+    Column("boots", _key("reboots"), 35, right=True),
+    Column("LQI", _key("lqi"), 20, right=True),
+    Column("RSSI", _key("rssi"), 60, right=True),
+    Column("clock", _clock, 40, right=True),
+    Column("seen", _seen, 50, right=True),
+    Column("health", _key("health"), 95),
+)
+
+
+def fit(columns: Sequence[Column], rows: Sequence[Sequence[str]],
+        width: int) -> list[tuple[int, int]]:
+    """The columns shown within ``width`` cells, as (index, cells). Each column wants
+    its widest cell; the cuttable ones are first taken at their least, and while even
+    that is too wide the column of lowest ``keep`` is dropped; what room is left goes
+    back to the cut columns, the most kept first."""
+    wanted = [max([cell_len(c.header), *(cell_len(row[i]) for row in rows)])
+              for i, c in enumerate(columns)]
+    widths = [min(c.least, w) if c.least else w for c, w in zip(columns, wanted, strict=True)]
+    kept = list(range(len(columns)))
+
+    def room() -> int:
+        return width - sum(widths[i] for i in kept) - GAP * (len(kept) - 1)
+
+    while room() < 0 and len(kept) > 1:
+        kept.remove(min(kept, key=lambda i: columns[i].keep))
+    if room() < 0:  # one column left, and still too wide: cut it to the width
+        widths[kept[0]] = max(1, width)
+    for i in sorted(kept, key=lambda i: -columns[i].keep):
+        widths[i] += min(wanted[i] - widths[i], max(0, room()))
+    return [(i, widths[i]) for i in kept]
+
+
+def sized(text: str, width: int, right: bool = False) -> str:
+    """``text`` in exactly ``width`` cells: padded, or cut with an ellipsis."""
+    if cell_len(text) > width:
+        return set_cell_size(text, width - 1) + "…" if width > 1 else set_cell_size(text, width)
+    pad = " " * (width - cell_len(text))
+    return pad + text if right else text + pad
+
+
+def table(nodes: Sequence[Mapping[str, Any]], now: float, width: int) -> list[Text]:
+    """The header and a row per node, each line at most ``width`` cells."""
+    cells = [[column.cell(node, now) for column in COLUMNS] for node in nodes]
+    shown = fit(COLUMNS, cells, width)
+    header = Text(" " * GAP).join(Text(sized(COLUMNS[i].header, w, COLUMNS[i].right))
+                                  for i, w in shown)
+    header.stylize("bold")
+    lines = [header]
+    for node, row in zip(nodes, cells, strict=True):
+        parts = []
+        for i, w in shown:
+            text = Text(sized(row[i], w, COLUMNS[i].right))
+            if COLUMNS[i].header == "health":
+                text.stylize(HEALTH_STYLE.get(str(node.get("health")), ""))
+            parts.append(text)
+        row_text = Text(" " * GAP).join(parts)
+        row_text.rstrip()
+        lines.append(row_text)
+    return lines
+
+
+# --- the frame -----------------------------------------------------------------------
+
+@dataclass
+class Watch:
+    """What top knows of the gateway it watches."""
+
+    endpoint: str
+    nodes: tuple[int, ...] = ()
+    """Only these nodes (all if empty)."""
+    silence: float = 3.0
+    """Seconds without a heartbeat after which the gateway is shown as gone."""
+    status: Mapping[str, Any] | None = None
+    restarted_at: float | None = None
+    """UNIX time the gateway was last seen to restart."""
+
+    def take(self, status: Status, now: float) -> None:
+        self.status = status.payload
+        if status.restarted:
+            self.restarted_at = now
+
+
+def _bytes(value: float) -> str:
+    return f"{value:,.0f} B/s"
+
+
+def header(watch: Watch, now: float, silent_for: float) -> list[Text]:
+    status = watch.status or {}
+    gateway, link = as_map(status.get("gateway")), as_map(status.get("link"))
+    nodes = node_maps(status)
+    counts = {level: sum(1 for n in nodes if n.get("health") == level)
+              for level in HEALTH_STYLE}
+    first = Text(f"gx2-gateway {cell(gateway.get('version'))} up "
+                 f"{duration(gateway.get('uptime'))}  nodes ")
+    for level, style in HEALTH_STYLE.items():
+        first.append(f"{counts[level]} {level}", style if counts[level] else "")
+        first.append(" ")
+    first.append(f" {time.strftime('%H:%M:%S', time.localtime(now))}", "dim")
+
+    state = cell(link.get("state"))
+    second = Text("link ")
+    second.append(state, "green" if state == "up" else "bold red")
+    since = number(link.get("since"))
+    if since is not None:
+        second.append(f" {duration(now - since)}")
+    rate, line = number(link.get("bytes_per_s")), number(link.get("line_bytes_per_s"))
+    if rate is not None:
+        second.append(f"  {_bytes(rate)}")
+        if line:
+            second.append(f" = {100 * rate / line:.0f}% of {_bytes(line)}")
+    second.append(f"  reconnects {cell(link.get('reconnects'))}  {cell(link.get('port'))}")
+    error = link.get("error")
+    if state != "up" and isinstance(error, str) and error:
+        second.append(f" ({error})", "red")
+
+    discarded = {str(k): v for k, v in as_map(link.get("discarded")).items()
+                 if number(v)}
+    third = Text(f"discarded {cell(link.get('discarded_bytes'))} B" + (
+        ": " + ", ".join(f"{k} {cell(v)}" for k, v in discarded.items()) if discarded
+        else ""))
+    lines = [first, second, third]
+    if watch.status is None:
+        lines.append(Text(f"waiting for the gateway's heartbeat on {watch.endpoint} "
+                          f"({silent_for:.0f} s)", "yellow"))
+    elif silent_for > watch.silence:
+        lines.append(Text(f"no heartbeat for {silent_for:.0f} s from {watch.endpoint}: is "
+                          "gx2-gateway running? (its last status is shown)", "bold red"))
+    elif watch.restarted_at is not None and now - watch.restarted_at < 60:
+        lines.append(Text(f"the gateway restarted {duration(now - watch.restarted_at)} "
+                          "ago", "yellow"))
+    else:
+        lines.append(Text(""))
+    return lines
+
+
+def frame(watch: Watch, now: float, silent_for: float, width: int) -> list[Text]:
+    """Every line of one frame, none wider than ``width`` cells."""
+    nodes = [n for n in node_maps(watch.status or {})
+             if not watch.nodes or n.get("node") in watch.nodes]
+    lines = [*header(watch, now, silent_for), *table(nodes, now, width)]
+    for node in nodes:
+        if node.get("health") != OK and (why := reasons(node)):
+            lines.append(Text(f"{cell(node.get('node'))} ").append(
+                f"{cell(node.get('health'))}: {why}",
+                HEALTH_STYLE.get(str(node.get("health")), "")))
+    lines.append(Text("q quits", "dim"))
+    for line in lines:
+        line.truncate(width, overflow="ellipsis")
+    return lines
+
+
+# --- running -------------------------------------------------------------------------
+
+@contextlib.contextmanager
+def keyboard() -> Iterator[Callable[[], bool]]:
+    """A check for ``q`` typed at the terminal (keys arrive at once, unechoed; Ctrl-C
+    still interrupts); without a terminal on stdin, a check that is never true."""
+    fd = sys.stdin.fileno() if sys.stdin is not None else -1
+    if fd < 0 or not os.isatty(fd):
+        yield lambda: False
+        return
+    saved = termios.tcgetattr(fd)
+    tty.setcbreak(fd)
+
+    def pressed() -> bool:
+        while select.select([fd], [], [], 0)[0]:
+            typed = os.read(fd, 64)
+            if not typed or b"q" in typed.lower():
+                return True
+        return False
+    try:
+        yield pressed
+    finally:
+        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+
+
+def run_top(nodes: list[int], where: Endpoints, timeout: float, as_json: bool) -> int:
+    """Draw the gateway's status until ``q``, Ctrl-C or SIGTERM."""
+    stop = Stop()
+    console = Console(highlight=False)
+    with subscribe(nodes, where, timeout, status="only") as (sub, silence):
+        watch = Watch(sub.endpoints[0], tuple(nodes), silence)
+        if as_json or not console.is_terminal:
+            return _print_frames(sub, watch, console, stop, as_json)
+        with keyboard() as pressed, Live(console=console, screen=True,
+                                         auto_refresh=False) as live:
+            drawn = 0.0
+            while not stop.requested and not pressed():
+                event = sub.receive(TICK)
+                if isinstance(event, Status):
+                    watch.take(event, time.time())
+                if event is not None or time.monotonic() - drawn >= REDRAW:
+                    live.update(Group(*frame(watch, time.time(), sub.silent_for(),
+                                             console.width)), refresh=True)
+                    drawn = time.monotonic()
+    return Exit.OK
+
+
+def _print_frames(sub: Any, watch: Watch, console: Console, stop: Stop,
+                  as_json: bool) -> int:
+    """One frame per heartbeat, one after the other (or the heartbeat as a JSON line)."""
+    while not stop.requested:
+        event = sub.receive(TICK)
+        if not isinstance(event, Status):
+            continue
+        watch.take(event, time.time())
+        if as_json:
+            print(json_line(dict(event.payload)), flush=True)
+            continue
+        for line in frame(watch, time.time(), sub.silent_for(), console.width):
+            console.print(line, soft_wrap=True)
+        console.print()
+        console.file.flush()
+    return Exit.OK

@@ -1,0 +1,188 @@
+"""How each node is doing: OK, WARN or ERROR, with the reasons.
+
+The verdict is what an operator would conclude from the status table, made once and
+the same everywhere: status, the heartbeat, ``gx2ctl top``, ``gx2ctl status --check``
+and the ``gx2_node_health`` metric. Losses and signal are judged over the recent past
+(``health.window_s``, a minute by default) from each node's counters, sampled once a
+second by :class:`Health`: nothing is added to the per-record path.
+
+ERROR: the node delivers nothing (the link is down, it is unreachable, its stream is
+silent). WARN: it delivers, but worse than it should (rate under its expected rate,
+radio loss, weak signal, a clock estimate that has not locked, records the gateway
+could not publish, reboots). Thresholds: :class:`~.config.HealthConfig`.
+"""
+
+from __future__ import annotations
+
+import logging
+import statistics
+from collections import deque
+from collections.abc import Iterable
+from enum import StrEnum
+from typing import Any, NamedTuple
+
+from .config import HealthConfig
+from .nodes import Node, State
+
+log = logging.getLogger("gx2.health")
+
+SAMPLE_PERIOD = 1.0
+"""Seconds between samples of the counters (the daemon's tick)."""
+LINK_SPAN = 5.0
+"""Seconds over which the link's bytes per second are measured."""
+
+
+class Level(StrEnum):
+    OK = "OK"
+    WARN = "WARN"
+    ERROR = "ERROR"
+
+
+class Verdict(NamedTuple):
+    level: Level
+    reasons: tuple[str, ...]
+
+
+FAILED = {State.UNKNOWN: "base station not open yet", State.LINK_DOWN: "link down",
+          State.UNREACHABLE: "unreachable", State.SILENT: "silent"}
+"""States in which a node delivers nothing: ERROR, for that reason alone."""
+
+
+class Recent(NamedTuple):
+    """One node's counters over the recent past."""
+
+    seconds: float
+    received: int
+    lost_radio: int
+    lost_gateway: int
+    reboots: int
+    rssi: float | None
+    """Median of its RSSI, sampled once a second while records arrive."""
+
+    @property
+    def loss_percent(self) -> float | None:
+        """Share of the samples its stream sent that were lost over the radio."""
+        sent = self.received + self.lost_radio
+        return 100 * self.lost_radio / sent if sent else None
+
+    def status(self) -> dict[str, Any]:
+        loss = self.loss_percent
+        return {"seconds": round(self.seconds, 1), "received": self.received,
+                "lost_radio": self.lost_radio,
+                "lost_radio_percent": None if loss is None else round(loss, 2),
+                "lost_gateway": self.lost_gateway, "reboots": self.reboots,
+                "rssi": None if self.rssi is None else round(self.rssi, 1)}
+
+
+class _Sample(NamedTuple):
+    at: float
+    received: int
+    lost_radio: int
+    lost_gateway: int
+    reboots: int
+    rssi: int | None
+    """Its last RSSI, if a record arrived since the sample before."""
+
+
+class Window:
+    """One node's counters, sampled over the last ``seconds`` (and one sample before,
+    so that the window spans its whole length once it has run that long)."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = seconds
+        self._samples: deque[_Sample] = deque()
+
+    def sample(self, node: Node, now: float) -> None:
+        last = self._samples[-1].received if self._samples else 0
+        self._samples.append(_Sample(now, node.packets, node.lost_radio, node.lost_gateway,
+                                     node.reboots,
+                                     node.rssi if node.packets != last else None))
+        while len(self._samples) > 1 and self._samples[1].at <= now - self.seconds:
+            self._samples.popleft()
+
+    def recent(self, node: Node, now: float) -> Recent:
+        """Its counters since the window's first sample, up to ``now``."""
+        if not self._samples:
+            return Recent(0.0, 0, 0, 0, 0, None)
+        first = self._samples[0]
+        heard = [s.rssi for s in self._samples if s.rssi is not None and s is not first]
+        return Recent(now - first.at, node.packets - first.received,
+                      node.lost_radio - first.lost_radio,
+                      node.lost_gateway - first.lost_gateway, node.reboots - first.reboots,
+                      statistics.median(heard) if heard else None)
+
+
+def judge(node: Node, recent: Recent, now: float, limits: HealthConfig) -> Verdict:
+    """The node's health at ``now`` (``time.monotonic()``), from its state, its stream
+    and its recent counters."""
+    failed = FAILED.get(node.state)
+    if failed is not None:
+        return Verdict(Level.ERROR, (failed,))
+    reasons = []
+    expected = node.expected_hz
+    if expected is not None and now - node.stream_started >= limits.settle_s:
+        if node.rate_hz < expected * (1 - limits.rate_under_percent / 100):
+            reasons.append(f"rate {node.rate_hz:.1f} Hz of {expected:.4g}")
+        if node.clock.points and not node.clock.locked:
+            reasons.append("clock not locked")
+    window = f"in {recent.seconds:.0f} s"
+    loss = recent.loss_percent
+    if loss is not None and loss > limits.radio_loss_percent:
+        reasons.append(f"radio loss {loss:.1f}% {window}")
+    if recent.rssi is not None and recent.rssi < limits.weak_rssi_dbm:
+        reasons.append(f"RSSI {recent.rssi:.0f} dBm")
+    if recent.lost_gateway:
+        reasons.append(f"{recent.lost_gateway} not published {window}")
+    if recent.reboots:
+        reasons.append(f"{recent.reboots} reboot{'s' if recent.reboots > 1 else ''} "
+                       f"{window}")
+    return Verdict(Level.WARN if reasons else Level.OK, tuple(reasons))
+
+
+class Health:
+    """Every node's window and verdict, and the link's recent throughput."""
+
+    def __init__(self, nodes: Iterable[Node], limits: HealthConfig) -> None:
+        self.limits = limits
+        self.nodes = list(nodes)
+        self._windows = {node.address: Window(limits.window_s) for node in self.nodes}
+        self._verdicts: dict[int, Verdict] = {}
+        self._link: deque[tuple[float, int]] = deque()
+
+    def sample(self, now: float, bytes_read: int) -> None:
+        """Once a second: sample every counter, and log each node whose health changed."""
+        self._link.append((now, bytes_read))
+        while len(self._link) > 1 and self._link[1][0] <= now - LINK_SPAN:
+            self._link.popleft()
+        for node in self.nodes:
+            self._windows[node.address].sample(node, now)
+            verdict = self.verdict(node, now)
+            before = self._verdicts.get(node.address)
+            self._verdicts[node.address] = verdict
+            if before is not None and verdict.level != before.level:
+                log.log(logging.INFO if verdict.level is Level.OK else logging.WARNING,
+                        "node %s health %s -> %s%s", node.label, before.level,
+                        verdict.level, f": {'; '.join(verdict.reasons)}"
+                        if verdict.reasons else "")
+
+    def recent(self, node: Node, now: float) -> Recent:
+        return self._windows[node.address].recent(node, now)
+
+    def verdict(self, node: Node, now: float) -> Verdict:
+        return judge(node, self.recent(node, now), now, self.limits)
+
+    def bytes_per_s(self, now: float, bytes_read: int) -> float:
+        """Bytes read per second over the last few seconds."""
+        if not self._link:
+            return 0.0
+        at, before = self._link[0]
+        return (bytes_read - before) / (now - at) if now > at else 0.0
+
+    def status(self, node: Node, now: float) -> dict[str, Any]:
+        """What status adds to a node's map."""
+        recent = self.recent(node, now)
+        verdict = judge(node, recent, now, self.limits)
+        expected = node.expected_hz
+        return {"expected_hz": None if expected is None else round(expected, 3),
+                "recent": recent.status(), "health": str(verdict.level),
+                "reasons": list(verdict.reasons)}

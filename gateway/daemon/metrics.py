@@ -1,0 +1,201 @@
+"""The Prometheus endpoint (``metrics: {endpoint: HOST:PORT}``): ``GET /metrics``.
+
+Nothing here touches the per-record path or the event loop. The loop hands over each
+status report it makes (once a second at least, and whenever the link comes or goes);
+prometheus-client's HTTP server, in a thread of its own, turns the latest one into
+metrics when it is scraped. A report is built whole and never changed afterwards, so
+handing it over is one reference assignment, with no lock, and a scrape reads one
+consistent moment of the gateway. A scrape therefore costs the loop nothing, and a
+loop that stalls shows as metrics that stop moving (the gateway's uptime included).
+
+Which metric comes from which key of the report is the tables below: the names and
+labels are part of the interface (README, "Metrics").
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Mapping
+from typing import Any
+
+from prometheus_client import CollectorRegistry, ProcessCollector, start_http_server
+from prometheus_client.metrics_core import CounterMetricFamily, GaugeMetricFamily, Metric
+from prometheus_client.registry import Collector
+
+from gateway.common.endpoints import host_port
+
+from .health import Level
+from .nodes import State
+
+COUNTER, GAUGE = CounterMetricFamily, GaugeMetricFamily
+
+GATEWAY = (
+    ("gx2_messages_published_total", COUNTER, "Messages published (records and status)",
+     "published"),
+    ("gx2_publish_failures_total", COUNTER, "Messages ZeroMQ refused to publish",
+     "publish_failures"),
+    ("gx2_control_requests_total", COUNTER, "Control requests answered", "control_requests"),
+    ("gx2_control_rejected_total", COUNTER, "Control requests refused as malformed",
+     "control_rejected"),
+    ("gx2_curve_denied_total", COUNTER, "Connections refused in the CURVE handshake",
+     "curve_denied"),
+)
+LINK = (
+    ("gx2_link_reconnects_total", COUNTER, "Times the base station's port was reopened",
+     "reconnects"),
+    ("gx2_link_bytes_read_total", COUNTER, "Bytes read from the base station", "bytes_read"),
+    ("gx2_link_bytes_per_second", GAUGE, "Bytes read per second over the last 5 s",
+     "bytes_per_s"),
+    ("gx2_link_capacity_bytes_per_second", GAUGE, "What the serial line carries at most "
+     "(baud rate / 10)", "line_bytes_per_s"),
+    ("gx2_link_unknown_node_packets_total", COUNTER, "Packets from nodes not configured",
+     "unknown_node_packets"),
+    ("gx2_link_bad_records_total", COUNTER, "Packets whose record could not be decoded",
+     "bad_records"),
+    ("gx2_commands_retried_total", COUNTER, "Command packets sent again (NACK, no ACK, "
+     "no reply)", "retries"),
+    ("gx2_commands_failed_total", COUNTER, "Commands that failed after every retry",
+     "failures"),
+)
+NODE = (
+    ("gx2_node_received_total", COUNTER, "Records received from the node", "packets"),
+    ("gx2_node_lost_radio_total", COUNTER, "Samples of its stream lost over the radio "
+     "(from its timer's steps)", "lost_radio"),
+    ("gx2_node_lost_gateway_total", COUNTER, "Its records the gateway could not publish",
+     "lost_gateway"),
+    ("gx2_node_reboots_total", COUNTER, "Its reboots (discovery packet or timer going "
+     "back)", "reboots"),
+    ("gx2_node_silences_total", COUNTER, "Times its stream fell silent", "silences"),
+    ("gx2_node_rssi_dbm", GAUGE, "RSSI of its last record, dBm", "rssi"),
+    ("gx2_node_lqi", GAUGE, "LQI of its last record", "lqi"),
+    ("gx2_node_rate_hz", GAUGE, "Its records per second, over the last 2 s", "rate_hz"),
+    ("gx2_node_expected_rate_hz", GAUGE, "The rate its stream runs at (absent while it "
+     "streams nothing)", "expected_hz"),
+    ("gx2_node_last_seen_timestamp_seconds", GAUGE, "UNIX time of its last record",
+     "last_seen"),
+)
+RECORDING = (
+    ("gx2_recording_written_total", COUNTER, "Messages written to recordings", "written"),
+    ("gx2_recording_dropped_total", COUNTER, "Messages never written (queue full or disk "
+     "failed)", "dropped"),
+    ("gx2_recording_errors_total", COUNTER, "Disk failures while recording", "errors"),
+)
+HEALTH_VALUES = {Level.OK: 0, Level.WARN: 1, Level.ERROR: 2}
+
+
+def _number(value: Any) -> float | None:
+    """A sample's value from a report's entry; None (no sample) for anything else."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    return float(value) if math.isfinite(value) else None
+
+
+def _map(value: Any) -> Mapping[str, Any]:
+    return value if isinstance(value, Mapping) else {}
+
+
+def _table(rows: tuple[tuple[str, Any, str, str], ...], labels: list[str],
+           entries: list[tuple[list[str], Mapping[str, Any]]]) -> Iterator[Metric]:
+    """One family per row, one sample per (label values, map) where the map has it."""
+    for name, kind, help_text, key in rows:
+        family = kind(name, help_text, labels=labels)
+        for values, source in entries:
+            value = _number(source.get(key))
+            if value is not None:
+                family.add_metric(values, value)
+        yield family
+
+
+def families(report: Mapping[str, Any]) -> Iterator[Metric]:
+    """The metrics of one status report (the map ``gx2ctl --json status`` prints)."""
+    gateway, link = _map(report.get("gateway")), _map(report.get("link"))
+    info = GAUGE("gx2_gateway_info", "The gateway's version", labels=["version"])
+    info.add_metric([str(gateway.get("version"))], 1)
+    yield info
+    started = [_number(gateway.get("time")), _number(gateway.get("uptime"))]
+    if None not in started:
+        yield GAUGE("gx2_gateway_start_time_seconds", "UNIX time the gateway started",
+                    value=started[0] - started[1])  # type: ignore[operator]
+    yield from _table(GATEWAY, [], [([], gateway)])
+    yield GAUGE("gx2_link_up", "1 while the base station's port is open", value=float(
+        link.get("state") == "up"))
+    yield from _table(LINK, [], [([], link)])
+    discarded = COUNTER("gx2_link_discarded_bytes_total", "Bytes the decoder discarded, "
+                        "by reason", labels=["reason"])
+    for reason, count in _map(link.get("discarded")).items():
+        if (value := _number(count)) is not None:
+            discarded.add_metric([str(reason)], value)
+    yield discarded
+
+    nodes = [n for n in report.get("nodes") or () if isinstance(n, Mapping)
+             and _number(n.get("node")) is not None]
+    entries = [([str(n["node"])], n) for n in nodes]
+    yield from _table(NODE, ["node"], entries)
+    names = GAUGE("gx2_node_info", "A node's name", labels=["node", "name"])
+    states = GAUGE("gx2_node_state", "1 for the state the node is in, 0 for the others",
+                   labels=["node", "state"])
+    health = GAUGE("gx2_node_health", "0 OK, 1 WARN, 2 ERROR (status gives the reasons)",
+                   labels=["node"])
+    drift = GAUGE("gx2_node_clock_drift_ppm", "How fast its crystal runs against the "
+                  "host's clock (positive: fast)", labels=["node"])
+    locked = GAUGE("gx2_node_clock_locked", "1 once its clock estimate has locked",
+                   labels=["node"])
+    published = COUNTER("gx2_records_published_total", "Records published, by node and record",
+                        labels=["node", "record"])
+    for (node,), entry in entries:
+        names.add_metric([node, str(entry.get("name") or "")], 1)
+        for state in State:
+            states.add_metric([node, str(state)], float(entry.get("state") == state))
+        if entry.get("health") in HEALTH_VALUES:
+            health.add_metric([node], HEALTH_VALUES[entry["health"]])
+        clock = entry.get("clock")
+        if isinstance(clock, Mapping):
+            if (value := _number(clock.get("drift_ppm"))) is not None:
+                drift.add_metric([node], value)
+            locked.add_metric([node], float(clock.get("locked") is True))
+        for record, count in _map(entry.get("by_record")).items():
+            if (value := _number(count)) is not None:
+                published.add_metric([node, str(record)], value)
+    yield from (names, states, health, drift, locked, published)
+
+    recording = report.get("recording")
+    if isinstance(recording, Mapping):
+        yield from _table(RECORDING, [], [([], recording)])
+
+
+class StatusCollector(Collector):
+    """The metrics of the latest status report it was given."""
+
+    def __init__(self) -> None:
+        self.report: Mapping[str, Any] | None = None
+
+    def collect(self) -> Iterator[Metric]:
+        report = self.report  # (one read: the loop replaces it whole, never changes it)
+        if report is not None:
+            yield from families(report)
+
+
+class MetricsServer:
+    """``GET /metrics`` on HOST:PORT, served by prometheus-client in a thread."""
+
+    def __init__(self, endpoint: str) -> None:
+        host, port = host_port(endpoint)
+        self.endpoint = endpoint
+        self.collector = StatusCollector()
+        registry = CollectorRegistry()
+        registry.register(self.collector)
+        ProcessCollector(registry=registry)  # the gateway's CPU, memory, open files
+        # raises OSError (in use, no such address) before anything runs
+        self._server, self._thread = start_http_server(port, host, registry)
+
+    def update(self, report: Mapping[str, Any]) -> None:
+        """Serve ``report`` from now on (called on the loop)."""
+        self.collector.report = report
+
+    def close(self) -> None:
+        """Stop serving; blocks up to the server's poll interval (0.5 s): call it off
+        the loop."""
+        self._server.shutdown()
+        self._server.server_close()
+        self._thread.join(1.0)
+
