@@ -95,51 +95,57 @@ class Column:
     header: str
     cell: Callable[[Mapping[str, Any], float], str]
     """The cell of a node's map, at ``now`` (UNIX time)."""
-    keep: int
-    """When the width runs short, the column with the lowest ``keep`` goes first."""
     right: bool = False
-    least: int = 0
-    """Cut down to this many cells (with an ellipsis) before any column is dropped; 0:
-    never cut."""
 
 
 COLUMNS = (
-    Column("node", _name, 100, least=8),
-    Column("state", _key("state"), 90, least=9),
-    Column("record", _key("record"), 80, least=10),
-    Column("Hz", _hz, 85, right=True),
-    Column("lost", _lost, 70, right=True),
-    Column("gw", _key("lost_gateway"), 30, right=True),
-    Column("boots", _key("reboots"), 35, right=True),
-    Column("LQI", _key("lqi"), 20, right=True),
-    Column("RSSI", _key("rssi"), 60, right=True),
-    Column("clock", _clock, 40, right=True),
-    Column("seen", _seen, 50, right=True),
-    Column("health", _key("health"), 95),
+    Column("node", _name),
+    Column("state", _key("state")),
+    Column("record", _key("record")),
+    Column("Hz", _hz, right=True),
+    Column("lost", _lost, right=True),
+    Column("gw", _key("lost_gateway"), right=True),
+    Column("boots", _key("reboots"), right=True),
+    Column("LQI", _key("lqi"), right=True),
+    Column("RSSI", _key("rssi"), right=True),
+    Column("clock", _clock, right=True),
+    Column("seen", _seen, right=True),
+    Column("health", _key("health")),
 )
+GIVE_WAY: tuple[tuple[str, int], ...] = (
+    ("record", 10), ("node", 10), ("LQI", 0), ("gw", 0), ("boots", 0), ("clock", 0),
+    ("node", 7), ("record", 7), ("seen", 0), ("lost", 0), ("RSSI", 0), ("Hz", 0),
+    ("record", 0), ("state", 0),
+)
+"""What gives way, in turn, while the table is wider than the terminal: a column cut to
+so many cells (with an ellipsis), or dropped (0). The node and its health stay."""
 
 
 def fit(columns: Sequence[Column], rows: Sequence[Sequence[str]],
         width: int) -> list[tuple[int, int]]:
-    """The columns shown within ``width`` cells, as (index, cells). Each column wants
-    its widest cell; the cuttable ones are first taken at their least, and while even
-    that is too wide the column of lowest ``keep`` is dropped; what room is left goes
-    back to the cut columns, the most kept first."""
+    """The columns shown within ``width`` cells, as (index, cells): each as wide as its
+    widest cell, then the steps of GIVE_WAY taken in turn until the table fits; the
+    room left after the last step goes back to the columns it cut, first to first."""
     wanted = [max([cell_len(c.header), *(cell_len(row[i]) for row in rows)])
               for i, c in enumerate(columns)]
-    widths = [min(c.least, w) if c.least else w for c, w in zip(columns, wanted, strict=True)]
-    kept = list(range(len(columns)))
+    widths = dict(enumerate(wanted))
+    index = {column.header: i for i, column in enumerate(columns)}
 
     def room() -> int:
-        return width - sum(widths[i] for i in kept) - GAP * (len(kept) - 1)
+        return width - sum(widths.values()) - GAP * (len(widths) - 1)
 
-    while room() < 0 and len(kept) > 1:
-        kept.remove(min(kept, key=lambda i: columns[i].keep))
-    if room() < 0:  # one column left, and still too wide: cut it to the width
-        widths[kept[0]] = max(1, width)
-    for i in sorted(kept, key=lambda i: -columns[i].keep):
+    for header, cells in GIVE_WAY:
+        if room() >= 0:
+            break
+        i = index[header]
+        if i in widths:
+            if cells:
+                widths[i] = min(widths[i], cells)
+            else:
+                del widths[i]
+    for i in sorted(widths):
         widths[i] += min(wanted[i] - widths[i], max(0, room()))
-    return [(i, widths[i]) for i in kept]
+    return sorted(widths.items())
 
 
 def sized(text: str, width: int, right: bool = False) -> str:

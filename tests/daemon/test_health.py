@@ -1,0 +1,187 @@
+"""A node's health from its state, its stream and its recent counters (the end-to-end
+test drives the same through a real pty and a lossy simulated radio)."""
+
+from __future__ import annotations
+
+import logging
+
+import pytest
+
+from aspp.frame import encode_reply_packet
+from aspp.records import decode, encode
+from aspp.timing import TICKS_PER_CLOCK
+from gateway.daemon.config import HealthConfig, NodeEntry
+from gateway.daemon.health import Health, Level, Recent, Window, judge
+from gateway.daemon.nodes import Node, State
+
+LIMITS = HealthConfig()
+PERIOD_TICKS = 512 * TICKS_PER_CLOCK
+"""A 100 Hz stream's timer step."""
+
+
+class Stream:
+    """Records of one node's 100 Hz accel_angrate stream, tallied as the reader does."""
+
+    def __init__(self, node: Node, rssi: int = -50) -> None:
+        self.node, self.rssi, self.sample = node, rssi, 0
+        node.streaming("accel_angrate", 512)
+
+    def send(self, count: int, lost_every: int = 0) -> None:
+        """``count`` samples, every ``lost_every``-th of them lost over the radio."""
+        for _ in range(count):
+            self.sample += 1
+            if lost_every and self.sample % lost_every == 0:
+                continue
+            raw = encode_reply_packet(self.node.address, encode(
+                "accel_angrate", accel=(0, 0, -1), ang_rate=(0, 0, 0),
+                timer=self.sample * PERIOD_TICKS), rssi=self.rssi)
+            at = self.sample / 100
+            self.node.tally(raw, decode(raw, 7, len(raw) - 4), at, at)
+
+
+def streaming_node(address: int = 76) -> Node:
+    """A node whose 100 Hz stream has just been armed."""
+    node = Node(NodeEntry(address=address, stream="accel_angrate"))
+    node.streaming("accel_angrate", 512)
+    return node
+
+
+def recent(**counts: float) -> Recent:
+    values = {"seconds": 60.0, "received": 6000, "lost_radio": 0, "lost_gateway": 0,
+              "reboots": 0, "rssi": -50.0, **counts}
+    return Recent(**values)  # type: ignore[arg-type]
+
+
+def settled(node: Node) -> float:
+    """A moment at which the node's stream has run long enough to be judged."""
+    return node.stream_started + LIMITS.settle_s + 1
+
+
+def test_a_node_that_delivers_nothing_is_an_error_for_that_reason_alone() -> None:
+    node = streaming_node()
+    for state, reason in ((State.UNKNOWN, "base station not open yet"),
+                          (State.LINK_DOWN, "link down"), (State.UNREACHABLE, "unreachable"),
+                          (State.SILENT, "silent")):
+        node._state = state
+        assert judge(node, recent(lost_radio=5000, rssi=-120.0), 1e9, LIMITS) == \
+            (Level.ERROR, (reason,))
+
+
+def test_a_stream_at_its_rate_with_little_loss_and_a_good_signal_is_ok() -> None:
+    node = streaming_node()
+    Stream(node).send(500, lost_every=50)  # 2% lost
+    node.rate_hz = 98.0
+    assert node.clock.locked
+    assert judge(node, recent(lost_radio=2, received=98), settled(node), LIMITS) == \
+        (Level.OK, ())
+
+
+def test_a_stream_just_started_is_not_judged_by_its_rate_or_clock_yet() -> None:
+    node = streaming_node()
+    node.clock.update(1.0, 1.0)
+    assert node.clock.points and not node.clock.locked and node.rate_hz == 0
+    assert judge(node, recent(), settled(node) - 2, LIMITS) == (Level.OK, ())
+    assert judge(node, recent(), settled(node), LIMITS) == \
+        (Level.WARN, ("rate 0.0 Hz of 100", "clock not locked"))
+
+
+@pytest.mark.parametrize(("rate", "level"), [(95.1, Level.OK), (94.9, Level.WARN)])
+def test_a_rate_more_than_5_percent_under_the_expected_one_warns(rate: float,
+                                                                 level: Level) -> None:
+    node = streaming_node()
+    node.rate_hz = rate
+    verdict = judge(node, recent(), settled(node), LIMITS)
+    assert verdict.level is level
+    if level is Level.WARN:
+        assert verdict.reasons == (f"rate {rate} Hz of 100",)
+    assert judge(node, recent(), node.stream_started + 1, LIMITS).level is Level.OK
+
+
+def test_an_unlocked_clock_warns_once_the_stream_has_settled() -> None:
+    node = streaming_node()
+    node.rate_hz = 100.0
+    node.clock.update(1.0, 1.0)
+    assert judge(node, recent(), settled(node), LIMITS) == (Level.WARN, ("clock not locked",))
+
+
+@pytest.mark.parametrize(("lost", "level"), [(5, Level.OK), (6, Level.WARN)])
+def test_radio_loss_over_the_threshold_warns(lost: int, level: Level) -> None:
+    node = streaming_node()
+    verdict = judge(node, recent(received=100 - lost, lost_radio=lost), 0.0, LIMITS)
+    assert verdict.level is level
+    assert verdict.reasons == (() if level is Level.OK else ("radio loss 6.0% in 60 s",))
+
+
+def test_weak_signal_records_not_published_and_reboots_warn_each_with_its_reason() -> None:
+    node = streaming_node()
+    verdict = judge(node, recent(rssi=-95.5, lost_gateway=3, reboots=2), 0.0, LIMITS)
+    assert verdict == (Level.WARN, ("RSSI -96 dBm", "3 not published in 60 s",
+                                    "2 reboots in 60 s"))
+    assert judge(node, recent(rssi=-90.0), 0.0, LIMITS).level is Level.OK  # at the limit
+
+
+def test_the_window_counts_only_its_own_span_of_the_stream() -> None:
+    node = streaming_node()
+    stream, window = Stream(node), Window(10.0)
+    for second in range(30):
+        stream.send(100, lost_every=10 if second < 15 else 0)  # 10% lost, then none
+        window.sample(node, float(second))
+        if second == 14:
+            lossy = window.recent(node, 14.0)
+            assert (lossy.seconds, lossy.lost_radio, lossy.received) == (10.0, 100, 900)
+    gone = window.recent(node, 29.0)
+    assert (gone.seconds, gone.lost_radio, gone.received) == (10.0, 0, 1000)
+    assert gone.loss_percent == 0.0 and gone.rssi == -50
+
+
+def test_the_windows_loss_is_the_share_of_samples_sent() -> None:
+    node = streaming_node()
+    stream, window = Stream(node), Window(60.0)
+    window.sample(node, 0.0)
+    stream.send(1001, lost_every=10)  # (a loss is seen when the next sample comes)
+    got = window.recent(node, 10.0)
+    assert (got.received, got.lost_radio) == (901, 100)
+    assert got.loss_percent == pytest.approx(100 * 100 / 1001)
+    assert got.status()["lost_radio_percent"] == 9.99
+
+
+def test_rssi_is_the_median_of_the_seconds_in_which_records_came() -> None:
+    node = streaming_node()
+    stream, window = Stream(node), Window(60.0)
+    window.sample(node, 0.0)
+    for second, rssi in enumerate((-60, -95, -61, -62), start=1):
+        stream.rssi = rssi
+        stream.send(10)
+        window.sample(node, float(second))
+    for second in range(5, 9):  # silent seconds: its last RSSI is not heard again
+        window.sample(node, float(second))
+    assert window.recent(node, 9.0).rssi == -61.5
+    assert Window(60.0).recent(node, 0.0) == Recent(0.0, 0, 0, 0, 0, None)
+
+
+def test_health_logs_each_change_of_a_nodes_level_once(caplog) -> None:
+    node = streaming_node()
+    node.rate_hz = 100.0
+    health = Health([node], HealthConfig(window_s=5.0))
+    caplog.set_level(logging.INFO, "gx2.health")
+    now = settled(node)
+    health.sample(now, 0)
+    node.lost_radio += 50
+    node.packets += 50
+    health.sample(now + 1, 0)
+    health.sample(now + 2, 0)
+    node.packets += 5000
+    health.sample(now + 3, 0)
+    changes = [r.getMessage() for r in caplog.records]
+    assert changes == ["node 76 health OK -> WARN: radio loss 50.0% in 1 s",
+                       "node 76 health WARN -> OK"], changes
+    status = health.status(node, now + 3)
+    assert (status["health"], status["reasons"], status["expected_hz"]) == ("OK", [], 100.0)
+
+
+def test_the_links_bytes_per_second_are_over_its_last_few_seconds() -> None:
+    health = Health([], LIMITS)
+    assert health.bytes_per_s(0.0, 0) == 0.0
+    for second in range(10):
+        health.sample(float(second), second * 1000)
+    assert health.bytes_per_s(10.0, 10_000) == pytest.approx(1000.0)
