@@ -16,7 +16,9 @@ in a process of its own whose imports come from one tree or the other, in turn:
    0xC2 at 96 Hz, their CPU time over ``--seconds`` (% of one core, from the kernel's
    per-thread nanoseconds). Running side by side, they share whatever the machine is
    doing: measured one after the other, rounds on this VM differed by 20% either way.
-   With ``--record``, B runs with ``record:`` configured (a tree that records).
+   With ``--record``, B runs with ``record:`` configured (a tree that records); with
+   ``--metrics``, B serves metrics and is scraped once a second meanwhile, as a
+   Prometheus server would (ten times as often as its default interval).
 
 The pipeline measures A then B (the order alternates each round, so neither side always
 goes first); the table gives each round's figures and the median of the rounds' B/A
@@ -32,10 +34,11 @@ import sys
 import tempfile
 import time
 import tomllib
+import urllib.request
 from pathlib import Path
 
 import yaml
-from benchutil import REPO, free_port
+from benchutil import REPO, cpu_ns, free_port
 
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
@@ -124,11 +127,13 @@ def gateway_command(tree: Path, config: Path) -> list[str]:
     return [sys.executable, "-c", code, "--config", str(config), "--log-level", "WARNING"]
 
 
-def saturated_cpu(trees: dict[str, Path], seconds: float, record: bool) -> dict[str, float]:
+def saturated_cpu(trees: dict[str, Path], seconds: float, record: bool,
+                  metrics: bool = False) -> dict[str, float]:
     """Each tree's gateway on a simulator of its own (this tree's), all at once, so
     that they share whatever the machine is doing: % of one core over ``seconds``,
     from the kernel's nanosecond count of each process's threads."""
     started: list[tuple[str, Simulator, subprocess.Popen[bytes]]] = []
+    scrapes: list[str] = []
     try:
         for side, tree in trees.items():
             work = Path(tempfile.mkdtemp(prefix=f"gx2-ab-{side}-"))
@@ -140,6 +145,9 @@ def saturated_cpu(trees: dict[str, Path], seconds: float, record: bool) -> dict[
                                 for n in nodes]}
             if record and side == "B":
                 config["record"] = {"directory": str(work / "recordings")}
+            if metrics and side == "B":
+                config["metrics"] = {"endpoint": f"127.0.0.1:{free_port()}"}
+                scrapes.append(f"http://{config['metrics']['endpoint']}/metrics")
             (work / "nodes.yaml").write_text(yaml.safe_dump(config))
             sim = Simulator(nodes, link=work / "gx2").start()
             started.append((side, sim, subprocess.Popen(
@@ -148,8 +156,11 @@ def saturated_cpu(trees: dict[str, Path], seconds: float, record: bool) -> dict[
         time.sleep(6.0)  # started, armed and streaming (a settling period, not a sync)
         before = {side: cpu_ns(proc.pid) for side, _, proc in started}
         t0 = time.monotonic()
-        time.sleep(seconds)
+        scraped = scrape_every_second(scrapes, t0 + seconds)
+        time.sleep(max(0.0, t0 + seconds - time.monotonic()))
         elapsed = time.monotonic() - t0
+        if scrapes and scraped < seconds - 2:
+            raise RuntimeError(f"only {scraped} scrapes of {scrapes} in {seconds:g} s")
         return {side: (cpu_ns(proc.pid) - before[side]) / 1e9 / elapsed * 100
                 for side, _, proc in started}
     finally:
@@ -159,10 +170,18 @@ def saturated_cpu(trees: dict[str, Path], seconds: float, record: bool) -> dict[
             sim.stop()
 
 
-def cpu_ns(pid: int) -> int:
-    """CPU time of every thread of ``pid`` (ZeroMQ's I/O thread included), in ns."""
-    return sum(int((task / "schedstat").read_text().split()[0])
-               for task in Path(f"/proc/{pid}/task").iterdir())
+def scrape_every_second(urls: list[str], until: float) -> int:
+    """GET each of ``urls`` once a second until ``until`` (time.monotonic()); how many
+    rounds of scrapes succeeded. Nothing to scrape: returns at once."""
+    done = 0
+    while urls and time.monotonic() < until:
+        due = time.monotonic() + 1.0
+        for url in urls:
+            with urllib.request.urlopen(url, timeout=5) as reply:
+                reply.read()
+        done += 1
+        time.sleep(max(0.0, min(due, until) - time.monotonic()))
+    return done
 
 
 def main() -> int:
@@ -176,6 +195,8 @@ def main() -> int:
     parser.add_argument("--packets", type=int, default=150_000)
     parser.add_argument("--record", action="store_true",
                         help="B runs with record: configured (A without)")
+    parser.add_argument("--metrics", action="store_true",
+                        help="B serves metrics, scraped once a second (A does not)")
     parser.add_argument("--skip-pipeline", action="store_true")
     args = parser.parse_args()
     base_rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", args.base],
@@ -197,7 +218,7 @@ def main() -> int:
                 if not args.skip_pipeline:
                     got = {side: pipeline(trees[side], args.packets) for side in order}
                     rows["pipeline"].append((got["A"], got["B"]))
-                got = saturated_cpu(trees, args.seconds, args.record)
+                got = saturated_cpu(trees, args.seconds, args.record, args.metrics)
                 rows["cpu"].append((got["A"], got["B"]))
                 print(f"round {round_ + 1}: " + ", ".join(
                     f"{name} A {a:,.1f} B {b:,.1f}" for name, values in rows.items()
@@ -207,7 +228,9 @@ def main() -> int:
                 subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force",
                                 str(tree)], check=False)
     print(f"\nA = {base_rev}, B = {head_rev}{' (with uncommitted changes)' if dirty else ''}"
-          f"{', B records' if args.record else ''}; {args.rounds} interleaved rounds")
+          f"{', B records' if args.record else ''}"
+          f"{', B serves metrics scraped every second' if args.metrics else ''}; "
+          f"{args.rounds} interleaved rounds")
     print("| measure | A, each round | B, each round | B / A (median of rounds) |")
     print("|---|---|---|---|")
     names = {"pipeline": "pipeline, records per CPU-second",

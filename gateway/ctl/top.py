@@ -46,6 +46,9 @@ REDRAW = 1.0
 GAP = 1
 """Spaces between columns."""
 HEALTH_STYLE = {"OK": "green", "WARN": "bold yellow", "ERROR": "bold red"}
+BUSY_LINE, FULL_LINE = 90, 99
+"""Shares of the serial line (%) from which it is shown busy (packets begin to queue
+behind each other) and full (the base station's buffer fills and drops them)."""
 
 
 # --- the table -----------------------------------------------------------------------
@@ -113,7 +116,7 @@ COLUMNS = (
     Column("health", _key("health")),
 )
 GIVE_WAY: tuple[tuple[str, int], ...] = (
-    ("record", 10), ("node", 10), ("LQI", 0), ("gw", 0), ("boots", 0), ("clock", 0),
+    ("record", 10), ("LQI", 0), ("gw", 0), ("boots", 0), ("node", 10), ("clock", 0),
     ("node", 7), ("record", 7), ("seen", 0), ("lost", 0), ("RSSI", 0), ("Hz", 0),
     ("record", 0), ("state", 0),
 )
@@ -124,12 +127,14 @@ so many cells (with an ellipsis), or dropped (0). The node and its health stay."
 def fit(columns: Sequence[Column], rows: Sequence[Sequence[str]],
         width: int) -> list[tuple[int, int]]:
     """The columns shown within ``width`` cells, as (index, cells): each as wide as its
-    widest cell, then the steps of GIVE_WAY taken in turn until the table fits; the
-    room left after the last step goes back to the columns it cut, first to first."""
+    widest cell, then the steps of GIVE_WAY taken in turn until the table fits. The
+    room left after the last step brings back what was dropped, last dropped first,
+    where it fits whole; what remains goes back to the columns that were cut."""
     wanted = [max([cell_len(c.header), *(cell_len(row[i]) for row in rows)])
               for i, c in enumerate(columns)]
     widths = dict(enumerate(wanted))
     index = {column.header: i for i, column in enumerate(columns)}
+    dropped: list[int] = []
 
     def room() -> int:
         return width - sum(widths.values()) - GAP * (len(widths) - 1)
@@ -143,15 +148,20 @@ def fit(columns: Sequence[Column], rows: Sequence[Sequence[str]],
                 widths[i] = min(widths[i], cells)
             else:
                 del widths[i]
+                dropped.append(i)
+    for i in reversed(dropped):
+        if wanted[i] + GAP <= room():
+            widths[i] = wanted[i]
     for i in sorted(widths):
         widths[i] += min(wanted[i] - widths[i], max(0, room()))
     return sorted(widths.items())
 
 
 def sized(text: str, width: int, right: bool = False) -> str:
-    """``text`` in exactly ``width`` cells: padded, or cut with an ellipsis."""
+    """``text`` in exactly ``width`` terminal cells: padded, or cut with an ellipsis."""
     if cell_len(text) > width:
-        return set_cell_size(text, width - 1) + "…" if width > 1 else set_cell_size(text, width)
+        text = (set_cell_size(text, width - 1).rstrip() + "…" if width > 1
+                else set_cell_size(text, width))
     pad = " " * (width - cell_len(text))
     return pad + text if right else text + pad
 
@@ -225,7 +235,10 @@ def header(watch: Watch, now: float, silent_for: float) -> list[Text]:
     if rate is not None:
         second.append(f"  {_bytes(rate)}")
         if line:
-            second.append(f" = {100 * rate / line:.0f}% of {_bytes(line)}")
+            share = 100 * rate / line
+            second.append(f" = {share:.0f}% of {_bytes(line)}",
+                          "bold red" if share >= FULL_LINE else
+                          "yellow" if share >= BUSY_LINE else "")
     second.append(f"  reconnects {cell(link.get('reconnects'))}  {cell(link.get('port'))}")
     error = link.get("error")
     if state != "up" and isinstance(error, str) and error:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import re
+import socket
 import subprocess
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -76,6 +77,16 @@ BAD_CONFIGS: dict[str, tuple[Any, list[str]]] = {
     "sim-parameter-out-of-range": (
         lambda c: c["base_station"].update(port="sim://?garbage=2"),
         [r"base_station\.port", r"\bgarbage\b"]),
+    "metrics-endpoint-a-url": (lambda c: c.update(metrics={"endpoint": "http://host:9105"}),
+                               [r"metrics\.endpoint", r"HOST:PORT"]),
+    "metrics-port-out-of-range": (lambda c: c.update(metrics={"endpoint": "127.0.0.1:70000"}),
+                                  [r"metrics\.endpoint", r"1\.\.65535"]),
+    "metrics-ipv6-without-brackets": (lambda c: c.update(metrics={"endpoint": "::1:9105"}),
+                                      [r"metrics\.endpoint", r"\[::1\]:9105"]),
+    "health-unknown-key": (lambda c: c.update(health={"rssi": -80}),
+                           [r"health\.rssi", r"unknown"]),
+    "health-window-negative": (lambda c: c.update(health={"window_s": -1}),
+                               [r"health\.window_s", r"greater than or equal to 2"]),
     "yaml-syntax-error": ("base_station: {port: [/dev/ttyUSB0\nnodes: - 76\n",
                           [r"line \d+"]),
     "no-such-file": (None, [r"[Nn]o such file|does not exist|cannot read"]),
@@ -180,3 +191,18 @@ def test_rejected_sim_port_leaves_no_temporary_directory(tmp_path):
     assert run.returncode == 2, run
     assert sorted(p.name for p in temporary.iterdir()) == [], \
         "the embedded simulator's directory was left behind"
+
+
+def test_a_metrics_port_in_use_stops_the_start_up_with_one_line(tmp_path):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        config = valid_config()
+        config["metrics"] = {"endpoint": f"127.0.0.1:{port}"}
+        path = tmp_path / "nodes.yaml"
+        path.write_text(yaml.safe_dump(config))
+        run = run_gateway("--config", str(path))
+    assert run.returncode == 1, run
+    assert run.stderr.count("\n") == 1 and "Traceback" not in run.stderr, run
+    assert f"cannot bind 127.0.0.1:{port}: " in run.stderr, run

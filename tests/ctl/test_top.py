@@ -1,0 +1,144 @@
+"""``gx2ctl top``'s frames on their own: what fits in a width, what gives way, what the
+header says when the gateway goes quiet (tests/e2e/test_top.py runs it in tmux)."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from rich.cells import cell_len
+
+from gateway.client import Status
+from gateway.ctl.top import COLUMNS, Watch, fit, frame, sized, table
+
+NOW = 1_800_000_000.0
+
+
+def node(address: int = 76, **changes: Any) -> dict[str, Any]:
+    entry = {"node": address, "name": "left-wing", "state": "streaming",
+             "record": "accel_angrate", "rate_hz": 99.1, "expected_hz": 100.0,
+             "recent": {"lost_radio": 12, "lost_radio_percent": 0.2}, "lost_gateway": 0,
+             "reboots": 1, "lqi": 201, "rssi": -45, "clock": {"drift_ppm": 40.06,
+                                                           "locked": True},
+             "last_seen": NOW - 0.04, "health": "OK", "reasons": []}
+    entry.update(changes)
+    return entry
+
+
+def status(*nodes: dict[str, Any]) -> dict[str, Any]:
+    return {"gateway": {"version": "1.2.3", "uptime": 3725.0},
+            "link": {"port": "/dev/gx2", "state": "up", "since": NOW - 300,
+                     "reconnects": 1, "bytes_per_s": 9519.0, "line_bytes_per_s": 11520.0,
+                     "discarded_bytes": 62, "discarded": {"garbage": 60, "truncated": 2,
+                                                          "bad_address": 0}},
+            "nodes": list(nodes)}
+
+
+def lines(watch: Watch, width: int, silent_for: float = 0.5) -> list[str]:
+    return [line.plain for line in frame(watch, NOW, silent_for, width)]
+
+
+def test_a_wide_terminal_shows_every_column_whole() -> None:
+    shown = lines(Watch("tcp://gw:5555", status=status(node())), 120)
+    header = next(line for line in shown if line.startswith("node "))
+    assert header.split() == [c.header for c in COLUMNS]
+    row = next(line for line in shown if line.startswith("76 "))
+    assert row.split() == ["76", "left-wing", "streaming", "accel_angrate", "99.1/100", "12",
+                           "0.2%", "0", "1", "201", "-45", "+40.1", "0.0s", "OK"]
+
+
+def test_80_columns_cut_the_record_and_drop_lqi_and_losses_in_the_gateway_first() -> None:
+    watch = Watch("tcp://gw:5555", status=status(node(), node(77, name="right-wing",
+                                                               record="euler")))
+    shown = lines(watch, 80)
+    assert all(cell_len(line) <= 80 for line in shown)
+    header = next(line for line in shown if line.startswith("node "))
+    assert "LQI" not in header and " gw " not in header
+    assert " boots " in header and " clock " in header
+    assert next(line for line in shown if line.startswith("76 ")).startswith(
+        "76 left-wing  streaming accel_ang… 99.1/100")
+
+
+def test_what_gives_way_keeps_the_node_and_its_health() -> None:
+    rows = [[c.cell(node(), NOW) for c in COLUMNS]]
+    for width in (10, 25, 40, 60, 79, 80, 100):
+        kept = [COLUMNS[i].header for i, _ in fit(COLUMNS, rows, width)]
+        assert kept[0] == "node" and kept[-1] == "health", (width, kept)
+    # the room left once the record and the rate are gone takes back RSSI, whole
+    assert fit(COLUMNS, rows, 30) == [(0, 8), (1, 9), (8, 4), (11, 6)]
+
+
+def test_a_table_without_nodes_is_its_header() -> None:
+    assert [line.plain.split() for line in table([], NOW, 80)] == [
+        [c.header for c in COLUMNS]]
+
+
+def test_cells_are_cut_by_terminal_cells_not_characters() -> None:
+    assert sized("左翼ノード", 6) == "左翼… "  # (each of these takes two cells)
+    assert sized("76 left-wing", 4) == "76…" + " "
+    assert sized("76", 5, right=True) == "   76"
+
+
+def test_health_is_coloured_and_the_reasons_follow_the_table() -> None:
+    watch = Watch("tcp://gw:5555", status=status(
+        node(), node(77, health="WARN", reasons=["radio loss 9.8% in 60 s", "RSSI -93 dBm"]),
+        node(95, state="silent", health="ERROR", reasons=["silent"])))
+    drawn = frame(watch, NOW, 0.5, 100)
+    styles = {line.plain.split()[0]: {str(span.style) for span in line.spans}
+              for line in drawn if line.plain[:2] in ("76", "77", "95")}
+    assert "green" in styles["76"] and "bold yellow" in styles["77"]
+    plain = [line.plain for line in drawn]
+    assert "77 WARN: radio loss 9.8% in 60 s; RSSI -93 dBm" in plain
+    assert "95 ERROR: silent" in plain
+    assert plain[0].startswith("gx2-gateway 1.2.3 up 1 h 02 min  nodes 1 OK 1 WARN 1 ERROR")
+
+
+def test_the_link_line_says_how_much_of_the_line_is_used() -> None:
+    link = lines(Watch("tcp://gw:5555", status=status(node())), 120)[1]
+    assert link.startswith("link up 5 min 00 s  9,519 B/s = 83% of 11,520 B/s  "
+                           "reconnects 1  /dev/gx2"), link
+    assert lines(Watch("gw", status=status(node())), 120)[2] == \
+        "discarded 62 B: garbage 60, truncated 2"
+
+
+def test_a_quiet_gateway_is_shown_as_gone_and_a_restart_is_noticed() -> None:
+    watch = Watch("tcp://gw:5555", silence=3.0)
+    assert "waiting for the gateway's heartbeat on tcp://gw:5555" in lines(watch, 100)[3]
+    watch.take(Status("tcp://gw:5555", status(node())), NOW)
+    assert lines(watch, 100)[3] == ""
+    assert lines(watch, 100, silent_for=4.0)[3].startswith(
+        "no heartbeat for 4 s from tcp://gw:5555: is gx2-gateway running?")
+    assert any(line.startswith("76 ") for line in lines(watch, 100, silent_for=4.0))
+    watch.take(Status("tcp://gw:5555", status(node()), restarted=True), NOW - 5)
+    assert lines(watch, 100)[3] == "the gateway restarted 5.0 s ago"
+
+
+def test_only_the_nodes_asked_for_are_drawn() -> None:
+    watch = Watch("gw", nodes=(77,), status=status(node(), node(77)))
+    assert [line[:3] for line in lines(watch, 100) if line[:2].isdigit()] == ["77 "]
+
+
+TEXT = st.text(st.characters(blacklist_categories=("Cs", "Cc")), max_size=40)
+ANYTHING = st.one_of(st.none(), st.booleans(), st.integers(-10**9, 10**9),
+                     st.floats(allow_nan=True), TEXT)
+
+
+@settings(max_examples=150, deadline=None)
+@given(nodes=st.lists(st.fixed_dictionaries({"node": ANYTHING, "name": ANYTHING,
+                                             "state": ANYTHING, "record": ANYTHING,
+                                             "rate_hz": ANYTHING, "expected_hz": ANYTHING,
+                                             "rssi": ANYTHING, "last_seen": ANYTHING,
+                                             "health": ANYTHING, "reasons": ANYTHING}),
+                      max_size=4),
+       width=st.integers(20, 200), port=TEXT)
+def test_no_line_is_ever_wider_than_the_terminal(nodes: list[dict[str, Any]], width: int,
+                                                 port: str) -> None:
+    """Whatever a gateway (of any version) sends, nothing wraps."""
+    report = status(*nodes)
+    report["link"]["port"] = port
+    watch = Watch("tcp://gw:5555", status=report)
+    for line in frame(watch, time.time(), 10.0, width):
+        assert cell_len(line.plain) <= width, (width, line.plain)
+        assert "\n" not in line.plain
