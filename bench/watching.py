@@ -26,17 +26,9 @@ from benchutil import cpu_ns, free_port
 
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
+from tests.helpers.waiting import wait_for
 
 BIN = Path(sys.executable).parent
-
-
-def wait_for_file(path: Path, timeout: float) -> str:
-    deadline = time.monotonic() + timeout
-    while not (path.exists() and path.read_text().strip()):
-        if time.monotonic() > deadline:
-            raise RuntimeError(f"{path} never appeared")
-        time.sleep(0.05)
-    return path.read_text().strip()
 
 
 def main() -> int:
@@ -65,7 +57,8 @@ def main() -> int:
                    f"--config {shlex.quote(str(path))} top")
         subprocess.run(["tmux", "-L", socket, "-f", "/dev/null", "new-session", "-d",
                         "-x", "80", "-y", "24", command], check=True)
-        top = int(wait_for_file(pid_file, 10))
+        top = int(wait_for(lambda: pid_file.exists() and pid_file.read_text().strip(), 10,
+                           "top's process id"))
         tail = subprocess.Popen([str(BIN / "gx2ctl"), "--config", str(path), "tail"],
                                 stdout=subprocess.DEVNULL)
         time.sleep(3.0)  # both subscribed and drawing

@@ -60,7 +60,9 @@ def test_every_rule_is_complete() -> None:
 def test_the_promised_alerts_are_there() -> None:
     exprs = {rule["alert"]: " ".join(rule["expr"].split()) for rule in rules()}
     assert exprs["Gx2LinkDown"] == "gx2_link_up == 0"
-    assert exprs["Gx2NodeSilent"] == 'gx2_node_state{state=~"silent|unreachable"} == 1'
+    assert exprs["Gx2NodeSilent"] == \
+        "gx2_node_health == 2 unless on(instance, job) gx2_link_up == 0"
+    assert exprs["Gx2GatewayStalled"] == "time() - gx2_gateway_status_timestamp_seconds > 30"
     assert exprs["Gx2NodeWeakSignal"] == "gx2_node_rssi_dbm < -90"
     assert exprs["Gx2NodeRadioLoss"].endswith("> 0.05")
     assert "gx2_node_lost_radio_total" in exprs["Gx2NodeRadioLoss"]

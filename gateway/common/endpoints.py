@@ -61,6 +61,8 @@ def host_port(value: str) -> tuple[str, int]:
     bracketed = host.startswith("[") and host.endswith("]")
     if bracketed:
         host = host[1:-1]
+        if ":" not in host:  # ([] and [127.0.0.1] are no IPv6 addresses)
+            raise ValueError(f"only an IPv6 address goes in brackets, not {value!r}")
     if not (port.isascii() and port.isdecimal() and 1 <= int(port) <= 65535) or any(
             c.isspace() or c in "/[]" for c in host):
         raise ValueError(f"must be HOST:PORT with a port 1..65535, such as "

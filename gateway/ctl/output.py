@@ -15,6 +15,7 @@ from typing import Any
 
 from gateway.common.jsontext import json_line
 from gateway.common.ops import BY_NAME
+from gateway.common.reading import as_map, number
 
 MISSING = "-"
 
@@ -65,13 +66,6 @@ def cell(value: Any) -> str:
     return " ".join(text.split()) or MISSING
 
 
-def number(value: Any) -> float | None:
-    """A real number from a reply, or None (a bool or a string is not a number)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return None
-    return float(value) if math.isfinite(value) else None
-
-
 def duration(seconds: Any) -> str:
     """``12.3 s``, ``4 min 05 s``, ``2 h 03 min``, ``3 d 04 h``."""
     value = number(seconds)
@@ -102,10 +96,6 @@ def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
     widths = [max(len(row[i]) for row in (header, *rows)) for i in range(len(header))]
     return ["  ".join(text.ljust(width) for text, width in zip(row, widths, strict=True))
             .rstrip() for row in (header, *rows)]
-
-
-def as_map(value: Any) -> Mapping[str, Any]:
-    return value if isinstance(value, Mapping) else {}
 
 
 def _count(value: Any, unit: str) -> str:

@@ -32,8 +32,9 @@ from rich.text import Text
 from gateway.client import Status
 from gateway.common.jsontext import json_line
 from gateway.common.protocol import Exit
+from gateway.common.reading import as_map, number
 
-from .output import MISSING, OK, as_map, cell, clock_cell, duration, node_maps, number, reasons
+from .output import MISSING, OK, cell, clock_cell, duration, node_maps, reasons
 from .tail import Stop, subscribe
 
 if TYPE_CHECKING:
@@ -157,16 +158,25 @@ def fit(columns: Sequence[Column], rows: Sequence[Sequence[str]],
     return sorted(widths.items())
 
 
-def sized(text: str, width: int, right: bool = False) -> str:
+def sized(text: str, width: int, right: bool = False, ellipsis: str = "…") -> str:
     """``text`` in exactly ``width`` terminal cells: padded, or cut with an ellipsis."""
     if cell_len(text) > width:
-        text = (set_cell_size(text, width - 1).rstrip() + "…" if width > 1
+        text = (set_cell_size(text, width - 1).rstrip() + ellipsis if width > 1
                 else set_cell_size(text, width))
     pad = " " * (width - cell_len(text))
     return pad + text if right else text + pad
 
 
-def table(nodes: Sequence[Mapping[str, Any]], now: float, width: int) -> list[Text]:
+def cut(line: Text, width: int, ellipsis: str = "…") -> Text:
+    """``line`` cut to ``width`` cells, its last one an ellipsis if anything was cut."""
+    if cell_len(line.plain) > width:
+        line.truncate(max(0, width - 1), overflow="crop")
+        line.append(ellipsis[:width])
+    return line
+
+
+def table(nodes: Sequence[Mapping[str, Any]], now: float, width: int,
+          ellipsis: str = "…") -> list[Text]:
     """The header and a row per node, each line at most ``width`` cells."""
     cells = [[column.cell(node, now) for column in COLUMNS] for node in nodes]
     shown = fit(COLUMNS, cells, width)
@@ -177,7 +187,7 @@ def table(nodes: Sequence[Mapping[str, Any]], now: float, width: int) -> list[Te
     for node, row in zip(nodes, cells, strict=True):
         parts = []
         for i, w in shown:
-            text = Text(sized(row[i], w, COLUMNS[i].right))
+            text = Text(sized(row[i], w, COLUMNS[i].right, ellipsis))
             if COLUMNS[i].header == "health":
                 text.stylize(HEALTH_STYLE.get(str(node.get("health")), ""))
             parts.append(text)
@@ -200,12 +210,29 @@ class Watch:
     """Seconds without a heartbeat after which the gateway is shown as gone."""
     status: Mapping[str, Any] | None = None
     restarted_at: float | None = None
-    """UNIX time the gateway was last seen to restart."""
+    """When (on :meth:`now`'s clock) the gateway was last seen to restart."""
+    _clock: tuple[float, float] | None = None
+    """The gateway's UNIX time in its last status, and time.monotonic() here then."""
 
-    def take(self, status: Status, now: float) -> None:
+    def take(self, status: Status) -> None:
         self.status = status.payload
+        made = number(as_map(status.payload.get("gateway")).get("time"))
+        self._clock = None if made is None else (made, time.monotonic())
         if status.restarted:
-            self.restarted_at = now
+            self.restarted_at = self.now()
+
+    def now(self) -> float:
+        """UNIX time on the gateway's clock (its last status, and the time since): the
+        ages shown are right even when this host's clock is not."""
+        if self._clock is None:
+            return time.time()
+        made, received = self._clock
+        return made + time.monotonic() - received
+
+    def shown(self) -> list[Mapping[str, Any]]:
+        """The nodes of the last status that are shown."""
+        return [n for n in node_maps(self.status or {})
+                if not self.nodes or n.get("node") in self.nodes]
 
 
 def _bytes(value: float) -> str:
@@ -215,7 +242,7 @@ def _bytes(value: float) -> str:
 def header(watch: Watch, now: float, silent_for: float) -> list[Text]:
     status = watch.status or {}
     gateway, link = as_map(status.get("gateway")), as_map(status.get("link"))
-    nodes = node_maps(status)
+    nodes = watch.shown()
     counts = {level: sum(1 for n in nodes if n.get("health") == level)
               for level in HEALTH_STYLE}
     first = Text(f"gx2-gateway {cell(gateway.get('version'))} up "
@@ -264,20 +291,22 @@ def header(watch: Watch, now: float, silent_for: float) -> list[Text]:
     return lines
 
 
-def frame(watch: Watch, now: float, silent_for: float, width: int) -> list[Text]:
-    """Every line of one frame, none wider than ``width`` cells."""
-    nodes = [n for n in node_maps(watch.status or {})
-             if not watch.nodes or n.get("node") in watch.nodes]
-    lines = [*header(watch, now, silent_for), *table(nodes, now, width)]
+def frame(watch: Watch, now: float, silent_for: float, width: int,
+          ellipsis: str = "…") -> list[Text]:
+    """Every line of one frame, none wider than ``width`` cells; the nodes dimmed while
+    the gateway is silent (what they show is its last word)."""
+    nodes = watch.shown()
+    rows = table(nodes, now, width, ellipsis)
+    if watch.status is not None and silent_for > watch.silence:
+        for row in rows[1:]:
+            row.stylize("dim")
+    lines = [*header(watch, now, silent_for), *rows]
     for node in nodes:
         if node.get("health") != OK and (why := reasons(node)):
             lines.append(Text(f"{cell(node.get('node'))} ").append(
                 f"{cell(node.get('health'))}: {why}",
                 HEALTH_STYLE.get(str(node.get("health")), "")))
-    lines.append(Text("q quits", "dim"))
-    for line in lines:
-        line.truncate(width, overflow="ellipsis")
-    return lines
+    return [cut(line, width, ellipsis) for line in lines]
 
 
 # --- running -------------------------------------------------------------------------
@@ -286,7 +315,10 @@ def frame(watch: Watch, now: float, silent_for: float, width: int) -> list[Text]
 def keyboard() -> Iterator[Callable[[], bool]]:
     """A check for ``q`` typed at the terminal (keys arrive at once, unechoed; Ctrl-C
     still interrupts); without a terminal on stdin, a check that is never true."""
-    fd = sys.stdin.fileno() if sys.stdin is not None else -1
+    try:
+        fd = sys.stdin.fileno()
+    except (AttributeError, ValueError, OSError):  # none, closed, or not a file
+        fd = -1
     if fd < 0 or not os.isatty(fd):
         yield lambda: False
         return
@@ -308,38 +340,47 @@ def keyboard() -> Iterator[Callable[[], bool]]:
 def run_top(nodes: list[int], where: Endpoints, timeout: float, as_json: bool) -> int:
     """Draw the gateway's status until ``q``, Ctrl-C or SIGTERM."""
     stop = Stop()
+    # a terminal that cannot show a character gets a "?" for it, never a crash
+    utf = "utf" in (getattr(sys.stdout, "encoding", "") or "").lower()
+    with contextlib.suppress(AttributeError, ValueError):
+        sys.stdout.reconfigure(errors="replace")  # type: ignore[union-attr]
+    ellipsis = "…" if utf else "~"
     console = Console(highlight=False)
     with subscribe(nodes, where, timeout, status="only") as (sub, silence):
         watch = Watch(sub.endpoints[0], tuple(nodes), silence)
         if as_json or not console.is_terminal:
-            return _print_frames(sub, watch, console, stop, as_json)
+            return _print_frames(sub, watch, console.width, stop, as_json, ellipsis)
         with keyboard() as pressed, Live(console=console, screen=True,
                                          auto_refresh=False) as live:
             drawn = 0.0
             while not stop.requested and not pressed():
                 event = sub.receive(TICK)
                 if isinstance(event, Status):
-                    watch.take(event, time.time())
+                    watch.take(event)
                 if event is not None or time.monotonic() - drawn >= REDRAW:
-                    live.update(Group(*frame(watch, time.time(), sub.silent_for(),
-                                             console.width)), refresh=True)
+                    width = console.width
+                    lines = frame(watch, watch.now(), sub.silent_for(), width, ellipsis)
+                    live.update(Group(*lines, cut(Text(QUIT, "dim"), width, ellipsis)),
+                                refresh=True)
                     drawn = time.monotonic()
     return Exit.OK
 
 
-def _print_frames(sub: Any, watch: Watch, console: Console, stop: Stop,
-                  as_json: bool) -> int:
-    """One frame per heartbeat, one after the other (or the heartbeat as a JSON line)."""
+QUIT = "q quits"
+
+
+def _print_frames(sub: Any, watch: Watch, width: int, stop: Stop, as_json: bool,
+                  ellipsis: str) -> int:
+    """One plain frame per heartbeat, one after the other (or the heartbeat as one JSON
+    line, of the nodes asked for)."""
     while not stop.requested:
         event = sub.receive(TICK)
         if not isinstance(event, Status):
             continue
-        watch.take(event, time.time())
+        watch.take(event)
         if as_json:
-            print(json_line(dict(event.payload)), flush=True)
+            print(json_line({**event.payload, "nodes": watch.shown()}), flush=True)
             continue
-        for line in frame(watch, time.time(), sub.silent_for(), console.width):
-            console.print(line, soft_wrap=True)
-        console.print()
-        console.file.flush()
+        lines = frame(watch, watch.now(), sub.silent_for(), width, ellipsis)
+        print("\n".join(line.plain for line in lines), end="\n\n", flush=True)
     return Exit.OK

@@ -115,6 +115,8 @@ class Gateway:
             self.link = SerialLink(self.port.path, config.base_station.baudrate, on_data,
                                    self._on_link_state)
         self._stop: asyncio.Event | None = None
+        self._reported = 0.0
+        """time.monotonic() of the last status report."""
 
     # -- running --------------------------------------------------------------------------
 
@@ -229,11 +231,12 @@ class Gateway:
             self.publisher.status(self.status())
 
     async def _sample(self) -> None:
-        """Once a second: the counters each node's health is judged over, and a fresh
-        report for the metrics endpoint."""
+        """Once a second: the counters each node's health is judged over, and a report
+        for the metrics endpoint if none was made in that second (the heartbeat's)."""
         while True:
-            self.health.sample(time.monotonic(), self.link.bytes_read)
-            if self.metrics is not None:
+            now = time.monotonic()
+            self.health.sample(now, self.link.bytes_read)
+            if self.metrics is not None and now - self._reported >= SAMPLE_PERIOD:
                 self.status()
             await asyncio.sleep(SAMPLE_PERIOD)
 
@@ -242,4 +245,5 @@ class Gateway:
         report = status.report(self)
         if self.metrics is not None:
             self.metrics.update(report)
+            self._reported = time.monotonic()
         return report

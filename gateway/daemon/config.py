@@ -121,7 +121,7 @@ class RecordConfig(Strict):
 
 
 class MetricsConfig(Strict):
-    """Prometheus metrics (README, "Watching it run")."""
+    """Prometheus metrics (docs/interface.md, section 8)."""
 
     endpoint: Annotated[str, AfterValidator(check_host_port)] = DEFAULT_METRICS
     """HOST:PORT of the HTTP endpoint serving GET /metrics (a bare :PORT or PORT is on
@@ -129,7 +129,7 @@ class MetricsConfig(Strict):
 
 
 class HealthConfig(Strict):
-    """Added: when a node is OK, WARN or ERROR (README, "Health")."""
+    """Added: when a node is OK, WARN or ERROR (docs/interface.md, section 8)."""
 
     window_s: Annotated[float, Field(ge=2, le=3600)] = 60.0
     """The recent past that losses and RSSI are judged over: the last minute."""
@@ -140,9 +140,9 @@ class HealthConfig(Strict):
     the window."""
     weak_rssi_dbm: Annotated[int, Field(ge=-128, le=0)] = -90
     """WARN when the median RSSI over the window is under this."""
-    settle_s: Annotated[float, Field(ge=0, le=600)] = 10.0
-    """A stream (re)started this recently is not judged by its rate or its clock yet:
-    both need a few seconds of records to be measured."""
+    settle_s: Annotated[float, Field(ge=2, le=600)] = 10.0
+    """A stream (re)started this recently is not judged by its rate or its clock yet,
+    nor anything by a window this short: each needs some seconds of records."""
 
 
 class NodeEntry(Strict):

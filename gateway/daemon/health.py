@@ -46,6 +46,11 @@ class Verdict(NamedTuple):
 FAILED = {State.UNKNOWN: "base station not open yet", State.LINK_DOWN: "link down",
           State.UNREACHABLE: "unreachable", State.SILENT: "silent"}
 """States in which a node delivers nothing: ERROR, for that reason alone."""
+RETRIED = (State.ARMING, State.REBOOTED)
+"""States the supervisor passes a failed node through while it tries again: it stays
+ERROR (its ``trouble``) until it streams, so the verdict does not flap with each try."""
+MIN_SPAN = 1.0
+"""Seconds of a stream before its rate over the window is measured at all."""
 
 
 class Recent(NamedTuple):
@@ -58,6 +63,18 @@ class Recent(NamedTuple):
     reboots: int
     rssi: float | None
     """Median of its RSSI, sampled once a second while records arrive."""
+    stream_seconds: float = 0.0
+    """How much of the window its stream has been running (since it last started)."""
+    stream_received: int = 0
+    """Records received in that time."""
+
+    @property
+    def rate_hz(self) -> float | None:
+        """Records a second since its stream started, within the window (None before a
+        second of it): steadier than the last 2 s, and measured on the monotonic clock."""
+        if self.stream_seconds < MIN_SPAN:
+            return None
+        return self.stream_received / self.stream_seconds
 
     @property
     def loss_percent(self) -> float | None:
@@ -67,7 +84,9 @@ class Recent(NamedTuple):
 
     def status(self) -> dict[str, Any]:
         loss = self.loss_percent
+        rate = self.rate_hz
         return {"seconds": round(self.seconds, 1), "received": self.received,
+                "rate_hz": None if rate is None else round(rate, 2),
                 "lost_radio": self.lost_radio,
                 "lost_radio_percent": None if loss is None else round(loss, 2),
                 "lost_gateway": self.lost_gateway, "reboots": self.reboots,
@@ -106,31 +125,40 @@ class Window:
             return Recent(0.0, 0, 0, 0, 0, None)
         first = self._samples[0]
         heard = [s.rssi for s in self._samples if s.rssi is not None and s is not first]
+        # the stream's part: from the first sample since it started
+        start = next((s for s in self._samples if s.at >= node.stream_started), None)
+        streamed = (now - start.at, node.packets - start.received) if start else (0.0, 0)
         return Recent(now - first.at, node.packets - first.received,
                       node.lost_radio - first.lost_radio,
                       node.lost_gateway - first.lost_gateway, node.reboots - first.reboots,
-                      statistics.median(heard) if heard else None)
+                      statistics.median(heard) if heard else None, *streamed)
 
 
 def judge(node: Node, recent: Recent, now: float, limits: HealthConfig) -> Verdict:
     """The node's health at ``now`` (``time.monotonic()``), from its state, its stream
     and its recent counters."""
     failed = FAILED.get(node.state)
+    if failed is None and node.trouble is not None and node.state in RETRIED:
+        failed = node.trouble  # (being armed again after a failure: not out of it yet)
     if failed is not None:
         return Verdict(Level.ERROR, (failed,))
     reasons = []
-    expected = node.expected_hz
+    expected, rate = node.expected_hz, recent.rate_hz
     if expected is not None and now - node.stream_started >= limits.settle_s:
-        if node.rate_hz < expected * (1 - limits.rate_under_percent / 100):
-            reasons.append(f"rate {node.rate_hz:.1f} Hz of {expected:.4g}")
+        # (a record more or less in the span is how it was sampled, not a slow stream)
+        if rate is not None and rate < (expected * (1 - limits.rate_under_percent / 100)
+                                        - 1 / recent.stream_seconds):
+            reasons.append(f"rate {rate:.1f} Hz of {expected:.4g} in "
+                           f"{recent.stream_seconds:.0f} s")
         if node.clock.points and not node.clock.locked:
             reasons.append("clock not locked")
     window = f"in {recent.seconds:.0f} s"
-    loss = recent.loss_percent
-    if loss is not None and loss > limits.radio_loss_percent:
-        reasons.append(f"radio loss {loss:.1f}% {window}")
-    if recent.rssi is not None and recent.rssi < limits.weak_rssi_dbm:
-        reasons.append(f"RSSI {recent.rssi:.0f} dBm")
+    if recent.seconds >= min(limits.window_s, limits.settle_s):  # enough to go by
+        loss = recent.loss_percent
+        if loss is not None and loss > limits.radio_loss_percent:
+            reasons.append(f"radio loss {loss:.1f}% {window}")
+        if recent.rssi is not None and recent.rssi < limits.weak_rssi_dbm:
+            reasons.append(f"RSSI {recent.rssi:.0f} dBm")
     if recent.lost_gateway:
         reasons.append(f"{recent.lost_gateway} not published {window}")
     if recent.reboots:

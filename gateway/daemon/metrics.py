@@ -5,16 +5,16 @@ status report it makes (once a second at least, and whenever the link comes or g
 prometheus-client's HTTP server, in a thread of its own, turns the latest one into
 metrics when it is scraped. A report is built whole and never changed afterwards, so
 handing it over is one reference assignment, with no lock, and a scrape reads one
-consistent moment of the gateway. A scrape therefore costs the loop nothing, and a
-loop that stalls shows as metrics that stop moving (the gateway's uptime included).
+consistent moment of the gateway. A scrape therefore costs the loop nothing. A loop
+that stalls stops making reports: ``gx2_gateway_status_timestamp_seconds`` then stops
+moving while the HTTP thread goes on answering, and an alert on its age catches it.
 
 Which metric comes from which key of the report is the tables below: the names and
-labels are part of the interface (README, "Metrics").
+labels are part of the interface (docs/interface.md, section 8).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator, Mapping
 from typing import Any
 
@@ -23,6 +23,7 @@ from prometheus_client.metrics_core import CounterMetricFamily, GaugeMetricFamil
 from prometheus_client.registry import Collector
 
 from gateway.common.endpoints import host_port
+from gateway.common.reading import as_map, number
 
 from .health import Level
 from .nodes import State
@@ -68,7 +69,8 @@ NODE = (
     ("gx2_node_silences_total", COUNTER, "Times its stream fell silent", "silences"),
     ("gx2_node_rssi_dbm", GAUGE, "RSSI of its last record, dBm", "rssi"),
     ("gx2_node_lqi", GAUGE, "LQI of its last record", "lqi"),
-    ("gx2_node_rate_hz", GAUGE, "Its records per second, over the last 2 s", "rate_hz"),
+    ("gx2_node_rate_hz", GAUGE, "Its records per second, over its last complete 2 s",
+     "rate_hz"),
     ("gx2_node_expected_rate_hz", GAUGE, "The rate its stream runs at (absent while it "
      "streams nothing)", "expected_hz"),
     ("gx2_node_last_seen_timestamp_seconds", GAUGE, "UNIX time of its last record",
@@ -83,24 +85,13 @@ RECORDING = (
 HEALTH_VALUES = {Level.OK: 0, Level.WARN: 1, Level.ERROR: 2}
 
 
-def _number(value: Any) -> float | None:
-    """A sample's value from a report's entry; None (no sample) for anything else."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return None
-    return float(value) if math.isfinite(value) else None
-
-
-def _map(value: Any) -> Mapping[str, Any]:
-    return value if isinstance(value, Mapping) else {}
-
-
 def _table(rows: tuple[tuple[str, Any, str, str], ...], labels: list[str],
            entries: list[tuple[list[str], Mapping[str, Any]]]) -> Iterator[Metric]:
     """One family per row, one sample per (label values, map) where the map has it."""
     for name, kind, help_text, key in rows:
         family = kind(name, help_text, labels=labels)
         for values, source in entries:
-            value = _number(source.get(key))
+            value = number(source.get(key))
             if value is not None:
                 family.add_metric(values, value)
         yield family
@@ -108,27 +99,31 @@ def _table(rows: tuple[tuple[str, Any, str, str], ...], labels: list[str],
 
 def families(report: Mapping[str, Any]) -> Iterator[Metric]:
     """The metrics of one status report (the map ``gx2ctl --json status`` prints)."""
-    gateway, link = _map(report.get("gateway")), _map(report.get("link"))
+    gateway, link = as_map(report.get("gateway")), as_map(report.get("link"))
     info = GAUGE("gx2_gateway_info", "The gateway's version", labels=["version"])
     info.add_metric([str(gateway.get("version"))], 1)
     yield info
-    started = [_number(gateway.get("time")), _number(gateway.get("uptime"))]
-    if None not in started:
-        yield GAUGE("gx2_gateway_start_time_seconds", "UNIX time the gateway started",
-                    value=started[0] - started[1])  # type: ignore[operator]
+    made, uptime = number(gateway.get("time")), number(gateway.get("uptime"))
+    if made is not None:
+        yield GAUGE("gx2_gateway_status_timestamp_seconds", "UNIX time the status served "
+                    "was made (once a second: older means the gateway's loop is stuck)",
+                    value=made)
+        if uptime is not None:
+            yield GAUGE("gx2_gateway_start_time_seconds", "UNIX time the gateway started",
+                        value=made - uptime)
     yield from _table(GATEWAY, [], [([], gateway)])
     yield GAUGE("gx2_link_up", "1 while the base station's port is open", value=float(
         link.get("state") == "up"))
     yield from _table(LINK, [], [([], link)])
     discarded = COUNTER("gx2_link_discarded_bytes_total", "Bytes the decoder discarded, "
                         "by reason", labels=["reason"])
-    for reason, count in _map(link.get("discarded")).items():
-        if (value := _number(count)) is not None:
+    for reason, count in as_map(link.get("discarded")).items():
+        if (value := number(count)) is not None:
             discarded.add_metric([str(reason)], value)
     yield discarded
 
     nodes = [n for n in report.get("nodes") or () if isinstance(n, Mapping)
-             and _number(n.get("node")) is not None]
+             and number(n.get("node")) is not None]
     entries = [([str(n["node"])], n) for n in nodes]
     yield from _table(NODE, ["node"], entries)
     names = GAUGE("gx2_node_info", "A node's name", labels=["node", "name"])
@@ -150,11 +145,11 @@ def families(report: Mapping[str, Any]) -> Iterator[Metric]:
             health.add_metric([node], HEALTH_VALUES[entry["health"]])
         clock = entry.get("clock")
         if isinstance(clock, Mapping):
-            if (value := _number(clock.get("drift_ppm"))) is not None:
+            if (value := number(clock.get("drift_ppm"))) is not None:
                 drift.add_metric([node], value)
             locked.add_metric([node], float(clock.get("locked") is True))
-        for record, count in _map(entry.get("by_record")).items():
-            if (value := _number(count)) is not None:
+        for record, count in as_map(entry.get("by_record")).items():
+            if (value := number(count)) is not None:
                 published.add_metric([node, str(record)], value)
     yield from (names, states, health, drift, locked, published)
 

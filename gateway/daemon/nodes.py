@@ -19,11 +19,11 @@ from aspp.clock import NodeClock
 from aspp.events import LINK_QUALITY
 from aspp.records import Record
 from aspp.timing import (
+    BITS_PER_BYTE,
     DEFAULT_DIVIDER,
     TICKS_PER_CLOCK,
     TIMER_MODULUS,
     TimerUnwrapper,
-    byte_time,
     data_rate,
     sample_period,
     valid_divider,
@@ -78,7 +78,7 @@ class Delivery(NamedTuple):
 class Node:
     """One configured node."""
 
-    def __init__(self, config: NodeEntry, *, byte_time: float = byte_time(115200),
+    def __init__(self, config: NodeEntry, *, byte_time: float = BITS_PER_BYTE / 115200,
                  latency: float = 0.0) -> None:
         self.config = config
         self.clock = NodeClock()
@@ -124,6 +124,9 @@ class Node:
         self.stream_started = 0.0
         """time.monotonic() when its stream last started, or resumed after a silence:
         its rate and clock are judged only a while after (see :mod:`.health`)."""
+        self.trouble: str | None = None
+        """How it last failed ("unreachable", "silent"), until it does what it should
+        again: a node being armed once more after a failure is still in trouble."""
         self._window_start = 0.0
         self._window_count = 0
 
@@ -192,6 +195,7 @@ class Node:
             if self._state is State.SILENT:
                 self._state = State.STREAMING  # (its timer gap was counted as lost_radio)
                 self.stream_started = self._stream_seen
+                self.trouble = None
         # anything but the next record of the stream a streaming node is known to stream
         # is for the supervisor to look at; saying so here, where it is known, saves the
         # reader a call for every record: 1.8% of the instructions a record takes
@@ -240,6 +244,7 @@ class Node:
 
     def unreachable(self) -> None:
         self._state = State.UNREACHABLE
+        self.trouble = "unreachable"
 
     def streaming(self, record: str, divider: int | None = None) -> None:
         """The node now streams ``record`` (at ``divider``, if that is known)."""
@@ -247,12 +252,14 @@ class Node:
         if divider is not None and valid_divider(divider):
             self.divider = divider
         self._state = State.STREAMING
+        self.trouble = None
         self._restart_stream()
 
     def polled(self) -> None:
         """The node streams nothing (as far as the gateway knows)."""
         self.record = None
         self._state = State.POLLED
+        self.trouble = None
         self._restart_stream()
 
     def _restart_stream(self) -> None:
@@ -325,6 +332,7 @@ class Node:
             return False
         self.silences += 1
         self._state = State.SILENT  # (if the stream resumes, its timer gap is lost_radio)
+        self.trouble = "silent"
         return True
 
     # -- status --------------------------------------------------------------------------

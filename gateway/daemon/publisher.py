@@ -68,10 +68,13 @@ class Publisher:
             return True
         return False
 
-    def published(self, node: int) -> dict[str, int]:
-        """Messages published on each of ``node``'s topics, by record name."""
-        return {record: entry[1] for (address, record), entry in self._topics.items()
-                if address == node and entry[1]}
+    def published(self) -> dict[int, dict[str, int]]:
+        """Messages published on each topic: node -> record name -> count."""
+        counts: dict[int, dict[str, int]] = {}
+        for (node, record), (_, count) in self._topics.items():
+            if count:
+                counts.setdefault(node, {})[record] = count
+        return counts
 
     def status(self, payload: dict[str, Any]) -> bool:
         return self._send(STATUS_TOPIC, payload)

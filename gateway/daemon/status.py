@@ -20,7 +20,7 @@ def report(gateway: Gateway) -> dict[str, Any]:
     config = gateway.config
     link, reader, scheduler = gateway.link, gateway.reader, gateway.scheduler
     stats = reader.decoder.stats
-    health, publisher = gateway.health, gateway.publisher
+    health, published = gateway.health, gateway.publisher.published()
     return {
         "gateway": {"version": VERSION, "uptime": round(now - gateway.started, 3),
                     "time": now, "publish_endpoint": config.publish.endpoint,
@@ -48,7 +48,7 @@ def report(gateway: Gateway) -> dict[str, Any]:
                  "failures": scheduler.stats.failures,
                  "unexpected_answers": scheduler.stats.unexpected},
         "nodes": [{**node.status(now), **health.status(node, monotonic),
-                   "by_record": publisher.published(node.address)}
+                   "by_record": published.get(node.address, {})}
                   for node in gateway.nodes.values()],
         "recording": gateway.recorder.status() if gateway.recorder is not None else None,
         "replay": ({"files": len(link.replay.files), "reads": link.reads,

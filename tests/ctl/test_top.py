@@ -28,7 +28,7 @@ def node(address: int = 76, **changes: Any) -> dict[str, Any]:
 
 
 def status(*nodes: dict[str, Any]) -> dict[str, Any]:
-    return {"gateway": {"version": "1.2.3", "uptime": 3725.0},
+    return {"gateway": {"version": "1.2.3", "uptime": 3725.0, "time": NOW},
             "link": {"port": "/dev/gx2", "state": "up", "since": NOW - 300,
                      "reconnects": 1, "bytes_per_s": 9519.0, "line_bytes_per_s": 11520.0,
                      "discarded_bytes": 62, "discarded": {"garbage": 60, "truncated": 2,
@@ -86,9 +86,12 @@ def test_health_is_coloured_and_the_reasons_follow_the_table() -> None:
         node(), node(77, health="WARN", reasons=["radio loss 9.8% in 60 s", "RSSI -93 dBm"]),
         node(95, state="silent", health="ERROR", reasons=["silent"])))
     drawn = frame(watch, NOW, 0.5, 100)
-    styles = {line.plain.split()[0]: {str(span.style) for span in line.spans}
-              for line in drawn if line.plain[:2] in ("76", "77", "95")}
-    assert "green" in styles["76"] and "bold yellow" in styles["77"]
+    styles = {line.plain.split()[0]: {(line.plain[span.start:span.end], str(span.style))
+                                      for span in line.spans}
+              for line in drawn if line.plain[:2] in ("76", "77", "95") and ":" not in
+              line.plain}  # (the table's rows, not the reasons under it)
+    assert styles == {"76": {("OK", "green")}, "77": {("WARN", "bold yellow")},
+                      "95": {("ERROR", "bold red")}}
     plain = [line.plain for line in drawn]
     assert "77 WARN: radio loss 9.8% in 60 s; RSSI -93 dBm" in plain
     assert "95 ERROR: silent" in plain
@@ -106,13 +109,33 @@ def test_the_link_line_says_how_much_of_the_line_is_used() -> None:
 def test_a_quiet_gateway_is_shown_as_gone_and_a_restart_is_noticed() -> None:
     watch = Watch("tcp://gw:5555", silence=3.0)
     assert "waiting for the gateway's heartbeat on tcp://gw:5555" in lines(watch, 100)[3]
-    watch.take(Status("tcp://gw:5555", status(node())), NOW)
+    watch.take(Status("tcp://gw:5555", status(node())))
     assert lines(watch, 100)[3] == ""
-    assert lines(watch, 100, silent_for=4.0)[3].startswith(
+    gone = frame(watch, NOW, 4.0, 100)
+    assert gone[3].plain.startswith(
         "no heartbeat for 4 s from tcp://gw:5555: is gx2-gateway running?")
-    assert any(line.startswith("76 ") for line in lines(watch, 100, silent_for=4.0))
-    watch.take(Status("tcp://gw:5555", status(node()), restarted=True), NOW - 5)
-    assert lines(watch, 100)[3] == "the gateway restarted 5.0 s ago"
+    row = next(line for line in gone if line.plain.startswith("76 "))
+    assert (0, len(row.plain), "dim") in [(sp.start, sp.end, str(sp.style))  # stale
+                                          for sp in row.spans], row.spans
+    watch.take(Status("tcp://gw:5555", status(node()), restarted=True))
+    assert frame(watch, watch.now() + 5, 0.5, 100)[3].plain == \
+        "the gateway restarted 5.0 s ago"
+
+
+def test_ages_are_on_the_gateways_clock_not_this_hosts() -> None:
+    watch = Watch("gw")
+    skewed = status(node(last_seen=NOW - 42.0))  # this host's clock is a day off
+    watch.take(Status("gw", skewed))
+    assert abs(watch.now() - NOW) < 1
+    row = next(line for line in lines(watch, 120) if line.startswith("76 "))
+    assert " 42s " in row, row
+
+
+def test_without_utf_8_the_ellipsis_is_a_tilde() -> None:
+    watch = Watch("gw", status=status(node(name="a very long name for a node")))
+    shown = [line.plain for line in frame(watch, NOW, 0.5, 40, ellipsis="~")]
+    assert all(line.isascii() for line in shown), shown
+    assert any("~" in line for line in shown)
 
 
 def test_only_the_nodes_asked_for_are_drawn() -> None:

@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
+from gateway.common.endpoints import host_port
 from gateway.daemon.metrics import MetricsServer
 from tests.helpers.ports import free_port
 
@@ -145,3 +146,19 @@ def test_a_port_in_use_is_refused_at_once() -> None:
         taken.listen()
         with pytest.raises(OSError):
             MetricsServer(f"127.0.0.1:{taken.getsockname()[1]}")
+
+
+@pytest.mark.parametrize(("text", "address"), [
+    ("127.0.0.1:9105", ("127.0.0.1", 9105)), ("0.0.0.0:80", ("0.0.0.0", 80)),
+    (":9105", ("127.0.0.1", 9105)), ("9105", ("127.0.0.1", 9105)),
+    ("[::1]:9105", ("::1", 9105)), ("gateway.local:9105", ("gateway.local", 9105))])
+def test_the_endpoint_is_host_and_port_on_the_loopback_unless_said(text: str,
+                                                                   address: tuple) -> None:
+    assert host_port(text) == address
+
+
+@pytest.mark.parametrize("text", ["", "9105x", "host:0", "host:65536", "http://h:9105",
+                                  "::1:9105", "[]:9105", "[127.0.0.1]:9105", " h:9105"])
+def test_anything_else_is_refused_with_an_example(text: str) -> None:
+    with pytest.raises(ValueError, match=r"HOST:PORT|brackets"):
+        host_port(text)

@@ -4,6 +4,7 @@ operator would."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shlex
@@ -25,6 +26,7 @@ pytestmark = pytest.mark.skipif(shutil.which("tmux") is None,
 WIDTH, HEIGHT = 80, 24
 COLOUR = re.compile(r"\x1b\[[0-9;]*3[0-7](;[0-9]+)*m")
 """An SGR sequence that sets a foreground colour."""
+ESCAPE = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
 
 
 class Terminal:
@@ -115,8 +117,10 @@ def test_top_shows_every_node_in_place_fits_80_columns_and_quits_on_q(
     everything = terminal.history()
     assert everything.count("gx2-gateway ") == 1, everything
     assert everything.count("\nnode ") == 1, everything
-    coloured = "\n".join(terminal.screen(escapes=True))
-    assert COLOUR.search(coloured), "health is in colour on a terminal"
+    coloured = next((line for line in terminal.screen(escapes=True)
+                     if ESCAPE.sub("", line).startswith("76 ")), "")
+    assert re.search(r"\x1b\[32m(OK|WARN)|\x1b\[[0-9;]*33m(WARN)", coloured), \
+        f"node 76's health is in colour on a terminal: {coloured!r}"
 
     terminal.keys("q")
     assert wait_for(lambda: terminal.exit_status() is not None, 5, "top to quit on q") \
@@ -155,9 +159,12 @@ def test_top_keeps_working_when_the_gateway_restarts(simulator, gateway, termina
 
 
 def test_top_without_a_terminal_prints_plain_frames(simulator, gateway) -> None:
-    sim = simulator(NodeSettings(76))
-    gw = gateway(sim.path, [{"address": 76, "stream": "accel_angrate"}])
-    top = Running("gx2ctl", "--config", str(gw.path), "top", "76")
+    sim = simulator(NodeSettings(76), NodeSettings(77))
+    gw = gateway(sim.path, [{"address": 76, "name": "the left wing's outer tip",
+                             "stream": "accel_angrate"}, {"address": 77, "stream": "euler"}])
+    # a pipe, 40 columns, and an output that cannot carry "…": plain ASCII, cut with "~"
+    top = Running("gx2ctl", "--config", str(gw.path), "top", "76",
+                  env={**os.environ, "COLUMNS": "40", "PYTHONIOENCODING": "ascii"})
     try:
         top.wait_for_line(lambda line: line.startswith("76 ") and "/100" in line, STARTUP)
         top.wait_for_line(lambda line: line.startswith("gx2-gateway "), 5)  # a second frame
@@ -167,5 +174,16 @@ def test_top_without_a_terminal_prints_plain_frames(simulator, gateway) -> None:
         top.kill()
     output = "".join(top.stdout)
     assert "\x1b" not in output, "no escape sequence in a pipe"
-    assert all(len(line) <= 80 for line in output.splitlines())
-    assert top.stderr == []
+    assert output.isascii() and "~" in output, output
+    assert all(len(line) <= 40 for line in output.splitlines()), output
+    assert not any(line.startswith("77 ") for line in output.splitlines())  # only 76
+    assert "q quits" not in output and top.stderr == []
+
+    # JSON lines of the nodes asked for; a reader that stops reading ends it quietly
+    run = subprocess.run(["bash", "-c", "set -o pipefail; " + shlex.join(
+        [script("gx2ctl"), "--config", str(gw.path), "--json", "top", "77"]) + " | head -1"],
+        capture_output=True, text=True, timeout=STARTUP)
+    assert run.returncode == 0 and run.stderr == "", run
+    heartbeat = json.loads(run.stdout)
+    assert [n["node"] for n in heartbeat["nodes"]] == [77]
+    assert heartbeat["link"]["state"] == "up"

@@ -12,9 +12,10 @@ from typing import Any
 
 from prometheus_client.parser import text_string_to_metric_families
 
+from gateway.sim.base_station import RadioLink
 from gateway.sim.node import NodeSettings
 from tests.helpers.ports import free_port
-from tests.helpers.processes import gx2ctl
+from tests.helpers.processes import EXIT, STARVED, gx2ctl
 from tests.helpers.waiting import wait_for
 
 SCRAPE_EVERY = 0.1
@@ -74,6 +75,8 @@ def test_metrics_count_as_records_flow_and_the_link_falls_when_unplugged(simulat
     assert scrape.value("gx2_node_state", node="76", state="link down") == 1.0
     wait_for(lambda: scrape.value("gx2_link_up") == 1.0, 10, "gx2_link_up back")
     wait_for(lambda: scrape.value("gx2_link_reconnects") == 1.0, 5, "the reconnect counted")
+    status, seconds = gw.terminate()  # (the metrics server stops within the exit promise)
+    assert status == 0 and seconds < EXIT + STARVED, (status, seconds)
 
 
 def node_health(report: dict[str, Any], node: int) -> tuple[str, list[str]]:
@@ -123,3 +126,27 @@ def test_health_warns_while_the_radio_loses_10_percent_and_recovers_after(simula
     assert "node 77 health OK -> WARN: " in gw.log()
     wait_for(lambda: "node 77 health WARN -> OK" in gw.log(), 3, "the recovery logged")
     assert "node 76 health" not in gw.log()
+
+
+def test_a_node_out_of_range_stays_an_error_through_its_retries_until_it_streams(
+        simulator, gateway) -> None:
+    sim = simulator(NodeSettings(76), NodeSettings(95),
+                    radio={95: RadioLink(in_range=False)})
+    gw = gateway(sim.path, [{"address": 76, "stream": "accel_angrate"},
+                            {"address": 95, "stream": "euler"}])
+    seen: list[tuple[str, str, list[str]]] = []
+
+    def through_a_retry() -> bool:
+        node = next(n for n in gw.status()["nodes"] if n["node"] == 95)
+        seen.append((node["state"], node["health"], node["reasons"]))
+        states = [state for state, _, _ in seen]
+        return "unreachable" in states and "arming" in states[states.index("unreachable"):]
+    wait_for(through_a_retry, 20, "node 95 to fail and be armed again")
+    failed = [entry for entry in seen if entry[0] in ("unreachable", "arming")]
+    first = next(i for i, entry in enumerate(failed) if entry[0] == "unreachable")
+    assert all(health == "ERROR" and reasons == ["unreachable"]
+               for _, health, reasons in failed[first:]), failed
+
+    sim.call(lambda station, now: setattr(station.radio[95], "in_range", True))
+    gw.wait_streaming(95, timeout=40)  # (its next try, after the backoff)
+    assert node_health(gw.status(), 95) == ("OK", [])

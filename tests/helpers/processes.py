@@ -72,10 +72,10 @@ class Running:
     """A console script running in the background, its stdout and stderr lines
     collected by threads."""
 
-    def __init__(self, name: str, *args: str) -> None:
+    def __init__(self, name: str, *args: str, env: dict[str, str] | None = None) -> None:
         self.proc = subprocess.Popen([script(name), *args], stdin=subprocess.DEVNULL,
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                     text=True)
+                                     text=True, env=env)
         self.lines: queue.Queue[str] = queue.Queue()
         self.stdout: list[str] = []
         self.stderr: list[str] = []
