@@ -62,7 +62,7 @@ except ImportError:
     CLOCKS = 1
 for module in (aspp, gateway, sys.modules[Gateway.__module__]):
     assert module.__file__.startswith(sys.argv[1]), module.__file__
-from perf import count_messages
+from perf import count_messages, until_subscribed
 from decoder_throughput import mixed_stream
 from benchutil import free_port
 packets = int(sys.argv[3])
@@ -83,8 +83,7 @@ async def run():
     for address, record in STREAMS:  # known, as after arming (both trees do the same)
         gw.nodes[address].streaming(record)
     counter.start()
-    ready.wait(10)
-    time.sleep(0.5)
+    until_subscribed(lambda: gw.publisher.status({}), ready)
     cpu = time.process_time()
     for chunk in chunks:
         feed(chunk, *(time.time(),) * CLOCKS)

@@ -43,6 +43,11 @@ from aspp import Decoder, Reply, decode
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
 
+try:
+    from gateway.common.topics import STATUS_TOPIC
+except ImportError:  # a tree from before gateway.common (bench/ab.py measures old ones)
+    from gateway.publisher import STATUS_TOPIC  # type: ignore[no-redef]
+
 TICKS = os.sysconf("SC_CLK_TCK")
 Row = tuple[str, str, str]
 """(what, figure, target)"""
@@ -164,19 +169,33 @@ def decoder_rows(packets: int = 200_000) -> list[Row]:
 # --- 2. pipeline --------------------------------------------------------------------------
 
 def count_messages(endpoint: str, expected: int, ready, result) -> None:
+    """In a process of its own: count the nodes' records until ``expected`` of them
+    came (or 10 s of silence). ``ready`` is set once a status message has arrived: from
+    then on the subscription is in place and no record can be missed."""
     context = zmq.Context()
     sub = context.socket(zmq.SUB)
     sub.setsockopt(zmq.RCVHWM, 0)
-    for prefix in (b"gx2/76/", b"gx2/77/", b"gx2/95/"):  # the nodes, not the heartbeat
+    for prefix in (b"gx2/76/", b"gx2/77/", b"gx2/95/", STATUS_TOPIC):
         sub.setsockopt(zmq.SUBSCRIBE, prefix)
     sub.connect(endpoint)
-    ready.set()
     got = 0
     while got < expected and sub.poll(10_000):
-        sub.recv_multipart()
-        got += 1
+        if sub.recv_multipart()[0] == STATUS_TOPIC:
+            ready.set()  # (the probes before the records, which are not counted)
+        else:
+            got += 1
     result.put((got, time.perf_counter()))
     context.destroy(linger=0)
+
+
+def until_subscribed(probe, ready, timeout: float = 10.0) -> None:
+    """Publish ``probe()`` (a status message) until the counter has one: ZeroMQ's slow
+    joiner waited for by the event itself, not by a guess of its time."""
+    deadline = time.monotonic() + timeout
+    while not ready.wait(0.01):
+        if time.monotonic() > deadline:
+            raise RuntimeError("the counting subscriber never received a probe")
+        probe()
 
 
 def pipeline_round(chunks: list[bytes], packets: int) -> tuple[float, float]:
@@ -196,8 +215,7 @@ def pipeline_round(chunks: list[bytes], packets: int) -> tuple[float, float]:
     async def run() -> tuple[float, float]:
         gateway = Gateway(config)
         counter.start()
-        ready.wait(10)
-        time.sleep(0.5)  # the subscription reaches the PUB (ZeroMQ's slow joiner)
+        until_subscribed(lambda: gateway.publisher.status({}), ready)
         start, cpu = time.perf_counter(), time.process_time()
         for chunk in chunks:
             gateway.reader.on_data(chunk, time.time(), time.monotonic())

@@ -158,3 +158,19 @@ def test_curve_keys_let_a_subscriber_read_an_encrypted_stream(context, tmp_path:
         gw.record(76)
         [message] = take(sub, 1)
     assert message.node == 76
+
+
+def test_a_monitor_takes_the_heartbeat_and_no_record_reaches_it(context):
+    gw = Gateway(context)
+    with Subscriber(gw.endpoint, status="only") as sub:
+        connected(sub, gw)
+        for _ in range(50):
+            gw.record(76)
+        gw.status()
+        events = take(sub, 1)
+        while (event := sub.receive(0.2)) is not None:  # (all that is queued for it)
+            events.append(event)
+    assert events and all(isinstance(e, Status) for e in events), events
+    assert sub.lost == {}  # the records were never sent to it at all
+    with pytest.raises(ValueError, match="status must be"):
+        Subscriber(gw.endpoint, status="all")  # type: ignore[arg-type]

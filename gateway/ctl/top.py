@@ -239,6 +239,14 @@ def _bytes(value: float) -> str:
     return f"{value:,.0f} B/s"
 
 
+def _clock_text(now: float) -> str:
+    """The local time of day at ``now`` (a gateway's clock may say anything)."""
+    try:
+        return time.strftime("%H:%M:%S", time.localtime(now))
+    except (OverflowError, OSError, ValueError):
+        return "--:--:--"
+
+
 def header(watch: Watch, now: float, silent_for: float) -> list[Text]:
     status = watch.status or {}
     gateway, link = as_map(status.get("gateway")), as_map(status.get("link"))
@@ -250,7 +258,7 @@ def header(watch: Watch, now: float, silent_for: float) -> list[Text]:
     for level, style in HEALTH_STYLE.items():
         first.append(f"{counts[level]} {level}", style if counts[level] else "")
         first.append(" ")
-    first.append(f" {time.strftime('%H:%M:%S', time.localtime(now))}", "dim")
+    first.append(f" {_clock_text(now)}", "dim")
 
     state = cell(link.get("state"))
     second = Text("link ")
