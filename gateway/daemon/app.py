@@ -99,7 +99,8 @@ class Gateway:
             self._context.destroy(linger=0)
             raise StartupError(f"cannot bind {endpoint}: {error.strerror or error}") from None
         self.reader = Reader(self.nodes, self.publisher, self.supervisor, self.scheduler,
-                             config.base_station.idle_ms / 1000, idle_timer=not replay)
+                             config.base_station.idle_ms / 1000, idle_timer=not replay,
+                             byte_time=byte_time(station.baudrate))
         self.recorder: Recorder | None = None
         on_data = self.reader.on_data
         if config.record is not None:

@@ -16,6 +16,7 @@ import logging
 from aspp import Ack, Decoder, Event, Frame, Nack, PingOk, Reply, decode
 from aspp.errors import RecordError
 from aspp.frame import HEADER_SIZE
+from aspp.timing import BITS_PER_BYTE
 
 from .nodes import Delivery, Node
 from .publisher import Publisher
@@ -27,13 +28,16 @@ log = logging.getLogger("gx2.reader")
 
 class Reader:
     def __init__(self, nodes: dict[int, Node], publisher: Publisher, supervisor: Supervisor,
-                 scheduler: Scheduler, idle_seconds: float, idle_timer: bool = True) -> None:
+                 scheduler: Scheduler, idle_seconds: float, idle_timer: bool = True,
+                 byte_time: float = BITS_PER_BYTE / 115200) -> None:
         self.decoder = Decoder()
         self.nodes = nodes
         self.publisher = publisher
         self.supervisor = supervisor
         self.scheduler = scheduler
         self.idle_seconds = idle_seconds
+        self.byte_time = byte_time
+        """Seconds a byte takes on the serial line."""
         self.idle_timer = idle_timer
         """False in a replay: the line's silences are judged by the recorded times only."""
         self._pending_read: tuple[float, float] | None = None
@@ -49,11 +53,18 @@ class Reader:
         # when the line stays quiet; a read that comes after such a silence says so
         # first, whether or not the timer has run yet (a stalled loop runs I/O first).
         # Judged by the reads' own times, a replay of the same reads decodes the same.
+        # The gap between two reads is not all silence: the bytes of this read were on
+        # the line during it, one byte time each. A loop that stalled (a collection, a
+        # busy machine) while the line streamed finds them waiting in the kernel, the
+        # rest of a packet it had begun among them, and the line was never quiet: only
+        # a gap longer than its bytes' time by idle_seconds holds such a silence. (An
+        # earlier version took any gap of idle_seconds for one, and cut that packet.)
         if self._pending_read is not None:
             if self._idle is not None:
                 self._idle.cancel()
                 self._idle = None
-            if monotonic - self._pending_read[1] >= self.idle_seconds:
+            quiet = monotonic - self._pending_read[1] - len(data) * self.byte_time
+            if quiet >= self.idle_seconds:
                 self._line_idle()
             self._pending_read = None
         self._dispatch(self.decoder.feed(data), host_time, monotonic)

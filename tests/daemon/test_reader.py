@@ -1,0 +1,63 @@
+"""The reader's judgement of a quiet line from the reads' own times: a packet a stalled
+loop finds split across two reads is whole, and a line that really went quiet still
+resolves what waited (as a replay judges it: no timer, the reads and their times)."""
+
+from __future__ import annotations
+
+from aspp.events import DiscardReason
+from aspp.frame import encode_reply_packet
+from aspp.records import encode
+from aspp.timing import TICKS_PER_CLOCK, byte_time
+from gateway.daemon.config import NodeEntry
+from gateway.daemon.nodes import Node
+from gateway.daemon.reader import Reader
+from gateway.daemon.scheduler import Scheduler
+from gateway.daemon.supervisor import Supervisor
+from tests.helpers.wired import RecordingPublisher
+
+IDLE = 0.03
+BYTE = byte_time(115200)
+
+
+def stream(count: int, first: int = 1) -> bytes:
+    """``count`` records of node 76's 100 Hz accel_angrate stream, back to back."""
+    return b"".join(encode_reply_packet(76, encode(
+        "accel_angrate", accel=(0, 0, -1), ang_rate=(0, 0, 0),
+        timer=sample * 512 * TICKS_PER_CLOCK), lqi=200, rssi=-50)
+        for sample in range(first, first + count))
+
+
+def reader() -> tuple[Reader, RecordingPublisher]:
+    nodes = {76: Node(NodeEntry(address=76))}
+    nodes[76].streaming("accel_angrate", 512)
+    scheduler = Scheduler(lambda data: None)
+    publisher = RecordingPublisher()
+    return Reader(nodes, publisher, Supervisor(scheduler, nodes), scheduler,  # type: ignore[arg-type]
+                  IDLE, idle_timer=False, byte_time=BYTE), publisher
+
+
+def timers(publisher: RecordingPublisher) -> list[int]:
+    return [p["timer"] // (512 * TICKS_PER_CLOCK) for p in publisher.records(76)]
+
+
+def test_a_packet_a_stalled_loop_finds_split_across_two_reads_is_whole() -> None:
+    data = stream(60)
+    cut = 30  # inside the first packet (40 bytes)
+    # the loop stalled 200 ms; meanwhile the line streamed on (the bytes of the second
+    # read took 206 ms of it): at no moment was it quiet
+    assert (len(data) - cut) * BYTE > 0.2
+    got, publisher = reader()
+    got.on_data(data[:cut], 1000.0, 50.0)
+    got.on_data(data[cut:], 1000.2, 50.2)
+    assert timers(publisher) == list(range(1, 61))
+    assert got.decoder.stats.discarded_bytes[DiscardReason.TRUNCATED] == 0
+
+
+def test_a_line_that_went_quiet_resolves_the_packet_it_cut_short() -> None:
+    cut_short = stream(1)[:30]  # the base station stopped in the middle of a packet
+    after = stream(2, first=2)  # then, 100 ms later, two whole packets (7 ms of line)
+    got, publisher = reader()
+    got.on_data(cut_short, 1000.0, 50.0)
+    got.on_data(after, 1000.1, 50.1)
+    assert timers(publisher) == [2, 3]
+    assert got.decoder.stats.discarded_bytes[DiscardReason.TRUNCATED] == 30
