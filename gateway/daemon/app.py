@@ -17,7 +17,7 @@ import gc
 import json
 import logging
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zmq
 import zmq.asyncio
@@ -32,7 +32,6 @@ from .config import GatewayConfig
 from .control import ControlServer
 from .health import SAMPLE_PERIOD, Health
 from .link import SerialLink
-from .metrics import MetricsServer
 from .nodes import Node
 from .operations import Operations
 from .ports import Port
@@ -43,6 +42,9 @@ from .replay import ReplayLink
 from .scheduler import Scheduler
 from .sd_notify import Notifier
 from .supervisor import Supervisor
+
+if TYPE_CHECKING:
+    from .metrics import MetricsServer
 
 log = logging.getLogger("gx2.gateway")
 EXIT_BUDGET = 1.5
@@ -92,6 +94,9 @@ class Gateway:
             self.control = ControlServer(self._context, endpoint, self.ops, server)
             self.metrics: MetricsServer | None = None
             if config.metrics is not None:
+                # imported only when configured: prometheus-client takes 64 ms to import
+                # and 1.8 MiB of memory (python -X importtime; VmRSS before and after)
+                from .metrics import MetricsServer
                 endpoint = config.metrics.endpoint
                 self.metrics = MetricsServer(endpoint)
         except (zmq.ZMQError, OSError) as error:
