@@ -29,6 +29,16 @@ MAX_PING_NODES = 64
 """The most nodes one ping may name."""
 
 
+class HealthLevel(StrEnum):
+    """A node's ``health`` in status (and the heartbeat): how it is doing."""
+
+    OK = "OK"
+    WARN = "WARN"
+    """It delivers, worse than it should."""
+    ERROR = "ERROR"
+    """It delivers nothing."""
+
+
 class ErrorKind(StrEnum):
     INVALID = "invalid"
     """The request is malformed or names something that does not exist."""

@@ -15,6 +15,7 @@ from typing import Any
 
 from gateway.common.jsontext import json_line
 from gateway.common.ops import BY_NAME
+from gateway.common.protocol import HealthLevel
 from gateway.common.reading import as_map, number
 
 MISSING = "-"
@@ -106,7 +107,6 @@ def _count(value: Any, unit: str) -> str:
 NODE_COLUMNS = ("node", "name", "state", "record", "configured", "desired", "rate Hz",
                 "packets", "published", "lost radio", "lost gateway", "reboots",
                 "silences", "LQI", "RSSI", "last seen", "clock", "health")
-OK = "OK"
 
 
 def clock_cell(clock: Any) -> str:
@@ -187,7 +187,7 @@ def unhealthy(result: Mapping[str, Any]) -> str | None:
     if not nodes:
         return "the gateway reported no nodes"
     bad = [f"{cell(n.get('node'))} {cell(n.get('health'))}" for n in nodes
-           if n.get("health") != OK]
+           if n.get("health") != HealthLevel.OK]
     return f"{len(bad)} of {len(nodes)} nodes not OK: {', '.join(bad)}" if bad else None
 
 

@@ -31,10 +31,10 @@ from rich.text import Text
 
 from gateway.client import Status
 from gateway.common.jsontext import json_line
-from gateway.common.protocol import Exit
+from gateway.common.protocol import Exit, HealthLevel
 from gateway.common.reading import as_map, number
 
-from .output import MISSING, OK, cell, clock_cell, duration, node_maps, reasons
+from .output import MISSING, cell, clock_cell, duration, node_maps, reasons
 from .tail import Stop, subscribe
 
 if TYPE_CHECKING:
@@ -46,7 +46,10 @@ REDRAW = 1.0
 """A frame is drawn on each heartbeat, and at least this often (ages move on)."""
 GAP = 1
 """Spaces between columns."""
-HEALTH_STYLE = {"OK": "green", "WARN": "bold yellow", "ERROR": "bold red"}
+HEALTH_STYLE = {HealthLevel.OK: "green", HealthLevel.WARN: "bold yellow",
+                HealthLevel.ERROR: "bold red"}
+QUIT = "q quits"
+"""The last line on a terminal."""
 BUSY_LINE, FULL_LINE = 90, 99
 """Shares of the serial line (%) from which it is shown busy (packets begin to queue
 behind each other) and full (the base station's buffer fills and drops them)."""
@@ -310,7 +313,7 @@ def frame(watch: Watch, now: float, silent_for: float, width: int,
             row.stylize("dim")
     lines = [*header(watch, now, silent_for), *rows]
     for node in nodes:
-        if node.get("health") != OK and (why := reasons(node)):
+        if node.get("health") != HealthLevel.OK and (why := reasons(node)):
             lines.append(Text(f"{cell(node.get('node'))} ").append(
                 f"{cell(node.get('health'))}: {why}",
                 HEALTH_STYLE.get(str(node.get("health")), "")))
@@ -373,8 +376,6 @@ def run_top(nodes: list[int], where: Endpoints, timeout: float, as_json: bool) -
                     drawn = time.monotonic()
     return Exit.OK
 
-
-QUIT = "q quits"
 
 
 def _print_frames(sub: Any, watch: Watch, width: int, stop: Stop, as_json: bool,

@@ -18,8 +18,9 @@ import logging
 import statistics
 from collections import deque
 from collections.abc import Iterable
-from enum import StrEnum
 from typing import Any, NamedTuple
+
+from gateway.common.protocol import HealthLevel as Level
 
 from .config import HealthConfig
 from .nodes import Node, State
@@ -30,12 +31,6 @@ SAMPLE_PERIOD = 1.0
 """Seconds between samples of the counters (the daemon's tick)."""
 LINK_SPAN = 5.0
 """Seconds over which the link's bytes per second are measured."""
-
-
-class Level(StrEnum):
-    OK = "OK"
-    WARN = "WARN"
-    ERROR = "ERROR"
 
 
 class Verdict(NamedTuple):
