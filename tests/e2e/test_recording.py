@@ -76,8 +76,11 @@ def record_simulator(simulator, gateway, directory: Path, seconds: float, **reco
     sub.drain(seconds)
     status, _ = gw.terminate()
     assert status == 0, gw.log()
+    # what the base station sent while the gateway ran: the simulator goes on writing
+    # into the pty's buffer after it (for as long as the test takes to read the files)
+    sent_while_running = bytes(sent)
     sub.drain(0.2)
-    return sim, sent, received, gw, sub
+    return sim, sent_while_running, received, gw, sub
 
 
 def test_a_recording_holds_the_lines_bytes_both_ways_and_every_published_record(
