@@ -147,3 +147,50 @@ def test_pings_and_link_loss():
             await line.scheduler.ping(1, b"P")
         assert line.scheduler.link_losses == 1
     run(scenario())
+
+
+def test_a_command_behind_an_awaited_reply_does_not_wake_the_scheduler():
+    """Issue 19: the head held back behind its node's awaited reply was still taken as a
+    wake-up time (0.0), so service() ran back to back until the reply came (48,616 calls
+    in 0.2 s here); now the reply's arrival wakes it, and the queued command goes out."""
+    async def scenario():
+        line = Line()
+        first = line.command(1, b"A", reply_timeout=5.0)
+        await line.writes(1)
+        line.scheduler.on_ack()                        # A awaits its reply for 5 s
+        second = line.command(1, b"B", expect=None)    # ... and B queues behind it
+        calls = 0
+        service = line.scheduler.service
+
+        def counted() -> None:
+            nonlocal calls
+            calls += 1
+            service()
+        line.scheduler.service = counted  # type: ignore[method-assign]
+        # the interval measured, not a synchronisation: nothing is to happen in it
+        await asyncio.sleep(0.2)
+        assert calls <= 2, f"{calls} wake-ups while B waited for A's reply"
+        assert line.written == [b"A"]
+        line.scheduler.on_reply(1, 0xC2, "A's reply")
+        await line.writes(2)
+        line.scheduler.on_ack()
+        assert (await first).reply == "A's reply" and (await second).reply is None
+    run(scenario())
+
+
+def test_a_command_queued_behind_an_abandoned_one_goes_out_at_once():
+    """Its caller giving up frees the node now, not at its reply deadline: with nothing
+    waking the scheduler for a held-back head, nothing else would send B for 5 s."""
+    async def scenario():
+        line = Line()
+        first = line.command(1, b"X", reply_timeout=5.0)
+        await line.writes(1)
+        line.scheduler.on_ack()                        # X now awaits a reply for 5 s
+        second = line.command(1, b"Y", expect=None)
+        await asyncio.sleep(0)                         # Y's task queues it behind X
+        assert line.written == [b"X"]
+        first.cancel()
+        await line.writes(2)
+        line.scheduler.on_ack()
+        assert (await second).reply is None
+    run(scenario())
