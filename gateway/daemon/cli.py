@@ -27,7 +27,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from gateway.common.args import ArgumentParser, fail
 
-    from .config import ConfigError, load_config
+    from .config import ConfigError, load_config, unwritable
 
     parser = ArgumentParser(prog="gx2-gateway", description="Gateway for MicroStrain "
                             "3DM-GX2 / Inertia-Link wireless sensors: owns the base "
@@ -49,6 +49,13 @@ def main(argv: list[str] | None = None) -> int:
         problem = never_serial(config.base_station.port)
         if problem:
             fail(parser.prog, f"{args.config}: base_station.port: {problem}", 2)
+        # the unit runs --check as its user, in its sandbox, before the gateway: a
+        # directory it cannot write fails there, not as a recorder that keeps nothing
+        record = config.record
+        problem = unwritable(record.directory) if record is not None else None
+        if problem:
+            fail(parser.prog, f"{args.config}: record.directory: {record.directory}: "
+                 f"{problem}", 2)
         count = len(config.nodes)
         print(f"{args.config}: valid ({count} node{'s' if count != 1 else ''})")
         return 0

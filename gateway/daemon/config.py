@@ -6,8 +6,12 @@ Strict: an unknown key is an error, so a typo never passes silently.
 
 from __future__ import annotations
 
+import os
+import pwd
+import stat
+import tempfile
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 from pydantic import AfterValidator, Field, field_validator, model_validator
 
@@ -105,11 +109,27 @@ class ShutdownConfig(Strict):
     default: a restarted gateway re-arms them, so leaving them on loses no data."""
 
 
+STATE_DIRECTORY = "/var/lib/gx2-gateway"
+"""The state directory of deploy/gx2-gateway.service (``StateDirectory=gx2-gateway``):
+made by systemd, owned by the service's user, writable under ``ProtectSystem=strict``."""
+
+
+def default_record_directory() -> str:
+    """``$STATE_DIRECTORY/recordings``, else ``STATE_DIRECTORY/recordings``: so
+    ``record: {}`` records where the unit lets the gateway write, wherever it puts it.
+
+    systemd.exec(5), "StateDirectory=": the variable holds the full paths of the unit's
+    state directories, joined by ":" when there are several; the first is taken."""
+    state = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    return str(Path(state or STATE_DIRECTORY) / "recordings")
+
+
 class RecordConfig(Strict):
     """Recording to MCAP files (README, "Recording and replay")."""
 
-    directory: Annotated[str, Field(min_length=1)]
-    """Created if missing."""
+    directory: Annotated[str, Field(min_length=1, default_factory=default_record_directory)]
+    """Created if missing. Added: a default, the unit's state directory's
+    ``recordings`` (``default_record_directory``)."""
     rotate_minutes: Annotated[float, Field(gt=0, le=7 * 24 * 60)] = 60.0
     """A new file at least this often."""
     rotate_mb: Annotated[float, Field(gt=0, le=1_000_000)] = 256.0
@@ -118,6 +138,51 @@ class RecordConfig(Strict):
     """Added: messages waiting for the disk before new ones are dropped (and counted):
     near three minutes of a saturated link (about 600 reads and records a second), and
     53 MB of memory when full (tracemalloc, half reads, half 0xC2 records)."""
+    keep_gb: Annotated[float, Field(gt=0)] | None = None
+    """Added: finished files are deleted, oldest first, to keep the directory's
+    recordings within this many GB (10^9 bytes); never the file being written. None:
+    no limit."""
+    keep_days: Annotated[float, Field(gt=0)] | None = None
+    """Added: finished files older than this many days are deleted, oldest first; never
+    the file being written. None: kept however old."""
+
+
+def unwritable(directory: str) -> str | None:
+    """Why the recorder could not write files in ``directory`` as this user, or None.
+
+    Nothing is created: a missing directory is judged by its nearest existing ancestor
+    (the recorder makes the rest). Writing is tried rather than asked: ``os.access``
+    answers for the real, not the effective, user and knows nothing of AppArmor, quotas
+    or a full inode table. The probe is an unnamed temporary file (O_TMPFILE, or one
+    unlinked at once where the file system has no O_TMPFILE): nothing is left behind."""
+    target = Path(directory).absolute()
+    nearest = target
+    while True:
+        try:
+            mode = nearest.stat().st_mode
+            break
+        except (FileNotFoundError, NotADirectoryError):
+            nearest = nearest.parent
+        except OSError as error:
+            # a directory on the way that this user may not search
+            return f"cannot be reached by user {_user()} ({error.strerror})"
+    missing = "" if nearest == target else f"cannot be created: {nearest} "
+    if not stat.S_ISDIR(mode):
+        return f"{missing}is not a directory"
+    try:
+        with tempfile.TemporaryFile(dir=nearest):
+            pass
+    except OSError as error:
+        return f"{missing}is not writable by user {_user()} ({error.strerror})"
+    return None
+
+
+def _user() -> str:
+    uid = os.geteuid()
+    try:
+        return pwd.getpwuid(uid).pw_name
+    except KeyError:
+        return str(uid)
 
 
 class MetricsConfig(Strict):
@@ -180,6 +245,13 @@ class GatewayConfig(Strict):
     metrics: MetricsConfig | None = None
     health: HealthConfig = HealthConfig()
     nodes: Annotated[list[NodeEntry], Field(min_length=1)]
+
+    @field_validator("record", mode="before")
+    @classmethod
+    def _bare_record(cls, value: Any) -> Any:
+        # a ``record:`` with every key under it commented out is YAML's null: it asks for
+        # recording, with the defaults, rather than silently for none (leave it out)
+        return {} if value is None else value
 
     @model_validator(mode="after")
     def _distinct(self) -> GatewayConfig:

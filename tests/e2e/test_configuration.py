@@ -5,16 +5,19 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import socket
 import subprocess
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
+import pytest
 import yaml
 
 from tests.helpers.ports import free_port
 from tests.helpers.processes import script, spawn_run
+from tests.helpers.waiting import wait_for
 
 REPO = Path(__file__).resolve().parents[2]
 CLI_TIMEOUT = 15.0
@@ -87,6 +90,12 @@ BAD_CONFIGS: dict[str, tuple[Any, list[str]]] = {
                            [r"health\.rssi", r"unknown"]),
     "health-window-negative": (lambda c: c.update(health={"window_s": -1}),
                                [r"health\.window_s", r"greater than or equal to 2"]),
+    "record-unknown-key": (lambda c: c.update(record={"keep_gbs": 10}),
+                           [r"record\.keep_gbs", r"unknown"]),
+    "record-keep-gb-zero": (lambda c: c.update(record={"keep_gb": 0}),
+                            [r"record\.keep_gb\b", r"greater than 0"]),
+    "record-keep-days-a-word": (lambda c: c.update(record={"keep_days": "month"}),
+                                [r"record\.keep_days", r"number"]),
     "yaml-syntax-error": ("base_station: {port: [/dev/ttyUSB0\nnodes: - 76\n",
                           [r"line \d+"]),
     "no-such-file": (None, [r"[Nn]o such file|does not exist|cannot read"]),
@@ -206,3 +215,105 @@ def test_a_metrics_port_in_use_stops_the_start_up_with_one_line(tmp_path):
     assert run.returncode == 1, run
     assert run.stderr.count("\n") == 1 and "Traceback" not in run.stderr, run
     assert f"cannot bind 127.0.0.1:{port}: " in run.stderr, run
+
+
+# -- the recording directory -----------------------------------------------------------------------
+# --check runs as the unit's ExecStartPre, as its user and in its sandbox: a directory the
+# gateway cannot write must fail there (exit 2, one line), not leave a recorder that keeps
+# nothing while everything says all is well (issue 20).
+
+def record_config(path: Path, record: dict[str, Any]) -> Path:
+    path.write_text(yaml.safe_dump({**valid_config(), "record": record}))
+    return path
+
+
+def test_check_refuses_a_recording_directory_that_cannot_be_created(tmp_path):
+    """Under a regular file: no one can make it, root included."""
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    cases = {"under-a-file": (afile / "recordings",
+                              rf"cannot be created: {re.escape(str(afile))} is not a directory$"),
+             "a-file": (afile, rf"{re.escape(str(afile))}: is not a directory$")}
+    failures = {}
+    for name, (directory, pattern) in cases.items():
+        path = record_config(tmp_path / f"{name}.yaml", {"directory": str(directory)})
+        run = run_gateway("--config", str(path), "--check")
+        problems = one_line_problems(run, path, [r"record\.directory", pattern])
+        if problems:
+            failures[name] = problems
+    assert failures == {}, failures
+
+
+def read_only_directory(tmp_path: Path) -> tuple[list[str], Path]:
+    """(a command prefix, a directory it makes read-only for everyone): a read-only
+    tmpfs in a mount namespace of the command's own (unshare(1)), which denies root too
+    and vanishes with it; for another user without namespaces, mode 0555. Skips where
+    neither can be had."""
+    directory = tmp_path / "read-only"
+    directory.mkdir()
+    why = "unshare(1) is not installed"
+    unshare = shutil.which("unshare")
+    if unshare:
+        shell = 'mount -t tmpfs -o ro gx2-test "$1" && shift && exec "$@"'
+        prefix = [unshare, "--user", "--map-root-user", "--mount", "sh", "-c", shell, "sh",
+                  str(directory)]
+        probe = spawn_run([*prefix, "true"], capture_output=True, text=True, timeout=10)
+        if probe.returncode == 0:
+            return prefix, directory
+        why = probe.stderr.strip()
+    if os.geteuid() != 0:
+        directory.chmod(0o555)
+        return [], directory
+    pytest.skip(f"no read-only directory for root: {why}")
+
+
+def test_check_refuses_a_recording_directory_it_cannot_write(tmp_path):
+    prefix, read_only = read_only_directory(tmp_path)
+    reason = r"not writable by user \S+ \((Read-only file system|Permission denied)\)$"
+    cases = {"existing": (read_only, rf"{re.escape(str(read_only))}: is {reason}"),
+             "missing": (read_only / "recordings",
+                         rf"cannot be created: {re.escape(str(read_only))} is {reason}")}
+    failures = {}
+    for name, (directory, pattern) in cases.items():
+        path = record_config(tmp_path / f"{name}.yaml", {"directory": str(directory)})
+        run = spawn_run([*prefix, script("gx2-gateway"), "--config", str(path), "--check"],
+                        capture_output=True, text=True, timeout=CLI_TIMEOUT,
+                        stdin=subprocess.DEVNULL)
+        problems = one_line_problems(run, path, [r"record\.directory", pattern])
+        if problems:
+            failures[name] = problems
+    assert failures == {}, failures
+
+
+def test_the_default_directory_is_the_units_state_directory(tmp_path):
+    """``record:`` with no keys (YAML null) or ``{}`` records in
+    ``$STATE_DIRECTORY/recordings``; --check judges that directory and creates nothing."""
+    (tmp_path / "afile").write_text("")
+    state = tmp_path / "state"
+    state.mkdir()
+    bare = tmp_path / "bare.yaml"
+    bare.write_text(yaml.safe_dump(valid_config()) + "record:\n")
+    empty = record_config(tmp_path / "empty.yaml", {})
+    env = {**os.environ, "STATE_DIRECTORY": str(state)}
+    for path in (bare, empty):
+        run = run_gateway("--config", str(path), "--check", env=env)
+        assert run.returncode == 0 and "valid" in run.stdout, run
+    assert list(state.iterdir()) == [], "--check left something in the state directory"
+
+    refused = run_gateway("--config", str(bare), "--check",
+                          env={**os.environ, "STATE_DIRECTORY": str(tmp_path / "afile")})
+    assert one_line_problems(refused, bare, [
+        rf"record\.directory: {re.escape(str(tmp_path / 'afile' / 'recordings'))}: "
+        "cannot be created"]) == []
+
+
+def test_record_with_no_keys_records_in_the_state_directory(gateway, tmp_path):
+    state = tmp_path / "state"
+    state.mkdir()
+    gw = gateway("sim://", [{"address": 76, "stream": "euler"}], record={},
+                 env={**os.environ, "STATE_DIRECTORY": str(state)})
+    recordings = state / "recordings"
+    assert gw.status()["recording"]["directory"] == str(recordings)
+    wait_for(lambda: list(recordings.glob("*.mcap")), 10, "a recording in the state directory")
+    status, _ = gw.terminate()
+    assert status == 0, gw.log()
