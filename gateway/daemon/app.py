@@ -47,6 +47,12 @@ if TYPE_CHECKING:
     from .metrics import MetricsServer
 
 log = logging.getLogger("gx2.gateway")
+EXIT_PROMISE = 2.0
+"""Seconds from SIGTERM or SIGINT to the process's exit (README)."""
+AFTER_LOOP = 0.2
+"""Of those, what the process may take once the loop has stopped (the interpreter's
+exit): the loop's shutdown ends this long before them. The whole shutdown, loop and
+all, took 16 ms here (tests/e2e/test_shutdown.py, recording): room for a loaded host."""
 EXIT_BUDGET = 1.5
 """Seconds a shutdown may spend stopping streams, within the promised 2 s."""
 
@@ -151,29 +157,42 @@ class Gateway:
         try:
             await stop.wait()
         finally:
+            # the promise runs from here (the signal's handler set ``stop``)
+            done_by = time.monotonic() + EXIT_PROMISE - AFTER_LOOP
             self.systemd.stopping()
             for task in tasks:
                 task.cancel()
-            await self._shutdown()
+            await self._shutdown(done_by)
 
-    async def _shutdown(self) -> None:
+    async def _shutdown(self, done_by: float) -> None:
+        """Close everything by ``done_by`` (time.monotonic())."""
         loop = asyncio.get_running_loop()
         metrics = (loop.run_in_executor(None, self.metrics.close)  # (up to 0.5 s: meanwhile)
                    if self.metrics is not None else None)
+        # nothing more is started for any node; then every request still running is
+        # answered at once ("shutting down") and cancelled: its client hears why now,
+        # not at its own timeout, and what a cancelled quiet command would have
+        # started again afterwards is not (issue 19)
         self.supervisor.close()
+        self.control.close()
         self.ops.close()
         if self.config.shutdown.stop_streams and self.link.up and not self.replaying:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(self.supervisor.stop_all_streams(), EXIT_BUDGET)
-        self.control.close()
         self.link.close()
+        # what a cancelled request still sends on its way out (a self-test switching
+        # BIT off) fails as with the base station gone, not as a write to a closed port
+        self.scheduler.on_link_down()
         self.publisher.close()
         self._stop_auth()
-        self._context.destroy(linger=0)
+        self._context.destroy(linger=0)  # (the answers above: up to CLOSE_LINGER_MS)
         self.port.close()
         if self.recorder is not None:
-            # off the loop, which has nothing left to do: the last second, and the index
-            await loop.run_in_executor(None, self.recorder.close)
+            # off the loop, which has nothing left to do: the last second, and the index,
+            # in what is left of the promise (the recorder says what the file holds if
+            # the disk is slower)
+            await loop.run_in_executor(None, self.recorder.close,
+                                       max(0.0, done_by - time.monotonic()))
         if metrics is not None:
             await metrics
         log.info("stopped")

@@ -8,6 +8,10 @@ retries after a timeout gets the first run's answer instead of a second run.
 A request that says how long its client waits (``timeout``) is answered before then,
 whatever the node or the gateway's own background work is doing: an op still running
 when its time is up is cancelled and answered as a node that did not answer in time.
+
+A request still running when the gateway shuts down is answered too (``link``: the
+gateway is shutting down) before the socket closes, so its client learns at once why
+rather than waiting out its own timeout.
 """
 
 from __future__ import annotations
@@ -18,7 +22,6 @@ import logging
 import os
 import time
 from collections import OrderedDict
-from collections.abc import Awaitable
 from typing import Any
 
 import zmq
@@ -40,6 +43,11 @@ gateway's group), nobody else."""
 REPLY_MARGIN = (0.1, 0.1, 1.0)
 """A request with a timeout is answered this much before it runs out, to cross the
 network in time: a tenth of it, at least 0.1 s and at most 1 s."""
+CLOSE_LINGER_MS = 100
+"""At shutdown, how long the answers to the requests cut short may take to leave (a
+client on this host or its network takes well under a millisecond): the process's exit
+waits up to this long for them, within its 2 s."""
+SHUTTING_DOWN = "cut short: the gateway is shutting down"
 
 
 def answer_within(timeout: float) -> float:
@@ -65,7 +73,10 @@ class ControlServer:
         self.ops = ops
         self._seen: OrderedDict[tuple[bytes, object], tuple[float, asyncio.Task[bytes]]] = \
             OrderedDict()
-        self._tasks: set[asyncio.Task[None]] = set()
+        self._answering: dict[asyncio.Task[None], tuple[list[bytes], RequestBase,
+                                                        asyncio.Task[bytes]]] = {}
+        """Each task waiting to answer a request: the request's envelope, the request,
+        and the task running it."""
         self.requests = 0
         self.rejected = 0
         self.dropped = 0
@@ -100,12 +111,13 @@ class ControlServer:
             self._seen[key] = (time.monotonic(), task)
         else:
             task = remembered[1]
-        self._spawn(self._answer_when_done(envelope, task))
+        answering = asyncio.get_running_loop().create_task(
+            self._answer_when_done(envelope, task))
+        self._answering[answering] = (envelope, request, task)
+        answering.add_done_callback(self._answered)
 
-    def _spawn(self, coroutine: Awaitable[None]) -> None:
-        task = asyncio.get_running_loop().create_task(coroutine)  # type: ignore[arg-type]
-        self._tasks.add(task)
-        task.add_done_callback(self._tasks.discard)
+    def _answered(self, answering: asyncio.Task[None]) -> None:
+        self._answering.pop(answering, None)
 
     async def _answer_when_done(self, envelope: list[bytes], task: asyncio.Task[bytes]) -> None:
         self._reply(envelope, await asyncio.shield(task))
@@ -142,11 +154,23 @@ class ControlServer:
                                   f"{type(error).__name__}: {error}")
 
     def close(self) -> None:
-        for task in list(self._tasks):
-            task.cancel()
+        """Answer every request still waiting for its answer (its own if it has just
+        ended, else that the gateway is shutting down), cancel what still runs, and
+        close the socket once those answers have left (CLOSE_LINGER_MS at most)."""
+        for answering, (envelope, request, task) in list(self._answering.items()):
+            if answering.done():
+                continue  # (it has answered)
+            answering.cancel()
+            self._reply(envelope, task.result() if task.done() and not task.cancelled()
+                        else _shutting_down(request))
+        self._answering.clear()
         for _, task in self._seen.values():
             task.cancel()
-        self.socket.close()
+        self.socket.close(linger=CLOSE_LINGER_MS)
+
+
+def _shutting_down(request: Any) -> bytes:
+    return protocol.error(request.id, ErrorKind.LINK, f"{request.op}: {SHUTTING_DOWN}")
 
 
 def _too_late(request: Any, limit: float | None) -> str:

@@ -10,6 +10,16 @@ readable up to about the last second. Files are finished (summary and index) whe
 they rotate, by age or size, and when the gateway stops. After a write fails (a full
 disk) the file is closed as it is (readable up to its last flush) and a new one is
 tried every RETRY_S; meanwhile messages are dropped and counted.
+
+Closing is bounded, so that the gateway keeps its promise to exit within 2 s: close()
+is given what is left of it. The thread writes what is queued for DRAIN_SHARE of that
+time and drops the rest (counted), then finishes the file: the chunk in progress, the
+summary and the index. A disk too slow even for that is left behind when the time is
+up, and one line says so: the file then holds what reached the disk, its chunks up to
+the last one written whole (at the last flush, about a second before, or since) and
+perhaps part of the next, without a summary or index. An MCAP reader reading it front
+to back (``mcap``'s NonSeekingReader, ``gx2ctl export``) gets every message of those
+whole chunks, then finds the file cut short.
 """
 
 from __future__ import annotations
@@ -19,8 +29,9 @@ import logging
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from gateway.recording.files import WRITTEN, RecordingWriter, file_name
 
@@ -30,14 +41,27 @@ log = logging.getLogger("gx2.record")
 WAKE_S = 0.1
 FLUSH_S = 1.0
 RETRY_S = 5.0
+CLOSE_S = 1.0
+"""What close() takes at the most unless told otherwise."""
+DRAIN_SHARE = 0.5
+"""The share of close()'s time the queue may take; the rest is the last chunk's and the
+summary's (a handful of writes)."""
 SERIAL, SENT, PUBLISHED = 0, 1, 2
 """What a queued item is: a read, a write, a published message."""
+
+
+def exclusive(path: Path) -> IO[bytes]:
+    """A new file, never one that exists."""
+    return path.open("xb")
 
 
 class Recorder:
     """``serial``/``written``/``published`` on the loop; everything else in its thread."""
 
-    def __init__(self, config: RecordConfig, metadata: dict[str, str]) -> None:
+    def __init__(self, config: RecordConfig, metadata: dict[str, str],
+                 create: Callable[[Path], IO[bytes]] | None = None) -> None:
+        self.create = create or exclusive
+        """Opens a new file for writing (a test's slow disk stands in here)."""
         self.directory = Path(config.directory)
         self.rotate_s = config.rotate_minutes * 60
         self.rotate_bytes = int(config.rotate_mb * 1e6)
@@ -61,6 +85,11 @@ class Recorder:
         self._opened = 0.0
         self._unflushed = 0
         self._retry_at = 0.0
+        self._closing = False
+        self._drain_until = 0.0
+        """Once closing, the time.monotonic() past which no more of the queue is written."""
+        self.cut = 0
+        """Messages still queued when the queue's share of close()'s time ran out."""
 
     # -- the loop's side: never blocks, never grows past the bound -------------------------
 
@@ -100,32 +129,46 @@ class Recorder:
     def start(self) -> None:
         self._thread.start()
 
-    def close(self, timeout: float = 5.0) -> None:
-        """Write what is queued, finish the file, and end the thread."""
+    def close(self, timeout: float = CLOSE_S) -> None:
+        """Write what is queued and finish the file, within ``timeout`` s (see the
+        module's docstring for what the file holds when the disk is slower), and end
+        the thread."""
+        self._drain_until = time.monotonic() + DRAIN_SHARE * timeout
+        self._closing = True
         self._stop.set()
         self._thread.join(timeout)
         if self._thread.is_alive():
-            log.warning("recording: the disk did not take the last %d messages within "
-                        "%g s", len(self._queue), timeout)
+            log.warning("recording: %s left unfinished: the disk took more than %.2f s; it "
+                        "holds what was written, readable up to its last whole chunk, "
+                        "without a summary (%d messages were still queued)", self.path,
+                        timeout, self.cut + len(self._queue))
+        elif self.cut:
+            log.warning("recording: %s finished without the last %d messages: the disk "
+                        "did not take them within %.2f s", self.path, self.cut, timeout)
 
     # -- the thread ---------------------------------------------------------------------------
 
     def _run(self) -> None:
         last_flush = time.monotonic()
-        while True:
-            stopping = self._stop.wait(WAKE_S)
+        while not self._stop.wait(WAKE_S):
             self._drain()
             now = time.monotonic()
-            if self._writer is not None and (stopping or now - last_flush >= FLUSH_S):
+            if self._writer is not None and now - last_flush >= FLUSH_S:
                 last_flush = now
                 self._guarded(self._flush)
-            if stopping:
-                self._guarded(self._finish)
-                return
+        self._drain()
+        self.cut = len(self._queue)
+        self.lost += self.cut
+        self._queue.clear()
+        self._guarded(self._finish)  # (the chunk in progress, then the summary)
 
     def _drain(self) -> None:
+        """Write what is queued (once closing, until the queue's time is up: a backlog
+        the thread was writing when close() came is bounded too)."""
         queue = self._queue
         while queue:
+            if self._closing and time.monotonic() >= self._drain_until:
+                return
             item = queue.popleft()
             writer = self._writer or self._open()
             if writer is None:
@@ -163,7 +206,7 @@ class Recorder:
             while path.exists():  # two files within a millisecond (a tiny rotate_mb)
                 time.sleep(0.001)
                 path = self.directory / file_name()
-            self._output = path.open("xb")
+            self._output = self.create(path)
             self._writer = RecordingWriter(self._output, self.metadata)
         except OSError as error:
             self._failed(error)

@@ -70,6 +70,8 @@ class Supervisor:
         self.passive = passive
         """Watch, never act (a replay: nothing may be sent)."""
         self.link_up = False
+        self.closed = False
+        """The gateway is shutting down: nothing more is started for any node."""
         self._pursuits: dict[int, asyncio.Task[None]] = {}
         self._stops: dict[int, StopPolicy] = {}
         self._unsolicited: dict[int, tuple[str, int | None]] = {}
@@ -191,7 +193,13 @@ class Supervisor:
     async def quiet(self, node: Node) -> AsyncIterator[Held]:
         """The node without its stream, for a command that needs it quiet (a bias
         capture, a self-test): a stream it runs is stopped first, and what it should
-        stream is started again afterwards (in the background if the command failed)."""
+        stream is started again afterwards (in the background if the command failed).
+
+        Only if the node is still the command's when it ends: the base station lost or
+        the node rebooted meanwhile is what the node's state says from then on, and the
+        supervisor already pursues it (when the link is back, or since the reboot).
+        Overwriting that with "polled" showed a node whose link was down as polled and
+        OK (issue 19)."""
         await self._halt(node)
         held = Held(node.record)
         if held.streamed is not None:
@@ -200,12 +208,20 @@ class Supervisor:
         try:
             yield held
         except BaseException:
-            node.settled()
-            task = asyncio.get_running_loop().create_task(self._restore(node, held.streamed))
-            self._pursuits[node.address] = task
+            if self._give_back(node) and not self.closed:
+                self._pursuits[node.address] = asyncio.get_running_loop().create_task(
+                    self._restore(node, held.streamed))
             raise
+        if self._give_back(node) and not self.closed:
+            held.restored = await self._restore(node, held.streamed)
+
+    def _give_back(self, node: Node) -> bool:
+        """After a quiet command: settle the node and say so if nothing else happened
+        to it meanwhile (it is still BUSY); otherwise leave it as it is."""
+        if node.state is not State.BUSY:
+            return False
         node.settled()
-        held.restored = await self._restore(node, held.streamed)
+        return True
 
     async def _restore(self, node: Node, streamed: str | None) -> str | None:
         """Start again what the node should stream after a quiet command: its desired
@@ -216,6 +232,9 @@ class Supervisor:
             return None
         try:
             await self._start(node, record, Priority.OPERATOR)
+        except LinkDown as error:  # armed again when the base station is back
+            log.info("node %s: %s stream not started again: %s", node.label, record, error)
+            return None
         except NodeError as error:
             log.warning("node %s: %s stream not started again: %s", node.label, record,
                         error)
@@ -231,7 +250,7 @@ class Supervisor:
         old = self._pursuits.pop(node.address, None)
         if old is not None:
             old.cancel()
-        if not self.link_up or self.passive:
+        if not self.link_up or self.passive or self.closed:
             return
         desired = node.desired
         if desired is None or (desired == OFF and node.record is None):
@@ -347,6 +366,7 @@ class Supervisor:
                                for n in streaming), return_exceptions=True)
 
     def close(self) -> None:
+        self.closed = True
         for task in self._pursuits.values():
             task.cancel()
         self._pursuits.clear()

@@ -5,6 +5,7 @@ that gives way to an operator."""
 from __future__ import annotations
 
 import asyncio
+import time
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -12,7 +13,7 @@ import pytest
 
 from gateway.daemon import scheduler as scheduling
 from gateway.daemon import supervisor as supervising
-from gateway.daemon.errors import NodeError
+from gateway.daemon.errors import LinkDown, NodeError
 from gateway.daemon.nodes import OFF, State
 from gateway.sim.base_station import RadioLink
 from gateway.sim.node import NodeSettings
@@ -124,4 +125,66 @@ def test_an_operators_request_waits_one_background_attempt_at_most() -> None:
             assert first_poll <= 1, f"the poll waited behind {after[:first_poll]}"
             assert after.count(0xC7) == scheduling.MAX_ATTEMPTS
             assert all(code == 0xC7 for code in after[first_poll:first_poll + 4]), after
+    run(scenario)
+
+
+def captures(gw: Wired, address: int) -> int:
+    return sum(1 for c in gw.node(address).log.commands if c.code == 0xCD)
+
+
+async def capture_under_way(gw: Wired, address: int) -> asyncio.Task[Any]:
+    """A bias capture of ``address`` that the node has begun."""
+    task = asyncio.get_running_loop().create_task(gw.run("bias_capture", node=address,
+                                                         ms=1000))
+    await wait_for_async(lambda: captures(gw, address), 5, "the capture to begin")
+    return task
+
+
+def test_a_capture_cut_by_the_link_leaves_the_node_link_down_until_it_is_back() -> None:
+    async def scenario() -> None:
+        async with Wired([NodeSettings(76)], [{"address": 76, "stream": "euler"}]) as gw:
+            node = gw.nodes[76]
+            await wait_for_async(lambda: node.state is State.STREAMING, 5, "streaming")
+            capture = await capture_under_way(gw, 76)
+            gw.link(False)
+            with pytest.raises(LinkDown):
+                await capture
+            assert node.state is State.LINK_DOWN  # not "polled", as if nothing happened
+            gw.link(True)
+            await wait_for_async(lambda: node.state is State.STREAMING, 5, "re-armed")
+            assert gw.node(76).continuous == 0xCE
+    run(scenario)
+
+
+def test_a_reboot_during_a_capture_is_left_to_the_pursuit_it_started() -> None:
+    """The reboot's pursuit arms the node; the failed capture neither marks it polled
+    nor starts a second arming beside it."""
+    async def scenario() -> None:
+        async with Wired([NodeSettings(76)], [{"address": 76, "stream": "euler"}]) as gw:
+            node = gw.nodes[76]
+            await wait_for_async(lambda: node.state is State.STREAMING, 5, "streaming")
+            capture = await capture_under_way(gw, 76)
+            gw.station.reboot(76, time.monotonic())
+            await wait_for_async(lambda: node.reboots == 1, 5, "the reboot")
+            with pytest.raises(NodeError):
+                await capture
+            assert node.state in (State.ARMING, State.STREAMING), node.state
+            await wait_for_async(lambda: node.state is State.STREAMING, 5, "re-armed")
+            starts = [c for c in gw.node(76).log.commands if c.code == 0xC4]
+            assert len(starts) == 2, starts  # the configured stream's, and the reboot's
+    run(scenario)
+
+
+def test_a_capture_cancelled_at_shutdown_starts_nothing_afterwards() -> None:
+    async def scenario() -> None:
+        async with Wired([NodeSettings(76)], [{"address": 76, "stream": "euler"}]) as gw:
+            await wait_for_async(lambda: gw.nodes[76].state is State.STREAMING, 5,
+                                 "streaming")
+            before = asyncio.all_tasks()
+            capture = await capture_under_way(gw, 76)
+            gw.supervisor.close()
+            capture.cancel()
+            await asyncio.wait([capture])
+            started = {t for t in asyncio.all_tasks() if not t.done()} - before
+            assert started == set(), started  # (it was: the stream, started again)
     run(scenario)

@@ -14,7 +14,7 @@ import pytest
 from aspp.temperature import accel_celsius, gyro_celsius
 from gateway.sim.node import NodeSettings
 from gateway.sim.physics import Motion
-from tests.helpers.processes import gx2ctl
+from tests.helpers.processes import Running, gx2ctl
 from tests.helpers.simulated import continuous, received
 from tests.helpers.waiting import wait_for
 
@@ -147,3 +147,31 @@ def test_info_shows_the_firmware_as_a_version(simulator, gateway):
     ran = gx2ctl("--config", str(gw.path), "info", "76")
     assert ran.status == 0 and re.search(r"^firmware +2113 \(2\.1\.13\)$", ran.stdout, re.M)
     assert math.isfinite(gw.control.result("temperature", node=76)["accel_c"])
+
+
+def test_a_capture_cut_short_by_an_unplug_leaves_the_node_link_down(simulator, gateway):
+    """The base station goes during a bias capture: the capture fails, and the node is
+    shown as what it is (link down, ERROR), not as polled and OK; once the base station
+    is back its stream is armed again like any other node's."""
+    sim = simulator(NodeSettings(76, motion=STILL), NodeSettings(77))
+    gw = gateway(sim.path, [{"address": 76, "stream": "accel_angrate"},
+                            {"address": 77, "stream": "euler"}])
+    gw.wait_streaming(76, 77)
+    capture = Running("gx2ctl", "--config", str(gw.path), "bias", "capture", "76",
+                      "--ms", "3000")
+    try:
+        wait_for(lambda: received(sim, 76, 0xCD), 5, "the capture to reach node 76")
+        sim.unplug()
+        assert capture.finish(10) == 1, capture.stderr
+    finally:
+        capture.kill()
+    status = gw.status()
+    assert status["link"]["state"] == "down"
+    nodes = {n["node"]: n for n in status["nodes"]}
+    for address in (76, 77):
+        assert (nodes[address]["state"], nodes[address]["health"]) == ("link down", "ERROR"), \
+            nodes[address]
+    sim.replug()
+    gw.wait_streaming(76, 77, timeout=10)
+    sub = gw.subscribe("gx2/76/accel_angrate")
+    sub.until(lambda m: len(m) >= 5, 5, "node 76 streaming again")

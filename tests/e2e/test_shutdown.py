@@ -1,0 +1,51 @@
+"""SIGTERM while a request is still running, through the installed gx2-gateway over
+gx2-sim: the request is answered (gx2ctl exits 1 with one line saying why) before the
+gateway goes, and the gateway still exits 0 within the promised 2 s, starting nothing
+on its way out."""
+
+from __future__ import annotations
+
+import pytest
+
+from gateway.sim.node import NodeSettings
+from tests.helpers.processes import EXIT, STARVED, Running
+from tests.helpers.simulated import received
+from tests.helpers.waiting import wait_for
+
+
+def after_the_capture(sim, node: int) -> list[int]:
+    """The codes of the commands ``node`` received after its bias capture."""
+    def codes(station, now) -> list[int]:
+        log = [c.code for c in station.nodes[node].log.commands]
+        return log[log.index(0xCD) + 1:]
+    return sim.call(codes)
+
+
+@pytest.mark.parametrize("busy", [False, True], ids=["plain", "stopping-and-recording"])
+def test_sigterm_during_a_capture_answers_it_and_exits_within_the_promise(
+        simulator, gateway, tmp_path, busy):
+    """``busy``: the shutdown also stops streams and finishes a recording, so the loop
+    runs on for a while after the request was cut short."""
+    sim = simulator(NodeSettings(76))
+    sections = ({"shutdown": {"stop_streams": True},
+                 "record": {"directory": str(tmp_path / "recordings")}} if busy else {})
+    gw = gateway(sim.path, [{"address": 76, "stream": "accel_angrate"}], **sections)
+    gw.wait_streaming(76)
+    capture = Running("gx2ctl", "--config", str(gw.path), "bias", "capture", "76",
+                      "--ms", "5000")
+    try:
+        wait_for(lambda: received(sim, 76, 0xCD), 5, "the capture to reach node 76")
+        status, took = gw.terminate()
+        assert status == 0, gw.log()
+        assert took < EXIT + STARVED, f"exited after {took:.2f} s"
+        # answered before the gateway went: gx2ctl does not wait for its own timeout
+        assert capture.finish(STARVED) == 1, capture.stderr
+    finally:
+        capture.kill()
+    notice, *errors = capture.stderr
+    assert "keep it still" in notice
+    assert len(errors) == 1 and "shutting down" in errors[0], capture.stderr
+    assert 0xC4 not in after_the_capture(sim, 76), "its stream was started again"
+    log = gw.log()
+    assert "write failed" not in log, log
+    assert "Traceback" not in log, log
