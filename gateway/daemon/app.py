@@ -26,6 +26,7 @@ from zmq.auth.asyncio import AsyncioAuthenticator
 from aspp.timing import byte_time
 from gateway.common.curve import AllowList, KeyPair
 from gateway.common.version import VERSION
+from gateway.recording.files import PARTIAL
 
 from . import status
 from .config import GatewayConfig
@@ -127,6 +128,9 @@ class Gateway:
             self.link = SerialLink(self.port.path, config.base_station.baudrate, on_data,
                                    self._on_link_state)
         self._stop: asyncio.Event | None = None
+        self.exit_status = 0
+        """The process's, once run returns: PARTIAL after a replay (exit=true) that
+        skipped something it could not read."""
         self._reported = 0.0
         """time.monotonic() of the last status report."""
 
@@ -225,6 +229,8 @@ class Gateway:
         self.publisher.status(self.status())
         if self.port.replay is not None and self.port.replay.exit and self._stop is not None:
             log.info("the recording is done: exiting (exit=true)")
+            if isinstance(self.link, ReplayLink) and self.link.partial:
+                self.exit_status = PARTIAL
             self._stop.set()
 
     def _on_link_state(self, up: bool) -> None:

@@ -72,8 +72,9 @@ def main(argv: list[str] | None = None) -> int:
         loop = asyncio.get_running_loop()
         for signum in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(signum, stop.set)
-        await Gateway(config).run(stop)
-        return 0
+        gateway = Gateway(config)
+        await gateway.run(stop)
+        return gateway.exit_status
 
     try:
         return asyncio.run(serve())

@@ -10,6 +10,11 @@ takes it, letting the loop run other work every YIELD_EVERY reads. Playing start
 ``delay`` seconds after the gateway does (default DELAY_S): a PUB socket drops what it
 publishes before a subscriber has connected, and a subscriber started with the gateway
 needs a moment to.
+
+What cannot be read is skipped, with a line logged for each file not read whole (a
+file among the others that is empty or not MCAP, a damaged chunk, a file cut short),
+and the rest is played; a replay that skipped something is ``partial``, and a gateway
+that exits when it is done (``exit=true``) then exits with status PARTIAL.
 """
 
 from __future__ import annotations
@@ -24,10 +29,11 @@ from urllib.parse import parse_qs
 
 from gateway.recording.files import (
     SERIAL,
+    FileReport,
+    Reading,
     RecordingError,
-    check_readable,
     read_all,
-    recording_files,
+    usable_files,
 )
 
 log = logging.getLogger("gx2.replay")
@@ -70,9 +76,7 @@ class Replay:
                 raise ValueError(f"{url!r}: exit must be true or false, not {text!r}")
             leave = text in ("true", "1", "yes")
         try:
-            files = recording_files([path])
-            for file in files:
-                check_readable(file)
+            files = usable_files([path])
         except RecordingError as error:
             raise ValueError(str(error)) from None
         return cls(tuple(files), speed, leave, delay)
@@ -113,6 +117,8 @@ class ReplayLink:
         self.finished = False
         self.reopening = False
         self.unsent = 0
+        self.partial = False
+        """Something unreadable was skipped (a line says what)."""
 
     def start(self) -> None:
         self.up = True
@@ -126,35 +132,38 @@ class ReplayLink:
     async def _play(self) -> None:
         loop = asyncio.get_running_loop()
         speed = self.replay.speed
-        incomplete: list[Path] = []
+        reading = Reading(self._read_file)
         origin: tuple[float, float] | None = None
         await asyncio.sleep(self.replay.delay)
-        try:
-            for entry in read_all(self.replay.files, (SERIAL,), incomplete):
-                host_time = entry.log_time / 1e9
-                monotonic = (entry.publish_time or entry.log_time) / 1e9
-                if speed > 0:
-                    if origin is None:
-                        origin = (host_time, loop.time())
-                    delay = origin[1] + (host_time - origin[0]) / speed - loop.time()
-                    if delay > 0:
-                        await asyncio.sleep(delay)
-                elif self.reads % YIELD_EVERY == 0:
-                    await asyncio.sleep(0)
-                self.reads += 1
-                self.bytes_read += len(entry.data)
-                self._on_data(entry.data, host_time, monotonic)
-        except RecordingError as error:
-            self.last_error = str(error)
-            log.error("replay: %s", error)
-        for path in incomplete:
-            log.warning("replay: %s ends early (its writer was stopped without warning); "
-                        "played up to there", path)
+        for entry in read_all(self.replay.files, reading, (SERIAL,)):
+            host_time = entry.log_time / 1e9
+            monotonic = (entry.publish_time or entry.log_time) / 1e9
+            if speed > 0:
+                if origin is None:
+                    origin = (host_time, loop.time())
+                delay = origin[1] + (host_time - origin[0]) / speed - loop.time()
+                if delay > 0:
+                    await asyncio.sleep(delay)
+            elif self.reads % YIELD_EVERY == 0:
+                await asyncio.sleep(0)
+            self.reads += 1
+            self.bytes_read += len(entry.data)
+            self._on_data(entry.data, host_time, monotonic)
+        self.partial = reading.partial
         self.finished = True
-        log.info("replay finished: %d reads, %d bytes from %d file%s", self.reads,
+        log.info("replay finished: %d reads, %d bytes from %d file%s%s", self.reads,
                  self.bytes_read, len(self.replay.files),
-                 "" if len(self.replay.files) == 1 else "s")
+                 "" if len(self.replay.files) == 1 else "s",
+                 " (partial: what could not be read was skipped)" if self.partial else "")
         self._on_end()
+
+    def _read_file(self, report: FileReport) -> None:
+        """A line as each file is done, if it was not read whole."""
+        line = report.line()
+        if line:
+            log.warning("replay: %s", line)
+        if report.partial:
+            self.last_error = line
 
     def close(self) -> None:
         if self._task is not None:

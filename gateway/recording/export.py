@@ -6,13 +6,22 @@ record's fields in the order of its layout (:mod:`aspp.records`), vectors as
 record's list of integers as ``<field>_1`` .. ``<field>_n``. A value a record does not
 have (an untimed record's ``time``) or NaN (JSON's null) is an empty cell or a null.
 
+Marks (``gx2ctl mark``) go in a table of their own, ``marks.csv``: ``time``,
+``host_time``, ``nodes`` (their addresses, space-separated; empty: the whole
+experiment), ``text``.
+
 Rows are written as they are read: a CSV export holds one row in memory at a time, a
-Parquet one a batch of BATCH rows per table.
+Parquet one a batch of BATCH rows per table. Each table is written under a temporary
+name (TEMPORARY) and given its own when it is whole, so an export that fails or is
+interrupted leaves no cut table where a whole one is expected, and replaces the table
+of an earlier export only with a whole one.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import os
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import IO, Any
@@ -20,7 +29,7 @@ from typing import IO, Any
 from aspp.records import BY_NAME
 from gateway.common.topics import parse
 
-from .files import Entry, RecordingError, read_all
+from .files import MARK, Entry, Mark, Reading, RecordingError, read_all
 
 LEADING = ("time", "host_time", "device_time", "seq", "lqi", "rssi")
 BOOKKEEPING = frozenset((*LEADING, "node", "record", "command"))
@@ -29,6 +38,9 @@ BATCH = 10_000
 AXES = ("x", "y", "z")
 MATRIX = tuple(f"{row}{column}" for row in (1, 2, 3) for column in (1, 2, 3))
 INSTALL_PARQUET = "pip install 'gx2-gateway[parquet]'"
+MARKS = "marks"
+MARK_COLUMNS = ["time", "host_time", "nodes", "text"]
+TEMPORARY = ".{name}.partial"
 
 
 class MissingExtra(Exception):
@@ -170,20 +182,58 @@ WRITERS: dict[str, Callable[[Path, list[str]], Writer]] = {
     "csv": CsvWriter, "parquet": ParquetWriter}
 
 
-def export(paths: Iterable[Path], out: Path, form: str = "csv",
+class Output:
+    """One table's file: written under its temporary name, renamed when whole."""
+
+    def __init__(self, out: Path, name: str, form: str, columns: list[str]) -> None:
+        self.path = out / name
+        self.temporary = out / TEMPORARY.format(name=name)
+        self.rows = 0
+        self._writer = WRITERS[form](self.temporary, columns)
+
+    def add(self, row: list[Any]) -> None:
+        self._writer.add(row)
+        self.rows += 1
+
+    def finish(self) -> None:
+        self._writer.close()
+        os.replace(self.temporary, self.path)
+
+    def discard(self) -> None:
+        # whatever went wrong (even a second Ctrl-C's in the first's clean-up), the
+        # temporary goes: it is never taken for a table, being hidden and so named
+        with contextlib.suppress(Exception):
+            self._writer.close()
+        with contextlib.suppress(OSError):
+            self.temporary.unlink()
+
+
+def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv",
            progress: Callable[[Entry], None] | None = None,
-           incomplete: list[Path] | None = None) -> list[tuple[Path, Table]]:
-    """Write the tables of the recordings ``paths`` into ``out``; (path, table) of each
-    table written, in the order first seen. RecordingError for a message that is not
-    a record's JSON object; MissingExtra for Parquet without pyarrow."""
+           written: list[Path] | None = None) -> tuple[list[tuple[Path, Table]], int]:
+    """Write the tables of the recordings ``paths`` into ``out``: (path, table) of each
+    node's table, in the order first seen, and the number of marks (in ``marks.csv``).
+    Each table written whole is added to ``written`` as it is. What reading skipped is
+    in ``reading``. RecordingError for a message that is not a record's JSON object;
+    MissingExtra for Parquet without pyarrow; on any error, or Ctrl-C, no table that
+    was not whole is left."""
     if form == "parquet":
         parquet_modules()
     out.mkdir(parents=True, exist_ok=True)
-    tables: dict[tuple[int, str], tuple[Path, Table, Writer]] = {}
+    tables: dict[tuple[int, str], tuple[Table, Output]] = {}
+    outputs: list[Output] = []
+    marks: Output | None = None
+    done = [] if written is None else written
     try:
-        for entry in read_all(paths, incomplete=incomplete):
+        for entry in read_all(paths, reading):
             if progress is not None:
                 progress(entry)
+            if entry.topic == MARK:
+                if marks is None:
+                    marks = Output(out, f"{MARKS}.{form}", form, MARK_COLUMNS)
+                    outputs.append(marks)
+                marks.add(mark_row(Mark.of(entry)))
+                continue
             where = parse(entry.topic)
             if where is None:
                 continue
@@ -191,15 +241,25 @@ def export(paths: Iterable[Path], out: Path, form: str = "csv",
             open_table = tables.get(where)
             if open_table is None:
                 table = Table(*where, payload)
-                path = out / f"{where[0]}_{where[1]}.{form}"
-                open_table = tables[where] = (path, table, WRITERS[form](path, table.columns))
-            _, table, writer = open_table
-            writer.add(table.row(payload))
+                output = Output(out, f"{where[0]}_{where[1]}.{form}", form, table.columns)
+                outputs.append(output)
+                open_table = tables[where] = (table, output)
+            table, output = open_table
+            output.add(table.row(payload))
             table.rows += 1
+        for output in outputs:
+            output.finish()
+            done.append(output.path)
     finally:
-        for _, _, writer in tables.values():
-            writer.close()
-    return [(path, table) for path, table, _ in tables.values()]
+        for output in outputs:
+            if output.path not in done:
+                output.discard()
+    return [(output.path, table) for table, output in tables.values()], (
+        marks.rows if marks is not None else 0)
+
+
+def mark_row(mark: Mark) -> list[Any]:
+    return [mark.time, mark.host_time, " ".join(map(str, mark.nodes)), mark.text]
 
 
 __all__ = ["FORMATS", "MissingExtra", "RecordingError", "export", "field_columns"]

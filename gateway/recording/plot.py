@@ -5,7 +5,10 @@ panel per unit; matrices and the timer are left out (a matrix's nine lines say l
 than the Euler angles beside it). Time is seconds from the first sample (``time``, or
 ``device_time`` for records without it). Where samples are missing (a step longer
 than GAP_FACTOR periods, or a ``seq`` gap) the lines break, so a loss shows as a gap.
-matplotlib is an optional extra, imported only here.
+Marks (``gx2ctl mark``) of the node or of the whole experiment, made within the
+samples' time, are vertical lines labelled with their text (none against
+``device_time``: a mark's time is UNIX time). matplotlib is an optional extra,
+imported only here.
 """
 
 from __future__ import annotations
@@ -23,12 +26,13 @@ from aspp.records import BY_NAME
 from gateway.common.topics import parse
 
 from .export import MissingExtra
-from .files import read_all
+from .files import MARK, Mark, Reading, read_all
 
 GAP_FACTOR = 1.5
 INSTALL_PLOT = "pip install 'gx2-gateway[plot]'"
 SKIPPED = frozenset(("timer",))
 NAN = float("nan")
+MARK_COLOUR = "tab:red"
 
 
 @dataclass
@@ -48,21 +52,39 @@ class Picture:
     panels: list[Series]
     title: str
     x_label: str
+    marks: list[tuple[float, str]] = field(default_factory=list)
+    """(x, text) of each mark drawn."""
 
 
-def records_of(paths: list[Path], node: int, record: str | None) -> tuple[str, list[dict],
-                                                                          str | None]:
-    """(record, its payloads in order, the node's name) from the recordings; the
-    record defaults to the one the node has most of. ValueError if there is none."""
+@dataclass
+class Found:
+    """What a recording holds of one node's record."""
+
+    record: str
+    payloads: list[dict]
+    name: str | None
+    marks: list[Mark]
+
+
+def records_of(paths: list[Path], node: int, record: str | None,
+               reading: Reading) -> Found:
+    """The node's records of one kind (by default the kind it has most of), its name,
+    and the marks that concern it, from the recordings; ValueError if there is none."""
     counts: Counter[str] = Counter()
     payloads: dict[str, list[dict]] = {}
+    marks: list[Mark] = []
     name = None
-    for entry in read_all(paths, incomplete=[]):
+    for entry in read_all(paths, reading):
         if entry.topic == "gx2/gateway/status":
             for listed in entry.payload().get("nodes") or []:
                 if isinstance(listed, dict) and listed.get("node") == node and listed.get(
                         "name"):
                     name = str(listed["name"])
+            continue
+        if entry.topic == MARK:
+            mark = Mark.of(entry)
+            if mark.concerns(node):
+                marks.append(mark)
             continue
         where = parse(entry.topic)
         if where is None or where[0] != node or (record and where[1] != record):
@@ -73,11 +95,12 @@ def records_of(paths: list[Path], node: int, record: str | None) -> tuple[str, l
         what = f"record {record} of node {node}" if record else f"records of node {node}"
         raise ValueError(f"no {what} in {', '.join(map(str, paths))}")
     chosen = record or counts.most_common(1)[0][0]
-    return chosen, payloads[chosen], name
+    return Found(chosen, payloads[chosen], name, marks)
 
 
-def picture(node: int, record: str, payloads: list[dict], name: str | None) -> Picture:
-    """The panels and title for ``payloads`` (one node's records of one kind)."""
+def picture(node: int, record: str, payloads: list[dict], name: str | None,
+            marks: list[Mark] | None = None) -> Picture:
+    """The panels, title and marks for ``payloads`` (one node's records of one kind)."""
     clock = "time" if any(isinstance(p.get("time"), (int, float)) for p in payloads) \
         else "device_time"
     rows = [p for p in payloads if isinstance(p.get(clock), (int, float))]
@@ -104,7 +127,9 @@ def picture(node: int, record: str, payloads: list[dict], name: str | None) -> P
     title = f"{who}: {record}, {rate}, {lost} lost{share}, {len(rows)} records"
     when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(start)) if clock == "time" \
         else "the node's timer"
-    return Picture(x_out, panels, title, f"seconds from {when} ({clock})")
+    shown = [(mark.time - start, mark.text) for mark in marks or ()
+             if clock == "time" and x[0] <= mark.time - start <= x[-1]]
+    return Picture(x_out, panels, title, f"seconds from {when} ({clock})", shown)
 
 
 def _seq_gap(before: Any, after: Any) -> bool:
@@ -177,6 +202,14 @@ def draw(image: Picture, out: Path) -> None:
         axis.set_ylabel(f"{panel.title}\n({panel.unit})" if panel.unit else panel.title)
         axis.grid(True, alpha=0.3)
         axis.legend(loc="upper right", fontsize="small", ncol=len(panel.lines))
+        for at, _ in image.marks:
+            axis.axvline(at, color=MARK_COLOUR, linewidth=1.0, linestyle="--")
+    for at, text in image.marks:
+        # the label once, at the top panel's top edge (x in data, y in the axes' own
+        # 0..1), so it stays put whatever the panel's values
+        axes[0, 0].annotate(text, (at, 1.0), xycoords=("data", "axes fraction"),
+                            xytext=(2, -2), textcoords="offset points", rotation=90,
+                            va="top", ha="left", fontsize="small", color=MARK_COLOUR)
     axes[-1, 0].set_xlabel(image.x_label)
     figure.suptitle(image.title)
     figure.tight_layout()

@@ -133,7 +133,7 @@ def test_a_file_cut_short_and_several_files_export_in_order(tmp_path):
     write(directory / "gx2-b.mcap", [("gx2/76/euler", p) for p in second])
     ran = gx2ctl("export", str(directory), "--out", str(tmp_path / "out"))
     assert ran.status == 0, ran.stderr
-    assert "gx2-a.mcap ends early" in ran.stderr
+    assert "gx2-a.mcap: ends early after" in ran.stderr
     seqs = [int(r["seq"]) for r in rows(tmp_path / "out" / "76_euler.csv")]
     assert seqs == list(range(1, 401)), "lost or reordered rows"
 
