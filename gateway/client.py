@@ -132,6 +132,9 @@ class Subscriber:
         self._own_context = context is None
         self.context = context or zmq.Context()
         self._sockets: dict[zmq.Socket, str] = {}
+        self._order: list[zmq.Socket] = []
+        self._next = 0
+        """Where the next take starts in ``_order``: the socket after the last one taken from."""
         self._poller = zmq.Poller()
         self._last_seq: dict[tuple[str, int], int] = {}
         self._uptime: dict[str, float] = {}
@@ -152,6 +155,7 @@ class Subscriber:
     def _connect(self, endpoint: str, keys: curve.ClientKeys | None) -> None:
         socket = self.context.socket(zmq.SUB)
         self._sockets[socket] = endpoint
+        self._order.append(socket)
         socket.setsockopt(zmq.LINGER, 0)
         socket.setsockopt(zmq.MAXMSGSIZE, MAX_REPLY_BYTES)  # records are far smaller
         if keys is not None:
@@ -169,13 +173,14 @@ class Subscriber:
     # -- receiving ----------------------------------------------------------------------------
 
     def receive(self, timeout: float | None = None) -> Event | None:
-        """The next message, or None after ``timeout`` seconds (None: wait for ever)."""
+        """The next message, or None after ``timeout`` seconds (None: wait for ever).
+
+        Gateways are read in turn: while several have messages queued, each gives one."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
-            for socket in self._sockets:
-                event = self._take(socket)
-                if event is not None:
-                    return event
+            event = self._take_in_turn()
+            if event is not None:
+                return event
             wait = None if deadline is None else deadline - time.monotonic()
             if wait is not None and wait <= 0:
                 return None
@@ -186,6 +191,22 @@ class Subscriber:
             event = self.receive()
             if event is not None:
                 yield event
+
+    # Starting every take at the first socket starves the others while it has anything
+    # queued: two gateways at 300 msg/s and a reader of 250 msg/s got {76: 1439, 77: 0} in
+    # 6 s, and silent_for() of the second grew as if it were dead (issue 19). So each take
+    # starts at the socket after the one the last message came from (round robin).
+    def _take_in_turn(self) -> Event | None:
+        """The next wanted message queued on any socket, the sockets taken in turn."""
+        order = self._order
+        count = len(order)
+        for step in range(count):
+            index = (self._next + step) % count
+            event = self._take(order[index])
+            if event is not None:
+                self._next = (index + 1) % count
+                return event
+        return None
 
     def _take(self, socket: zmq.Socket) -> Event | None:
         """The first wanted message already queued on ``socket``, or None."""
@@ -273,6 +294,7 @@ class Subscriber:
         for socket in self._sockets:
             socket.close(linger=0)
         self._sockets.clear()
+        self._order.clear()
         if self._own_context:
             self.context.term()
 

@@ -15,6 +15,7 @@ import zmq
 from gateway.client import Malformed, Message, Status, Subscriber
 from gateway.common import curve
 from tests.helpers.ports import endpoint
+from tests.helpers.waiting import wait_for
 
 NAN = float("nan")
 
@@ -130,6 +131,51 @@ def test_several_gateways_are_told_apart(context):
     assert sorted((e.gateway, e.seq) for e in events) == sorted(
         [(first.endpoint, 1), (second.endpoint, 1), (second.endpoint, 2)])
     assert sub.lost == {}
+
+
+def all_queued(sub: Subscriber) -> bool:
+    """Whether every gateway's socket of ``sub`` has a message waiting (white box: the
+    public API cannot look without taking one)."""
+    poller = zmq.Poller()
+    for socket in sub._sockets:
+        poller.register(socket, zmq.POLLIN)
+    return len(poller.poll(0)) == len(sub._sockets)
+
+
+def test_gateways_with_backlogs_are_read_in_turn(context):
+    first, second = Gateway(context), Gateway(context)
+    backlog, taken = 400, 200
+    with Subscriber([first.endpoint, second.endpoint], nodes=[76, 77]) as sub:
+        connected(sub, first, second)
+        for _ in range(backlog):
+            first.record(76)
+            second.record(77)
+        wait_for(lambda: all_queued(sub), 5, "both backlogs to reach the subscriber")
+        reading = time.monotonic()
+        events = take(sub, taken)
+        second_silent = sub.silent_for(second.endpoint)
+        read_for = time.monotonic() - reading
+    counts = {node: sum(e.node == node for e in events) for node in (76, 77)}
+    assert len(events) == taken
+    assert min(counts.values()) >= 0.4 * taken, f"one gateway starved the other: {counts}"
+    assert second_silent < read_for, "the second gateway looked silent while it published"
+
+
+def test_a_gateway_only_beating_is_heard_beside_a_busy_one(context):
+    busy, quiet = Gateway(context), Gateway(context)
+    with Subscriber([busy.endpoint, quiet.endpoint], status=True) as sub:
+        connected(sub, busy, quiet)
+        for _ in range(400):
+            busy.record(76)
+        quiet.status()
+        wait_for(lambda: all_queued(sub), 5, "the record and the heartbeat to be queued")
+        reading = time.monotonic()
+        events = take(sub, 10)
+        quiet_silent = sub.silent_for(quiet.endpoint)
+        read_for = time.monotonic() - reading
+    assert any(isinstance(e, Status) and e.gateway == quiet.endpoint for e in events), \
+        "the heartbeat waited behind the other gateway's backlog"
+    assert quiet_silent < read_for
 
 
 def test_malformed_messages_are_skipped_and_counted(context):
