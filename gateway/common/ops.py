@@ -9,10 +9,11 @@ result as JSON).
 
 from __future__ import annotations
 
+import unicodedata
 from dataclasses import dataclass, field
 from typing import Any
 
-from .protocol import MAX_PING_NODES
+from .protocol import MAX_PING_NODES, MAX_REQUEST_BYTES
 from .values import (
     FLOAT,
     NODE,
@@ -26,6 +27,31 @@ from .values import (
 )
 
 REQUIRED: Any = object()
+MARK_CHARACTERS = 1000
+"""The longest text a mark keeps, in characters; in UTF-8 bytes, MARK_BYTES (so that
+a mark naming the most nodes still fits in one request of MAX_REQUEST_BYTES)."""
+MARK_BYTES = 3 * MAX_REQUEST_BYTES // 4
+LINE_BREAKING = ("Cc", "Zl", "Zp")
+"""Unicode categories a mark's text may not hold (but a tab): control characters and
+line or paragraph separators."""
+
+
+def _mark_text(value: str) -> str:
+    """One line of text, not blank, not too long: a label on a plot, a cell in a table."""
+    text = value.strip()
+    if not text:
+        raise ValueError("a mark's text is empty")
+    size = len(text.encode("utf-8", "replace"))
+    if len(text) > MARK_CHARACTERS or size > MARK_BYTES:
+        raise ValueError(f"a mark's text is at most {MARK_CHARACTERS} characters and "
+                         f"{MARK_BYTES} bytes of UTF-8, not {len(text)} characters "
+                         f"({size} bytes)")
+    if any(c != "\t" and unicodedata.category(c) in LINE_BREAKING for c in text):
+        raise ValueError("a mark's text is one line: no line breaks or control characters")
+    return text
+
+
+MARK_TEXT = Kind("mark text", str, str, _mark_text)
 
 
 @dataclass(frozen=True)
@@ -34,7 +60,8 @@ class Param:
 
     ``many``: a list of 1..many values (one or more arguments on the command line).
     A param with a ``default`` is optional: ``--name`` on the command line (or
-    ``option``), left out of the request when not given.
+    ``option``); a list with one is zero or more arguments, left out of the request
+    when none is given.
     """
 
     name: str
@@ -149,6 +176,15 @@ OPS: tuple[Op, ...] = (
        "temperatures plausible. BIT is always switched off again. One line per check; "
        "exit 0 only if all pass. A stream the node is running is stopped for the test "
        "and started again afterwards. gx2ctl waits 10 s on top of --timeout."),
+    Op("mark", ("mark",), "mark a moment (a trial's start, a knock, a note) in what is "
+       "recorded", (Param("nodes", NODE, "the nodes it concerns (default: the whole "
+                          "experiment)", many=MAX_PING_NODES, default=()),
+                    Param("text", MARK_TEXT, "what happened (one line, quoted)")),
+       talks_to_node=False,
+       description="Publish a mark on gx2/gateway/mark: TEXT, the time the gateway took "
+       "it, and the NODEs it concerns (none: the whole experiment). The gateway's own "
+       "recording and gx2ctl record keep it; gx2ctl export writes marks.csv, gx2ctl plot "
+       "draws it. Refused (exit 1) while the gateway replays a recording."),
 )
 
 BY_NAME: dict[str, Op] = {op.name: op for op in OPS}

@@ -1,6 +1,7 @@
 """Publish topics: ``gx2/<address>/<record>`` for a node's records (decimal address,
 no padding, so a subscriber to ``gx2/76/`` gets node 76 and never node 760) and
-``gx2/gateway/status`` for the gateway's own heartbeat, which no node topic can equal.
+``gx2/gateway/status`` for the gateway's own heartbeat and ``gx2/gateway/mark`` for the
+marks made with ``gx2ctl mark``, which no node topic can equal.
 """
 
 from __future__ import annotations
@@ -9,6 +10,9 @@ import re
 
 PREFIX = "gx2/"
 STATUS_TOPIC = b"gx2/gateway/status"
+MARK_TOPIC = b"gx2/gateway/mark"
+"""A mark (``gx2ctl mark``): ``text``, ``time`` and ``host_time`` (UNIX s, when the
+gateway took it), ``nodes`` (the nodes it concerns; empty: the whole experiment)."""
 NODE_TOPIC = re.compile(rb"gx2/[0-9]+/")
 """Matches the start of a node's topic (not the gateway's own gx2/gateway/...)."""
 

@@ -75,10 +75,13 @@ def build_parser() -> ArgumentParser:
                              help="only these nodes (default: all)")
     recorder = commands.add_parser(
         "record", help="record the published stream to an MCAP file",
-        description="Record every published record (of the NODEs given, or of all) and the "
-        "gateway's status to FILE, an MCAP file with one JSON channel per topic, until "
-        "SIGINT/SIGTERM or --seconds. Shows records, rate and gaps on stderr. Exit 0 when "
-        "the file was written; 3 if the gateway falls silent (the file keeps what came).")
+        description="Record every published record (of the NODEs given, or of all), the "
+        "gateway's status and every mark to FILE, an MCAP file with one JSON channel per "
+        "topic, until SIGINT/SIGTERM or --seconds (counted from the first message). Shows "
+        "records, rate and gaps on stderr. Exit 0 when the file was written; 1 if nothing "
+        "came within --timeout and three heartbeats (no file is left) or the disk failed "
+        "(the file keeps what was written up to the last second, or is removed if that is "
+        "nothing); 3 if the gateway falls silent (the file keeps what came).")
     recorder.add_argument("file", metavar="FILE.mcap", help="a new file")
     recorder.add_argument("nodes", nargs="*", type=node_address, metavar="NODE")
     recorder.add_argument("--seconds", type=bounded(float, 0.1, 1e7), metavar="S",
@@ -108,8 +111,8 @@ def add_op(commands: Any, groups: dict[str, Any], op: Op) -> None:
         if param.kind.choices:
             listed += f"; one of: {', '.join(param.kind.choices)}"
         if param.many:
-            sub.add_argument(param.name, nargs="+", type=argtype(param.kind),
-                             metavar=metavar, help=listed)
+            sub.add_argument(param.name, nargs="+" if param.required else "*",
+                             type=argtype(param.kind), metavar=metavar, help=listed)
         elif param.required:
             sub.add_argument(param.name, type=argtype(param.kind), metavar=metavar,
                              help=listed)
@@ -182,12 +185,14 @@ def client_keys(client_key: str | None, server_key: str | None,
 
 def fields_of(op: Op, args: argparse.Namespace) -> dict[str, Any]:
     """The request's fields from a parsed command line (lists without repeats, and no
-    longer than the gateway takes)."""
+    longer than the gateway takes; an optional list left out when empty)."""
     fields = {}
     for param in op.params:
         value = getattr(args, param.name)
         if param.many:
             value = list(dict.fromkeys(value))
+            if not value and not param.required:
+                continue
             if len(value) > param.many:
                 raise CtlError(f"{' '.join(op.command)} takes at most {param.many} "
                                f"{param.name}, not {len(value)}", Exit.USAGE)

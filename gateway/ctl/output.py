@@ -362,3 +362,24 @@ def _selftest(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
                   *_stream_line(node, result, "test")],
                  f"node {node} failed its self-test: {', '.join(failed)}"
                  if failed or not rows else None)
+
+
+def time_of_day(stamp: Any) -> str:
+    """``12:03:04.123``, local time, of a UNIX time (``-`` for anything else)."""
+    value = number(stamp)
+    if value is None:
+        return MISSING
+    try:
+        whole = time.strftime("%H:%M:%S", time.localtime(value))
+    except (OverflowError, OSError, ValueError):
+        return MISSING
+    return f"{whole}.{int(value % 1 * 1000):03d}"
+
+
+@prints("mark")
+def _mark(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    nodes = result.get("nodes")
+    named = (f" ({', '.join(cell(n) for n in nodes)})" if isinstance(nodes, list) and nodes
+             else "")
+    return Shown([f"mark at {time_of_day(result.get('time'))}: {cell(result.get('text'))}"
+                  f"{named}"])

@@ -1,27 +1,41 @@
 """``gx2ctl record FILE.mcap [NODE...] [--seconds S]``: a running gateway's published
 stream, recorded by a subscriber to an MCAP file with the channels the daemon's own
-recordings have (no ``serial`` channel: a subscriber never sees the bytes).
+recordings have (no ``serial`` channel: a subscriber never sees the bytes), marks
+(``gx2ctl mark``) included whichever nodes are recorded.
 
-A progress line on stderr (records, rate, gaps) while it runs, in place on a terminal
-and every PROGRESS_PIPE_S otherwise; the file is finished on a signal, at the end of
-``--seconds`` and when the gateway falls silent, and flushed every second meanwhile.
+The file is made when the gateway is first heard (its heartbeat, a record, a mark):
+one that publishes nothing in the wait for it (``--timeout``, and at least three
+heartbeats) leaves no file behind, and the run exits 1. ``--seconds`` counts from
+then. A progress line on stderr (records, rate, gaps) while it runs, in place on a
+terminal and every PROGRESS_PIPE_S otherwise; the file is finished on a signal, at the
+end of ``--seconds`` and when the gateway falls silent, and flushed every second
+meanwhile. A disk that fails (full, a file size limit, an I/O error) ends the run with
+one line (exit 1): the file keeps what was written up to the last flush, ended there so
+readers read it whole, and is removed if that is nothing.
 """
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
-from gateway.client import Message
-from gateway.common.protocol import Exit
-from gateway.common.topics import STATUS_TOPIC, topic
+import msgpack
+import zmq
+
+from gateway.client import Message, Status, Subscriber
+from gateway.common import curve
+from gateway.common.protocol import MAX_REPLY_BYTES, Exit
+from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC, topic
 from gateway.recording.files import RecordingWriter
 
 from . import PROG
 from .client import CtlError
-from .tail import Stop, subscribe
+from .tail import Source, Stop, source, subscribe
 
 if TYPE_CHECKING:
     from .cli import Endpoints
@@ -29,7 +43,10 @@ if TYPE_CHECKING:
 FLUSH_S = 1.0
 PROGRESS_S = 0.5
 PROGRESS_PIPE_S = 10.0
+WAIT_S = 0.1
+"""The longest a mark waits to be written while nothing else arrives."""
 STATUS_CHANNEL = STATUS_TOPIC.decode()
+MARK_CHANNEL = MARK_TOPIC.decode()
 
 
 def run_record(path: str, nodes: list[int], seconds: float | None, where: Endpoints,
@@ -37,42 +54,199 @@ def run_record(path: str, nodes: list[int], seconds: float | None, where: Endpoi
     target = Path(path)
     if target.exists():
         raise CtlError(f"{target} exists: record to a new file", Exit.USAGE)
+    creatable(target)
     stop = Stop()
-    with subscribe(nodes, where, timeout, status=True) as (sub, silence):
+    found = source(nodes, where, timeout)
+    # the marks' socket first: by the time the subscriber hears the gateway, it has
+    # joined too, and a mark made once gx2ctl record shows its file is kept
+    with marks_of(found) as marks, \
+            subscribe(nodes, where, timeout, found, status=True) as (sub, silence):
+        events = Events(sub, marks)
+        first = events.first(silence, stop)
+        if first is None:
+            why = (f"interrupted before the gateway at {found.address} was heard"
+                   if stop.requested else f"no message from the gateway at "
+                   f"{found.address} in {silence:g} s, not even its heartbeat")
+            raise CtlError(f"{why}: nothing recorded ({target} not made)", Exit.NODE_FAILED)
+        capture = Capture(target, {"recorded_by": "gx2ctl record", "source": found.address})
+        progress = Progress(target, sys.stderr.isatty())
+        start = flushed = time.monotonic()
+        event: Event | None = first
+        try:
+            while not stop.requested:
+                if event is not None:
+                    capture.add(event, progress)
+                now = time.monotonic()
+                if seconds is not None and now - start >= seconds:
+                    break
+                if now - flushed >= FLUSH_S:
+                    capture.flush()
+                    flushed = now
+                progress.show(now - start)
+                if event is None and sub.silent_for() > silence:
+                    raise CtlError(f"the gateway at {found.address} published nothing "
+                                   f"for {silence:g} s (not even its heartbeat); "
+                                   f"{target} holds what came before", Exit.NO_ANSWER)
+                event = events.next(PROGRESS_S)
+        finally:
+            capture.finish()
+            if not capture.failed:  # (a disk that failed: its line says it all)
+                progress.done(time.monotonic() - start)
+    return Exit.OK
+
+
+def creatable(target: Path) -> None:
+    """Usage error (exit 2) now, rather than once the gateway is heard, if ``target``
+    cannot be made (no such directory, no permission); nothing is left behind."""
+    try:
+        target.open("xb").close()
+    except OSError as error:
+        raise CtlError(f"{target}: {error.strerror or error}", Exit.USAGE) from None
+    with contextlib.suppress(OSError):
+        target.unlink()
+
+
+# --- what is received -----------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Marked:
+    """A mark published by the gateway (``gx2ctl mark``)."""
+
+    payload: Mapping[str, Any]
+
+
+Event = Message | Status | Marked
+
+
+class Marks:
+    """A subscription to the gateway's marks, beside the subscriber's records and
+    heartbeats (which never yields them)."""
+
+    def __init__(self, found: Source) -> None:
+        self.context = zmq.Context()
+        self.socket = self.context.socket(zmq.SUB)
+        self.socket.setsockopt(zmq.LINGER, 0)
+        self.socket.setsockopt(zmq.MAXMSGSIZE, MAX_REPLY_BYTES)
+        if found.keys is not None:
+            curve.connect_as(self.socket, found.keys)
+        self.socket.setsockopt(zmq.SUBSCRIBE, MARK_TOPIC)
+        try:
+            self.socket.connect(found.address)
+        except zmq.ZMQError as error:
+            self.close()
+            raise CtlError(f"cannot subscribe to {found.address}: {error}",
+                           Exit.USAGE) from None
+
+    def take(self) -> Marked | None:
+        """A mark already received, or None (a malformed one is skipped, with a line)."""
+        while True:
+            try:
+                frames = self.socket.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                return None
+            try:
+                payload = msgpack.unpackb(frames[-1], raw=False, strict_map_key=False)
+            except Exception:  # msgpack raises several unrelated types
+                payload = None
+            if len(frames) == 2 and isinstance(payload, dict):
+                return Marked(payload)
+            print(f"{PROG}: skipped a mark that is not a msgpack map", file=sys.stderr,
+                  flush=True)
+
+    def close(self) -> None:
+        self.socket.close(linger=0)
+        self.context.term()
+
+
+@contextlib.contextmanager
+def marks_of(found: Source) -> Iterator[Marks]:
+    marks = Marks(found)
+    try:
+        yield marks
+    finally:
+        marks.close()
+
+
+class Events:
+    """Records, heartbeats and marks as they come."""
+
+    def __init__(self, sub: Subscriber, marks: Marks) -> None:
+        self.sub = sub
+        self.marks = marks
+
+    def next(self, timeout: float) -> Event | None:
+        """The next event, or None after ``timeout`` s. A mark is looked for between
+        records, and at least every WAIT_S while none comes."""
+        deadline = time.monotonic() + timeout
+        while True:
+            mark = self.marks.take()
+            if mark is not None:
+                return mark
+            left = deadline - time.monotonic()
+            event = self.sub.receive(max(0.0, min(left, WAIT_S)))
+            if event is not None:
+                return event
+            if left <= WAIT_S:
+                return self.marks.take()
+
+    def first(self, silence: float, stop: Stop) -> Event | None:
+        """The first event, or None if the gateway stays silent for ``silence`` s (or
+        a signal comes first)."""
+        while not stop.requested and self.sub.silent_for() <= silence:
+            event = self.next(PROGRESS_S)
+            if event is not None:
+                return event
+        return None
+
+
+# --- what is written ------------------------------------------------------------------
+
+class Capture:
+    """The file being written. A disk error ends the run (exit 1) with one line, the
+    file left as :meth:`RecordingWriter.abandon` leaves it."""
+
+    def __init__(self, target: Path, metadata: dict[str, str]) -> None:
+        self.target = target
         try:
             output = target.open("xb")
         except OSError as error:
             raise CtlError(f"{target}: {error.strerror or error}", Exit.USAGE) from None
-        writer = RecordingWriter(output, {"recorded_by": "gx2ctl record",
-                                          "source": sub.endpoints[0]})
-        progress = Progress(target, sys.stderr.isatty())
-        start = time.monotonic()
-        flushed = start
+        self.writer = RecordingWriter(output, metadata)
+        self.failed = False
+        """A write failed: the run ends, the file as abandon() left it."""
+
+    def add(self, event: Event, progress: Progress) -> None:
+        with self._guarded():
+            if isinstance(event, Message):
+                self.writer.message(topic(event.node, event.record).decode(), event.payload)
+                progress.records += 1
+                progress.gaps += event.gap
+            elif isinstance(event, Marked):
+                self.writer.message(MARK_CHANNEL, event.payload)
+            else:
+                self.writer.message(STATUS_CHANNEL, event.payload)
+
+    def flush(self) -> None:
+        with self._guarded():
+            self.writer.flush()
+
+    def finish(self) -> None:
+        if not self.failed:
+            with self._guarded():
+                self.writer.finish()
+
+    @contextlib.contextmanager
+    def _guarded(self) -> Iterator[None]:
         try:
-            while not stop.requested:
-                now = time.monotonic()
-                if seconds is not None and now - start >= seconds:
-                    break
-                event = sub.receive(PROGRESS_S)
-                if isinstance(event, Message):
-                    writer.message(topic(event.node, event.record).decode(), event.payload)
-                    progress.records += 1
-                    progress.gaps += event.gap
-                elif event is not None:
-                    writer.message(STATUS_CHANNEL, event.payload)
-                now = time.monotonic()
-                if now - flushed >= FLUSH_S:
-                    writer.flush()
-                    flushed = now
-                progress.show(now - start)
-                if event is None and sub.silent_for() > silence:
-                    raise CtlError(f"the gateway at {sub.endpoints[0]} published nothing "
-                                   f"for {silence:g} s (not even its heartbeat); "
-                                   f"{target} holds what came before", Exit.NO_ANSWER)
-        finally:
-            writer.finish()
-            progress.done(time.monotonic() - start)
-    return Exit.OK
+            yield
+        except OSError as error:
+            self.failed = True
+            self.writer.abandon(self.target)
+            kept = self.writer.kept
+            after = (f"it keeps the {kept:,} messages written before" if kept
+                     else "nothing was recorded, the file is removed")
+            raise CtlError(f"{self.target}: {error.strerror or error}; {after}",
+                           Exit.NODE_FAILED) from None
 
 
 class Progress:

@@ -9,10 +9,12 @@ import signal
 import sys
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 from gateway.client import GatewayError, Malformed, Subscriber
+from gateway.common import curve
 from gateway.common.endpoints import connectable
 from gateway.common.protocol import Exit
 
@@ -80,12 +82,38 @@ FLUSH_S = 0.1
 """Printed lines reach a pipe at least this often."""
 
 
+@dataclass(frozen=True)
+class Source:
+    """A gateway's publish endpoint as a subscriber connects to it."""
+
+    address: str
+    keys: curve.ClientKeys | None
+    """CURVE keys, if the gateway encrypts what it publishes."""
+    silence: float
+    """Seconds of silence after which the gateway is taken for dead."""
+
+
 @contextlib.contextmanager
 def subscribe(nodes: list[int], where: Endpoints, timeout: float,
-              **options: Any) -> Iterator[tuple[Subscriber, float]]:
-    """A subscriber to ``nodes`` (all if empty) of the gateway ``where`` names, and the
-    silence after which that gateway is taken for dead. Its publish endpoint, key and
-    nodes come from the configuration, or else from its status reply."""
+              found: Source | None = None, **options: Any
+              ) -> Iterator[tuple[Subscriber, float]]:
+    """A subscriber to ``nodes`` (all if empty) of the gateway ``where`` names (or
+    ``found`` there already), and the silence after which that gateway is taken for
+    dead."""
+    found = found or source(nodes, where, timeout)
+    try:
+        sub = Subscriber(found.address, nodes, keys=found.keys, on_malformed=_warn,
+                         **options)
+    except GatewayError as error:
+        raise CtlError(str(error), Exit.USAGE) from None
+    with sub:
+        yield sub, found.silence
+
+
+def source(nodes: list[int], where: Endpoints, timeout: float) -> Source:
+    """Where to subscribe to the gateway ``where`` names: its publish endpoint, key and
+    nodes come from the configuration, or else from its status reply. A node it does
+    not have is a usage error."""
     found, secured = where.publish, where.publish_secured
     heartbeat, configured = where.heartbeat_s, where.nodes
     if found is None or configured is None:
@@ -103,14 +131,8 @@ def subscribe(nodes: list[int], where: Endpoints, timeout: float,
         raise CtlError(f"node {unknown[0]} is not configured in this gateway (it has "
                        f"{', '.join(map(str, configured)) or 'none'})", Exit.USAGE)
     silence = max(timeout, HEARTBEATS_MISSED * heartbeat if heartbeat else 0.0)
-    address = connectable(found, where.control)
-    try:
-        sub = Subscriber(address, nodes, keys=where.keys if secured else None,
-                         on_malformed=_warn, **options)
-    except GatewayError as error:
-        raise CtlError(str(error), Exit.USAGE) from None
-    with sub:
-        yield sub, silence
+    return Source(connectable(found, where.control), where.keys if secured else None,
+                  silence)
 
 
 def _warn(endpoint: str, problem: Malformed) -> None:

@@ -91,7 +91,8 @@ class Gateway:
         self.ops = Operations(self.scheduler, self.supervisor, self.status,
                               allow_eeprom_write=config.control.allow_eeprom_write,
                               allow_any_eeprom_address=config.control.allow_any_eeprom_address,
-                              replaying=self.replaying)
+                              replaying=self.replaying,
+                              publish_mark=lambda mark: self.publisher.mark(mark))
         endpoint = config.publish.endpoint
         try:
             self.publisher = Publisher(self._context, endpoint, config.publish.high_water_mark,
@@ -123,7 +124,8 @@ class Gateway:
         self.port = Port(config.base_station.port, list(self.nodes))
         self.link: SerialLink | ReplayLink
         if replay is not None:
-            self.link = ReplayLink(replay, on_data, self._on_link_state, self._replay_ended)
+            self.link = ReplayLink(replay, on_data, self._on_link_state, self._replay_ended,
+                                   self.publisher.replayed)
         else:
             self.link = SerialLink(self.port.path, config.base_station.baudrate, on_data,
                                    self._on_link_state)

@@ -44,6 +44,12 @@ def main(argv: list[str] | None = None) -> int:
         config = load_config(args.config)
     except ConfigError as error:
         fail(parser.prog, str(error), 2)
+    # a recording with nothing the gateway can play is refused as the configuration is:
+    # at --check, and at start rather than as a replay that ends at once having done nothing
+    from .ports import nothing_to_play
+    problem = nothing_to_play(config.base_station.port)
+    if problem:
+        fail(parser.prog, f"{args.config}: base_station.port: {problem}", 2)
     if args.check:
         from .ports import never_serial
         problem = never_serial(config.base_station.port)

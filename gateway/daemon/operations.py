@@ -9,6 +9,7 @@ about a node's stream (``start`` and ``stop`` change what it pursues).
 from __future__ import annotations
 
 import asyncio
+import time
 from collections.abc import Awaitable, Callable, Coroutine
 from typing import Any
 
@@ -18,7 +19,7 @@ from aspp.frame import encode_ping
 from aspp.timing import data_rate, divider_for_rate
 from gateway.common import ops
 
-from .errors import Invalid, NodeError, Refused
+from .errors import Invalid, NodeError, OpError, Refused
 from .nodes import Node
 from .requests import RequestBase
 from .scheduler import Scheduler
@@ -46,7 +47,8 @@ class Operations:
 
     def __init__(self, scheduler: Scheduler, supervisor: Supervisor,
                  status: Callable[[], Result], *, allow_eeprom_write: bool,
-                 allow_any_eeprom_address: bool = False, replaying: bool = False) -> None:
+                 allow_any_eeprom_address: bool = False, replaying: bool = False,
+                 publish_mark: Callable[[Result], bool] | None = None) -> None:
         self.scheduler = scheduler
         self.supervisor = supervisor
         self.nodes = supervisor.nodes
@@ -55,6 +57,8 @@ class Operations:
         self.allow_any_eeprom_address = allow_any_eeprom_address
         self.replaying = replaying
         """Playing a recording: nothing may be sent to a node."""
+        self.publish_mark = publish_mark
+        """Publishes a mark (and so records it); False if it could not be published."""
         self._tasks: set[asyncio.Task[None]] = set()
 
     async def run(self, request: RequestBase) -> Result:
@@ -185,6 +189,21 @@ async def info(gw: Operations, request: Any) -> Result:
     return {"node": node.address, "firmware": version,
             "firmware_version": commands.firmware_text(version), "model_number": texts[0],
             "serial_number": texts[1], "model_name": texts[2], "options": texts[3]}
+
+
+@handles("mark")
+async def mark(gw: Operations, request: Any) -> Result:
+    """The moment the gateway took it, on its clock: the one every record's ``time`` and
+    ``host_time`` are on, so a mark lines up with the samples around it."""
+    if gw.replaying:
+        raise Refused("mark: this gateway is replaying a recording; a mark belongs to "
+                      "what is happening now, on a live gateway")
+    nodes = [gw.node(address).address for address in request.nodes]
+    now = time.time()
+    payload = {"text": request.text, "time": now, "host_time": now, "nodes": nodes}
+    if gw.publish_mark is None or not gw.publish_mark(payload):
+        raise OpError("the mark could not be published (the gateway's log says why)")
+    return dict(payload)
 
 
 # the ops that measure, correct and check what a node senses register themselves there

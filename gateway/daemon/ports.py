@@ -44,6 +44,13 @@ def check_url(url: str, nodes: list[int]) -> str:
     return url
 
 
+def nothing_to_play(url: str) -> str | None:
+    """Why a ``replay://`` URL has nothing to play (None if it has, or is no replay):
+    its recordings are read up to their first message that can be played."""
+    replay = Port.replay_of(url)
+    return (replay.nothing_to_play() or None) if replay is not None else None
+
+
 def never_serial(url: str) -> str | None:
     """Why ``url`` can never be a serial port (a regular file, a directory), or None.
     A path that does not exist now is not flagged: the adapter may be plugged in later.

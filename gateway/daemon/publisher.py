@@ -15,7 +15,7 @@ import msgpack
 import zmq
 
 from gateway.common import curve
-from gateway.common.topics import STATUS_TOPIC, topic
+from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC, parse, topic
 
 log = logging.getLogger("gx2.publish")
 _MORE, _LAST = int(zmq.SNDMORE | zmq.NOBLOCK), int(zmq.NOBLOCK)
@@ -78,6 +78,17 @@ class Publisher:
 
     def status(self, payload: dict[str, Any]) -> bool:
         return self._send(STATUS_TOPIC, payload)
+
+    def mark(self, payload: dict[str, Any]) -> bool:
+        return self._send(MARK_TOPIC, payload)
+
+    def replayed(self, name: str, payload: dict[str, Any]) -> bool:
+        """A message of a recording, published again on its topic as it was recorded (a
+        node's record counted as one published on that node's topic)."""
+        found = parse(name)
+        if found is not None:
+            return self.publish(*found, payload)
+        return self._send(name.encode(), payload)
 
     def _send(self, name: bytes, payload: dict[str, Any]) -> bool:
         if self.record is not None:

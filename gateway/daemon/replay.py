@@ -5,6 +5,15 @@ goes to the reader with the times it was read at (UNIX and monotonic), so the re
 the nodes' clock estimates and the publisher do exactly what they did live. It takes
 nothing: a write is an error (the gateway sends nothing during a replay).
 
+A file without serial reads (``gx2ctl record``'s: a subscriber never sees the bytes) is
+played by publishing its messages again, each on its topic with its recorded payload;
+the nodes are not fed, and the gateway's status says how far the replay is. What
+decides is the file's first read or node record: the daemon records each read before
+the records decoded from it, so a node record before any read is a subscriber's. The
+recorded status messages (``gx2/gateway/status``) are not published again: the replaying
+gateway publishes its own, and a subscriber must not take a recorded gateway for the
+one it is listening to. Marks are published again from both kinds of file.
+
 Pace: the recorded one divided by ``speed``; ``speed=0`` plays as fast as the gateway
 takes it, letting the loop run other work every YIELD_EVERY reads. Playing starts
 ``delay`` seconds after the gateway does (default DELAY_S): a PUB socket drops what it
@@ -25,14 +34,18 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 from urllib.parse import parse_qs
 
+from gateway.common.topics import parse
 from gateway.recording.files import (
+    MARK,
     SERIAL,
+    Entry,
     FileReport,
     Reading,
     RecordingError,
-    read_all,
+    read,
     usable_files,
 )
 
@@ -41,6 +54,8 @@ SCHEME = "replay://"
 YIELD_EVERY = 200
 DELAY_S = 1.0
 OPTIONS = ("speed", "exit", "delay")
+PUBLISHED = "published"
+"""A file of published messages (no serial reads): played by publishing them again."""
 
 
 @dataclass(frozen=True)
@@ -81,6 +96,21 @@ class Replay:
             raise ValueError(str(error)) from None
         return cls(tuple(files), speed, leave, delay)
 
+    def nothing_to_play(self) -> str:
+        """Why the recording has nothing to play (empty if it has): no file holds a
+        serial read, a node's record or a mark. Files are read only up to the first such
+        message, so a gateway's recording is judged by its first chunk."""
+        for path in self.files:
+            if any(_playable(entry.topic) for entry in read(path, Reading())):
+                return ""
+        where = self.files[0] if len(self.files) == 1 else f"{len(self.files)} files"
+        return (f"{where}: nothing to replay: no serial reads (a gateway's recording) and no "
+                "published records or marks (gx2ctl record's)")
+
+
+def _playable(topic: str) -> bool:
+    return topic in (SERIAL, MARK) or parse(topic) is not None
+
 
 def _number(url: str, options: dict[str, list[str]], name: str, default: float,
             most: float, meaning: str) -> float:
@@ -98,21 +128,30 @@ def _number(url: str, options: dict[str, list[str]], name: str, default: float,
 
 
 class ReplayLink:
-    """Plays the ``serial`` channel of a recording into ``on_data``."""
+    """Plays the ``serial`` channel of a recording into ``on_data``; the messages of a
+    file without one, and the marks of every file, into ``on_message``."""
 
     def __init__(self, replay: Replay, on_data: Callable[[bytes, float, float], None],
-                 on_state: Callable[[bool], None], on_end: Callable[[], None]) -> None:
+                 on_state: Callable[[bool], None], on_end: Callable[[], None],
+                 on_message: Callable[[str, dict[str, Any]], object]) -> None:
         self.replay = replay
         self.port = f"{SCHEME}{replay.files[0]}"
         self._on_data = on_data
         self._on_state = on_state
         self._on_end = on_end
+        self._on_message = on_message
         self._task: asyncio.Task[None] | None = None
         self.up = False
         self.since = time.time()
         self.reconnects = 0
         self.bytes_read = 0
         self.reads = 0
+        """What has been played: serial reads, and messages published again (status
+        shows it as the replay's progress)."""
+        self.messages = 0
+        """Messages published again (of them)."""
+        self.unreadable = 0
+        """Messages that are not the JSON objects their channel holds: skipped."""
         self.last_error = ""
         self.finished = False
         self.reopening = False
@@ -134,28 +173,57 @@ class ReplayLink:
         speed = self.replay.speed
         reading = Reading(self._read_file)
         origin: tuple[float, float] | None = None
+        seen = 0
         await asyncio.sleep(self.replay.delay)
-        for entry in read_all(self.replay.files, reading, (SERIAL,)):
-            host_time = entry.log_time / 1e9
-            monotonic = (entry.publish_time or entry.log_time) / 1e9
-            if speed > 0:
-                if origin is None:
-                    origin = (host_time, loop.time())
-                delay = origin[1] + (host_time - origin[0]) / speed - loop.time()
-                if delay > 0:
-                    await asyncio.sleep(delay)
-            elif self.reads % YIELD_EVERY == 0:
-                await asyncio.sleep(0)
-            self.reads += 1
-            self.bytes_read += len(entry.data)
-            self._on_data(entry.data, host_time, monotonic)
-        self.partial = reading.partial
+        for path in self.replay.files:
+            # SERIAL (a gateway's recording) or PUBLISHED, once the file has shown which
+            kind: str | None = None
+            for entry in read(path, reading):
+                seen += 1
+                if speed == 0 and seen % YIELD_EVERY == 0:
+                    await asyncio.sleep(0)
+                topic = entry.topic
+                record = topic != SERIAL and parse(topic) is not None
+                if kind is None and (topic == SERIAL or record):
+                    kind = SERIAL if topic == SERIAL else PUBLISHED
+                played = (topic == MARK or (topic == SERIAL and kind == SERIAL)
+                          or (record and kind == PUBLISHED))
+                if not played:
+                    continue
+                if speed > 0:
+                    host_time = entry.log_time / 1e9
+                    if origin is None:
+                        origin = (host_time, loop.time())
+                    delay = origin[1] + (host_time - origin[0]) / speed - loop.time()
+                    if delay > 0:
+                        await asyncio.sleep(delay)
+                self._play_one(entry)
+        self.partial = reading.partial or self.unreadable > 0
         self.finished = True
-        log.info("replay finished: %d reads, %d bytes from %d file%s%s", self.reads,
-                 self.bytes_read, len(self.replay.files),
-                 "" if len(self.replay.files) == 1 else "s",
+        if self.unreadable:
+            log.warning("replay: skipped %d messages that are not JSON objects",
+                        self.unreadable)
+        log.info("replay finished: %d reads (%d bytes), %d messages published again, from "
+                 "%d file%s%s", self.reads - self.messages, self.bytes_read, self.messages,
+                 len(self.replay.files), "" if len(self.replay.files) == 1 else "s",
                  " (partial: what could not be read was skipped)" if self.partial else "")
         self._on_end()
+
+    def _play_one(self, entry: Entry) -> None:
+        if entry.topic == SERIAL:
+            self.reads += 1
+            self.bytes_read += len(entry.data)
+            self._on_data(entry.data, entry.log_time / 1e9,
+                          (entry.publish_time or entry.log_time) / 1e9)
+            return
+        try:
+            payload = entry.payload()
+        except RecordingError:
+            self.unreadable += 1
+            return
+        self.reads += 1
+        self.messages += 1
+        self._on_message(entry.topic, payload)
 
     def _read_file(self, report: FileReport) -> None:
         """A line as each file is done, if it was not read whole."""

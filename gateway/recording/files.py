@@ -8,9 +8,9 @@ package); this module is the one place that knows its channels:
   clock (both ns), so a replay feeds the clock estimate the very pairs it saw live;
 - ``serial/written``: every write to the base station, stamped the same way, so a
   capture shows both directions of the line;
-- ``gx2/<address>/<record>`` and ``gx2/gateway/status``: each published message as one
-  JSON object (NaN as null); ``log_time`` its ``host_time`` (for a status, its
-  ``gateway.time``), ``publish_time`` its ``time`` where it has one.
+- ``gx2/<address>/<record>``, ``gx2/gateway/status`` and ``gx2/gateway/mark``: each
+  published message as one JSON object (NaN as null); ``log_time`` its ``host_time``
+  (for a status, its ``gateway.time``), ``publish_time`` its ``time`` where it has one.
 
 Files are written in the order things happened, so reading a file front to back (which
 also works on a file whose writer was killed before it finished) gives them in order.
@@ -36,6 +36,7 @@ from mcap.opcode import Opcode
 from mcap.writer import CompressionType, Writer
 
 from gateway.common.jsontext import compact
+from gateway.common.topics import MARK_TOPIC
 from gateway.common.version import VERSION
 
 SERIAL = "serial"
@@ -76,6 +77,9 @@ class RecordingWriter:
             self._writer.add_metadata("gx2-gateway", dict(metadata))
         self._channels: dict[str, int] = {}
         self.messages = 0
+        self.kept = 0
+        """Messages handed to the OS by the last flush: what a failed disk leaves."""
+        self._kept_at = 0
 
     def _channel(self, topic: str, encoding: str) -> int:
         channel = self._channels.get(topic)
@@ -110,6 +114,24 @@ class RecordingWriter:
         """Close the chunk in progress and hand it to the OS: what a process killed
         from now on leaves readable."""
         self._writer.flush()
+        self.kept = self.messages
+        self._kept_at = self._output.tell()
+
+    def abandon(self, path: Path) -> None:
+        """After a write failed (a full disk): the file ``path`` cut back to its last
+        flush and ended there (a data end and a footer without summary, as the MCAP
+        spec allows), so a reader reads what it keeps whole; a file that keeps no
+        message is removed. If the disk refuses even that, what it has stays readable
+        up to its last whole chunk."""
+        with contextlib.suppress(OSError, ValueError):
+            self._output.close()
+        with contextlib.suppress(OSError):
+            if not self.kept:
+                path.unlink()
+                return
+            os.truncate(path, self._kept_at)
+            with path.open("ab") as output:
+                output.write(_END)
 
     def finish(self) -> None:
         """Write the summary and index, make sure the disk has it all, close the file."""
@@ -136,13 +158,15 @@ class RecordingWriter:
 # exactly.
 
 MAGIC = b"\x89MCAP0\r\n"
-MARK = "gx2/gateway/mark"
-"""The channel of marks (``gx2ctl mark``): each a JSON object ``text``, ``time``,
-``nodes`` (empty: the whole experiment), ``host_time``."""
+MARK = MARK_TOPIC.decode()
+"""The channel of marks (``gx2ctl mark``), each a JSON object (see MARK_TOPIC)."""
 PARTIAL = 1
 """Exit status of export, plot, and a replay with ``exit=true``, that skipped something
 unreadable (a file, a damaged chunk) and read the rest."""
 _RECORD_HEAD = struct.Struct("<BQ")
+_END = (_RECORD_HEAD.pack(Opcode.DATA_END, 4) + bytes(4)
+        + _RECORD_HEAD.pack(Opcode.FOOTER, 20) + bytes(20) + MAGIC)
+"""A data end (no CRC) and a footer saying there is no summary: a file's end."""
 _MESSAGE_HEAD = struct.Struct("<HIQQ")
 _CHUNK_HEAD = struct.Struct("<QQQII")
 _FOOTER_BYTES = _RECORD_HEAD.size + 20 + len(MAGIC)

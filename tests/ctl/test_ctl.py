@@ -184,6 +184,9 @@ def result_for(request: Any, advertised: str) -> dict[str, Any]:
                 "attempts": 1}
     if op == "rate":
         return {"node": request.node, "hz": request.hz, "divider": round(51200 / request.hz)}
+    if op == "mark":
+        at = time.mktime((2026, 11, 22, 12, 3, 4, 0, 0, -1)) + 0.1234  # (local time)
+        return {"text": request.text, "time": at, "host_time": at, "nodes": request.nodes}
     return {"node": request.node, "firmware": 4105, "model_number": "6211-4220",
             "serial_number": "2217-0122", "model_name": "3DM-GX2", "options": "Inertia-Link"}
 
@@ -321,6 +324,10 @@ READABLE: dict[str, tuple[list[str], str]] = {
                      r"76 eeprom\[0x0040\] = 48879 \(0xBEEF\), written and read back "
                      r"\(1 attempt\)\n"),
     "rate": (["rate", "76", "100"], r"76 rate 100 Hz \(divider 512\)\n"),
+    "mark": (["mark", "76", "77", "trial 3 start"],
+             r"mark at 12:03:04\.123: trial 3 start \(76, 77\)\n"),
+    "mark of the whole experiment": (["mark", " a knock\t(left) "],
+                                     r"mark at 12:03:04\.123: a knock \(left\)\n"),
     "info": (["info", "76"], r"node +76\nfirmware +4105\nmodel number +6211-4220\n"
              r"serial number +2217-0122\nmodel name +3DM-GX2\noptions +Inertia-Link\n"),
     "status": (["status"], r"gateway  version 9\.9\.9, up 1 h 02 min, publish tcp://\*:\d+, "
@@ -361,6 +368,8 @@ def test_the_requests_carry_what_the_command_line_said(
     assert 0xFCA2 in {r.address for r in fake.received("eeprom_read", 76)}
     assert (64, 0xBEEF) in {(r.address, r.value) for r in fake.received("eeprom_write", 76)}
     assert 100.0 in {r.hz for r in fake.received("rate", 76)}
+    marks = {(tuple(r.nodes), r.text) for r in fake.requests if r.op == "mark"}
+    assert {((76, 77), "trial 3 start"), ((), "a knock\t(left)")} <= marks
 
 
 JSON: dict[str, list[str]] = {
@@ -368,7 +377,7 @@ JSON: dict[str, list[str]] = {
     "stop": ["stop", "76"], "poll": ["poll", "76", "mag"],
     "eeprom read": ["eeprom", "read", "76", "10"],
     "eeprom write": ["eeprom", "write", "76", "10", "65535"], "rate": ["rate", "76", "50.5"],
-    "info": ["info", "76"],
+    "info": ["info", "76"], "mark": ["mark", "95", "trial 3 start"],
 }
 
 
@@ -393,6 +402,8 @@ def test_json_output_is_one_strict_object_per_line(name: str, fake: FakeGateway,
     if name.startswith("poll"):
         assert data["mag"] == [None, None, None] and data["record"] == "mag", data
         assert data["node"] == 76 and data["device_time"] == 1.5, data
+    if name == "mark":
+        assert data["text"] == "trial 3 start" and data["nodes"] == [95], data
     if name == "status":
         assert data["nodes"][1]["rate_hz"] is None, data
         assert data["gateway"]["publish_endpoint"] == fake.advertised
@@ -506,6 +517,13 @@ USAGE: dict[str, list[str]] = {
     "bad config file": ["--config", BAD_CONFIG, "status"],
     "missing config file": ["--config", "/nonexistent/nodes.yaml", "ping", "76"],
     "bad config file for tail": ["--config", BAD_CONFIG, "tail"],
+    "mark without text": ["mark"],
+    "mark with empty text": ["mark", "76", " "],
+    "mark of two lines": ["mark", "trial 3\nstart"],
+    "mark too long": ["mark", "x" * 1001],
+    "mark too long in bytes": ["mark", "\U0001F600" * 800],
+    "mark of node 0": ["mark", "0", "text"],
+    "mark unquoted": ["mark", "76", "trial", "3"],
 }
 
 

@@ -5,17 +5,22 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import resource
 import subprocess
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import yaml
 from mcap.reader import NonSeekingReader, make_reader
 
 from gateway.common.jsontext import strict
+from gateway.recording.files import Reading, read
 from gateway.sim.node import NodeSettings
-from tests.helpers.processes import Running, gx2ctl, script
+from tests.helpers.gateway import gateway_config
+from tests.helpers.processes import Running, gx2ctl, script, spawn_run
 from tests.helpers.waiting import wait_for
 
 NODES = [{"address": 76, "stream": "accel_angrate"}, {"address": 77, "stream": "euler"}]
@@ -241,3 +246,67 @@ def test_replay_urls_that_cannot_play_are_refused_in_one_line(tmp_path):
                              capture_output=True, text=True, timeout=30)
         assert ran.returncode == 2, (url, ran)
         assert words in ran.stderr and len(ran.stderr.strip().splitlines()) == 1, ran.stderr
+
+
+def test_gx2ctl_record_with_no_gateway_exits_1_and_leaves_no_file(tmp_path):
+    config = tmp_path / "nodes.yaml"
+    config.write_text(yaml.safe_dump(gateway_config("sim://", NODES,
+                                                    publish={"heartbeat_s": 0.1})))
+    target = tmp_path / "capture.mcap"
+    ran = gx2ctl("--config", str(config), "--timeout", "0.5", "record", str(target),
+                 "--seconds", "2")
+    assert ran.status == 1, ran
+    [line] = ran.stderr.splitlines()
+    assert "not even its heartbeat" in line and "nothing recorded" in line, line
+    assert not target.exists()
+
+
+def limited_to(size: int) -> Callable[[], None]:
+    """A preexec: files may not grow past ``size`` bytes (RLIMIT_FSIZE: a write past it
+    fails with EFBIG, as one on a full disk; Python ignores the SIGXFSZ)."""
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
+    return limit
+
+
+def record_limited(gw, target: Path, size: int) -> subprocess.CompletedProcess:
+    return spawn_run([script("gx2ctl"), "--control", gw.control_endpoint, "record",
+                      str(target), "--seconds", "30"], capture_output=True, text=True,
+                     timeout=40, stdin=subprocess.DEVNULL, preexec_fn=limited_to(size))
+
+
+def test_gx2ctl_record_on_a_failing_disk_says_so_in_one_line(simulator, gateway, tmp_path):
+    sim = simulator(NodeSettings(76), NodeSettings(77))
+    gw = gateway(sim.path, NODES)
+    gw.wait_streaming(76, 77)
+    # not even the first second fits: no file is left (a retry is not told "exists")
+    nothing = tmp_path / "nothing.mcap"
+    ran = record_limited(gw, nothing, 16)
+    assert ran.returncode == 1, ran
+    assert ran.stderr.splitlines() == [
+        f"gx2ctl: {nothing}: File too large; nothing was recorded, the file is removed"]
+    assert not nothing.exists()
+    # a file that fills up keeps what was written, ended so that readers read it whole
+    size = 20_000
+    some = tmp_path / "some.mcap"
+    ran = record_limited(gw, some, size)
+    assert ran.returncode == 1, ran
+    [line] = ran.stderr.splitlines()
+    kept = re.fullmatch(rf"gx2ctl: {re.escape(str(some))}: File too large; it keeps the "
+                        r"([\d,]+) messages written before", line)
+    assert kept, line
+    with some.open("rb") as stream:
+        count = sum(1 for _ in NonSeekingReader(stream).iter_messages())
+    assert count == int(kept.group(1).replace(",", "")) > 100
+    reading = Reading()
+    assert sum(1 for _ in read(some, reading)) == count
+    [report] = reading.files
+    assert not report.partial
+    # ended (unless the end itself would not fit: then it is read up to its last chunk)
+    assert report.whole or some.stat().st_size + 64 > size
+    # a file that cannot be made at all: bad input, one line, before any gateway is asked
+    under_a_file = tmp_path / "nothing.txt"
+    under_a_file.write_text("")
+    ran = record_limited(gw, under_a_file / "capture.mcap", size)
+    assert ran.returncode == 2, ran
+    assert ran.stderr.splitlines() == [f"gx2ctl: {under_a_file}/capture.mcap: Not a directory"]

@@ -1,0 +1,87 @@
+"""Marks (``gx2ctl mark``) through the real gateway on the simulator: published on
+gx2/gateway/mark, kept by the gateway's own recording and by ``gx2ctl record`` (whatever
+nodes it records), exported to marks.csv and drawn on a node's plot."""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+import signal
+from pathlib import Path
+
+from mcap.reader import make_reader
+
+from gateway.recording.files import Reading
+from gateway.recording.plot import picture, records_of
+from gateway.sim.node import NodeSettings
+from tests.helpers.processes import Running, gx2ctl
+from tests.helpers.waiting import wait_for
+
+NODES = [{"address": 76, "stream": "accel_angrate"}, {"address": 77, "stream": "euler"}]
+MARK = "gx2/gateway/mark"
+
+
+def marks_in(path: Path) -> list[dict]:
+    """The marks of a file, read by the ``mcap`` package (never our reader)."""
+    with path.open("rb") as stream:
+        return [json.loads(message.data) for _, channel, message
+                in make_reader(stream).iter_messages(log_time_order=False)
+                if channel.topic == MARK]
+
+
+def test_marks_are_published_recorded_exported_and_drawn(simulator, gateway, tmp_path):
+    sim = simulator(NodeSettings(76), NodeSettings(77))
+    directory = tmp_path / "recordings"
+    gw = gateway(sim.path, NODES, record={"directory": str(directory)})
+    gw.wait_streaming(76, 77)
+    published = gw.subscribe(MARK)
+    samples = gw.subscribe("gx2/76/")
+    capture = tmp_path / "capture.mcap"
+    record = Running("gx2ctl", "--control", gw.control_endpoint, "record", str(capture), "76")
+    wait_for(capture.exists, 10, "gx2ctl record to hear the gateway")
+    control = ("--control", gw.control_endpoint)
+
+    tapped = gx2ctl(*control, "mark", "76", "left wing tapped")
+    assert tapped.status == 0, tapped
+    assert re.fullmatch(r"mark at \d\d:\d\d:\d\d\.\d{3}: left wing tapped \(76\)\n",
+                        tapped.stdout), tapped
+    assert gx2ctl(*control, "mark", "77", "76", "77", "right wing tapped").status == 0
+    started = gx2ctl(*control, "--json", "mark", "trial 1 start")
+    assert started.status == 0, started
+    # a node the gateway does not have is bad input (exit 2), and nothing is published
+    unknown = gx2ctl(*control, "mark", "99", "nowhere")
+    assert unknown.status == 2 and "node 99 is not configured" in unknown.stderr, unknown
+
+    marks = [p for _, p in published.until(lambda m: len(m) >= 3, 10, "three marks")]
+    assert [(m["text"], m["nodes"]) for m in marks] == [
+        ("left wing tapped", [76]), ("right wing tapped", [77, 76]), ("trial 1 start", [])]
+    assert marks[2] == json.loads(started.stdout)
+    assert marks[0]["time"] < marks[1]["time"] < marks[2]["time"]
+    assert all(m["host_time"] == m["time"] for m in marks)
+    # records after the last mark, so that it lies within the plotted samples' time
+    samples.until(lambda m: m and m[-1][1]["time"] > marks[2]["time"] + 0.1, 10,
+                  "records after the marks")
+    record.proc.send_signal(signal.SIGINT)
+    assert record.finish(10) == 0, record.stderr
+    assert gw.terminate()[0] == 0, gw.log()
+    published.drain(0.1)
+    assert len(published.messages) == 3
+
+    [recording] = directory.glob("*.mcap")
+    assert marks_in(recording) == marks
+    assert marks_in(capture) == marks  # although it records node 76 alone
+
+    out = tmp_path / "out"
+    exported = gx2ctl("export", str(capture), "--out", str(out))
+    assert exported.status == 0, exported
+    with (out / "marks.csv").open() as table:
+        rows = list(csv.DictReader(table))
+    assert rows == [{"time": repr(m["time"]), "host_time": repr(m["host_time"]),
+                     "nodes": " ".join(map(str, m["nodes"])), "text": m["text"]}
+                    for m in marks]
+    found = records_of([capture], 76, None, Reading())
+    image = picture(76, found.record, found.payloads, found.name, found.marks)
+    # node 76's marks and the experiment's, as labelled lines
+    assert [text for _, text in image.marks] == [
+        "left wing tapped", "right wing tapped", "trial 1 start"]
