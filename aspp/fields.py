@@ -125,12 +125,38 @@ Check = Callable[[str, object], None]
 @dataclass(frozen=True)
 class Field:
     """A named quantity in a request or a reply. ``check`` validates a request
-    argument beyond its type (its range, its allowed values)."""
+    argument beyond its type (its range, its allowed values).
+
+    ``doc`` is its unit, then what it is: ``"UNIT; MEANING"``, the unit followed by
+    the names of a list's elements where they are not x, y, z (``"A/D codes: accel,
+    gyro_x, gyro_y, gyro_z; temperature sensor outputs"``); a doc without ``;`` is a
+    meaning alone (a count, a code, text). The plots label their axes with the unit,
+    and the recordings' JSON Schemas describe each field with both.
+    """
 
     name: str
     type: FieldType
     doc: str = ""
     check: Check | None = None
+
+    @property
+    def unit(self) -> str:
+        """``"g"``, ``"rad/s"``, ...; empty for a quantity without a unit."""
+        return self._unit_part.partition(":")[0].strip()
+
+    @property
+    def elements(self) -> tuple[str, ...]:
+        """The names of a list's elements, where the doc gives them."""
+        named = self._unit_part.partition(":")[2]
+        return tuple(name.strip() for name in named.split(",")) if named else ()
+
+    @property
+    def meaning(self) -> str:
+        return self.doc.partition(";")[2].strip() if ";" in self.doc else self.doc
+
+    @property
+    def _unit_part(self) -> str:
+        return self.doc.partition(";")[0] if ";" in self.doc else ""
 
 
 @dataclass(frozen=True)

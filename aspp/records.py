@@ -121,22 +121,32 @@ class CommandSpec:
 
 
 def _timed(*fields: Field) -> tuple[Field, ...]:
-    return (*fields, Field("timer", TIMER, "ticks of 1/19,660,800 s since power-up"))
+    return (*fields, Field("timer", TIMER, "ticks; the node's timer: 19,660,800 ticks "
+                           "a second since power-up, wrapping every 218.45 s"))
 
 
-_ACCEL = Field("accel", VEC3, "g")
-_ANG_RATE = Field("ang_rate", VEC3, "rad/s")
-_MAG = Field("mag", VEC3, "gauss; NaN on an Inertia-Link")
-_ORIENTATION = Field("orientation", MAT3, "M, earth to sensor frame, row-major")
-_DELTA_ANGLE = Field("delta_angle", VEC3, "rad")
-_DELTA_VELOCITY = Field("delta_velocity", VEC3, "g*s")
-_EULER = (Field("roll", F32, "rad"), Field("pitch", F32, "rad"), Field("yaw", F32, "rad"))
+_ACCEL = Field("accel", VEC3, "g; acceleration x, y, z, sensor frame")
+_ANG_RATE = Field("ang_rate", VEC3, "rad/s; angular rate x, y, z, sensor frame")
+_MAG = Field("mag", VEC3, "gauss; magnetic field x, y, z, sensor frame; NaN on an "
+             "Inertia-Link (no magnetometer)")
+_ORIENTATION = Field("orientation", MAT3, "orientation matrix M, earth to sensor frame, "
+                     "row-major")
+_DELTA_ANGLE = Field("delta_angle", VEC3, "rad; angle turned about x, y, z over the "
+                     "record's interval, sensor frame")
+_DELTA_VELOCITY = Field("delta_velocity", VEC3, "g*s; velocity change along x, y, z over "
+                        "the record's interval, sensor frame")
+_EULER = (Field("roll", F32, "rad; roll angle"), Field("pitch", F32, "rad; pitch angle"),
+          Field("yaw", F32, "rad; yaw angle"))
+_ACCEL_BIAS = "g; accelerometer bias correction x, y, z"
+_GYRO_BIAS = "rad/s; gyro bias correction x, y, z"
 _U16_ARG = in_range(0, 0xFFFF)
 
 _SPECS = (
     CommandSpec(0xC1, "raw_sensors", "Raw accelerometer and angular rate sensor outputs",
-                reply=_timed(Field("raw_accel", VEC3, "A/D codes"),
-                             Field("raw_ang_rate", VEC3, "A/D codes")), streamable=True),
+                reply=_timed(Field("raw_accel", VEC3,
+                                   "A/D codes; raw accelerometer outputs x, y, z"),
+                             Field("raw_ang_rate", VEC3, "A/D codes; raw angular rate sensor "
+                                   "outputs x, y, z")), streamable=True),
     CommandSpec(0xC2, "accel_angrate", "Acceleration and angular rate",
                 reply=_timed(_ACCEL, _ANG_RATE), streamable=True),
     CommandSpec(0xC3, "delta_angle_velocity", "Delta angle and delta velocity",
@@ -144,11 +154,13 @@ _SPECS = (
     CommandSpec(0xC4, "continuous_mode", "Set continuous mode",
                 request=(CONFIRM, Field("continuous_command", U8,
                                         "record to stream, 0 to stop")),
-                reply=_timed(Field("continuous_command", U8))),
+                reply=_timed(Field("continuous_command", U8, "the command byte of the "
+                                   "record now streamed, 0 for none"))),
     CommandSpec(0xC5, "orientation", "Orientation matrix",
                 reply=_timed(_ORIENTATION), streamable=True),
     CommandSpec(0xC6, "orientation_update", "Orientation update matrix",
-                reply=_timed(Field("orientation_update", MAT3, "C, row-major")),
+                reply=_timed(Field("orientation_update", MAT3, "orientation update "
+                                   "matrix C, row-major")),
                 streamable=True),
     CommandSpec(0xC7, "mag", "Scaled magnetometer vector",
                 reply=_timed(_MAG), streamable=True),
@@ -156,11 +168,11 @@ _SPECS = (
                 "Acceleration, angular rate and orientation matrix",
                 reply=_timed(_ACCEL, _ANG_RATE, _ORIENTATION), streamable=True),
     CommandSpec(0xC9, "accel_bias", "Write accelerometer bias correction",
-                request=(Const(b"\xB7\x44"), Field("accel_bias", VEC3, "g", finite)),
-                reply=_timed(Field("accel_bias", VEC3, "g"))),
+                request=(Const(b"\xB7\x44"), Field("accel_bias", VEC3, _ACCEL_BIAS, finite)),
+                reply=_timed(Field("accel_bias", VEC3, _ACCEL_BIAS))),
     CommandSpec(0xCA, "gyro_bias", "Write gyro bias correction",
-                request=(Const(b"\x12\xA5"), Field("gyro_bias", VEC3, "rad/s", finite)),
-                reply=_timed(Field("gyro_bias", VEC3, "rad/s"))),
+                request=(Const(b"\x12\xA5"), Field("gyro_bias", VEC3, _GYRO_BIAS, finite)),
+                reply=_timed(Field("gyro_bias", VEC3, _GYRO_BIAS))),
     CommandSpec(0xCB, "accel_angrate_mag", "Acceleration, angular rate and magnetometer",
                 reply=_timed(_ACCEL, _ANG_RATE, _MAG), streamable=True),
     CommandSpec(0xCC, "accel_angrate_mag_orientation",
@@ -169,42 +181,49 @@ _SPECS = (
     CommandSpec(0xCD, "capture_gyro_bias", "Capture gyro bias",
                 request=(CONFIRM, Field("sampling_time", U16, "ms; 10000..30000 advised",
                                         in_range(1, 0xFFFF))),
-                reply=_timed(Field("gyro_bias", VEC3, "rad/s"))),
+                reply=_timed(Field("gyro_bias", VEC3, "rad/s; gyro bias x, y, z captured"))),
     CommandSpec(0xCE, "euler", "Euler angles", reply=_timed(*_EULER), streamable=True),
     CommandSpec(0xCF, "euler_angrate", "Euler angles and angular rates",
                 reply=_timed(*_EULER, _ANG_RATE), streamable=True),
     CommandSpec(0xD0, "store_nonvolatile", "Transfer quantity to non-volatile memory",
                 request=(CONFIRM, Field("quantity", U16, "1 accel bias, 2 gyro bias",
                                         one_of({1: "accel bias", 2: "gyro bias"}))),
-                reply=_timed(Field("quantity", U16, "0xFFFF: nothing was stored"))),
+                reply=_timed(Field("quantity", U16, "what was stored (1 accel bias, "
+                                   "2 gyro bias, 0xFFFF nothing)"))),
     CommandSpec(0xD1, "temperatures", "Temperatures",
-                reply=_timed(Field("temperature", TEMPS4,
-                                   "A/D codes: accel, gyro_x, gyro_y, gyro_z")),
+                reply=_timed(Field("temperature", TEMPS4, "A/D codes: accel, gyro_x, gyro_y, "
+                                   "gyro_z; temperature sensor outputs")),
                 streamable=True),
     CommandSpec(0xD2, "stab_accel_angrate_mag",
                 "Gyro-stabilised acceleration, angular rate and magnetometer",
-                reply=_timed(Field("stab_accel", VEC3, "g"), _ANG_RATE,
-                             Field("stab_mag", VEC3, "gauss")), streamable=True),
+                reply=_timed(Field("stab_accel", VEC3, "g; gyro-stabilised acceleration x, "
+                                   "y, z, sensor frame"), _ANG_RATE,
+                             Field("stab_mag", VEC3, "gauss; gyro-stabilised magnetic field "
+                                   "x, y, z, sensor frame")), streamable=True),
     CommandSpec(0xD3, "delta_angle_velocity_mag",
                 "Delta angle, delta velocity and magnetometer",
                 reply=_timed(_DELTA_ANGLE, _DELTA_VELOCITY, _MAG), streamable=True),
     CommandSpec(0xE4, "eeprom_write", "Write word to EEPROM",
                 request=(Const(b"\xC1\x29\x00"), Field("address", U16, "", _U16_ARG),
                          Field("value", U16, "", _U16_ARG)),
-                reply=(Field("value", U16, "the word now stored"),)),
+                reply=(Field("value", U16, "the word now stored at the address"),)),
     CommandSpec(0xE5, "eeprom_read", "Read word from EEPROM",
                 request=(Const(b"\x00"), Field("address", U16, "", _U16_ARG)),
-                reply=(Field("value", U16),)),
+                reply=(Field("value", U16, "the word stored at the address"),)),
     CommandSpec(0xE9, "firmware_version", "Read firmware version number",
-                reply=(Field("version", U32),)),
+                reply=(Field("version", U32, "firmware version number"),)),
     CommandSpec(0xEA, "device_id", "Read device identifier string",
                 request=(Field("selector", U8, "0 model number, 1 serial number, "
                                "2 model name, 3 device options", in_range(0, 3)),),
-                reply=(Field("selector", U8), Field("text", TEXT16))),
+                reply=(Field("selector", U8, "which string (0 model number, 1 serial "
+                             "number, 2 model name, 3 device options)"),
+                       Field("text", TEXT16, "the string (trailing spaces and NULs "
+                             "stripped)"))),
     CommandSpec(0xFA, "stop_continuous", "Stop continuous mode (no reply)", reply=None),
     CommandSpec(0xFB, "built_in_test", "Built-in test",
-                request=(CONFIRM, Field("test_config", U8, "BIT bits 2..5; 0 ends BIT")),
-                reply=(Field("test_config", U8),), reply_may_run_long=True),
+                request=(CONFIRM, Field("test_config", U8, "BIT bits 2..5 (0 ends BIT)")),
+                reply=(Field("test_config", U8, "the built-in test configuration "
+                             "(BIT bits 2..5)"),), reply_may_run_long=True),
 )
 
 BY_CODE: dict[int, CommandSpec] = {spec.code: spec for spec in _SPECS}

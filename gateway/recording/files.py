@@ -36,6 +36,8 @@ from mcap.opcode import Opcode
 from mcap.writer import CompressionType, Writer
 
 from gateway.common.jsontext import compact
+from gateway.common.schemas import ENCODING as SCHEMA_ENCODING
+from gateway.common.schemas import schema_for_topic
 from gateway.common.topics import MARK_TOPIC
 from gateway.common.version import VERSION
 
@@ -76,6 +78,7 @@ class RecordingWriter:
         if metadata:
             self._writer.add_metadata("gx2-gateway", dict(metadata))
         self._channels: dict[str, int] = {}
+        self._schemas: dict[str, int] = {}
         self.messages = 0
         self.kept = 0
         """Messages handed to the OS by the last flush: what a failed disk leaves."""
@@ -84,9 +87,25 @@ class RecordingWriter:
     def _channel(self, topic: str, encoding: str) -> int:
         channel = self._channels.get(topic)
         if channel is None:
+            schema = self._schema(topic) if encoding == JSON_ENCODING else 0
             channel = self._channels[topic] = self._writer.register_channel(
-                topic, encoding, schema_id=0)
+                topic, encoding, schema_id=schema)
         return channel
+
+    def _schema(self, topic: str) -> int:
+        """The id of the JSON Schema of what is published on ``topic``, written into the
+        file the first time a channel needs it (0, no schema, for a topic the gateway
+        does not publish). PlotJuggler skips a channel without a schema; the serial
+        channels' raw bytes have none, as MCAP allows."""
+        found = schema_for_topic(topic)
+        if found is None:
+            return 0
+        name, schema = found
+        schema_id = self._schemas.get(name)
+        if schema_id is None:
+            schema_id = self._schemas[name] = self._writer.register_schema(
+                name, SCHEMA_ENCODING, compact(schema).encode())
+        return schema_id
 
     def serial(self, data: bytes, host_time: float, monotonic: float,
                topic: str = SERIAL) -> None:

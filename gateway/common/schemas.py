@@ -1,0 +1,202 @@
+"""JSON Schemas of the published messages: a node's records, the gateway's status, marks.
+
+A recording's JSON channels each carry one (schema encoding ``jsonschema``): PlotJuggler
+skips a channel without a schema ("Skipping MCAP channel with missing schema",
+plotjuggler_plugins/DataLoadMCAP/dataload_mcap.cpp, 3.17) and Foxglove takes the
+fields' types from it. A record's schema is made from the record table
+(:mod:`aspp.records`): its fields' names, JSON types and fixed lengths (a 3-vector is 3
+numbers, a matrix 3 rows of 3), each field's meaning and unit in its description, then
+the fields every published record carries (docs/interface.md, section 4). NaN is
+written as null (:mod:`gateway.common.jsontext`), so every float may be null.
+
+Pure, and built once: a writer asks for a topic's schema when it first meets the topic.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from typing import Any
+
+from aspp.fields import U8, Field
+from aspp.frame import MAX_NODE, MIN_NODE
+from aspp.records import CommandSpec, all_specs
+
+from .topics import MARK_TOPIC, STATUS_TOPIC, parse
+
+Schema = dict[str, Any]
+
+ENCODING = "jsonschema"
+"""The schema encoding of the MCAP schema records (the MCAP spec's well-known name)."""
+DRAFT = "https://json-schema.org/draft/2020-12/schema"
+PREFIX = "gx2."
+"""A record's schema is named ``gx2.<record>``; the gateway's own ``gx2.gateway.*``."""
+STATUS_NAME = f"{PREFIX}gateway.status"
+MARK_NAME = f"{PREFIX}gateway.mark"
+
+_FLOAT: Schema = {"type": ["number", "null"]}
+"""A float: null where the value was NaN."""
+_NULL_IS_NAN = "null stands for NaN."
+
+
+def _unsigned(largest: int) -> Schema:
+    return {"type": "integer", "minimum": 0, "maximum": largest}
+
+
+def _array(items: Schema, length: int) -> Schema:
+    return {"type": "array", "items": items, "minItems": length, "maxItems": length}
+
+
+def _described(schema: Schema, meaning: str, unit: str = "") -> Schema:
+    text = f"{meaning} [{unit}]" if unit else meaning
+    return {**schema, "description": text} if text else schema
+
+
+def field_schema(field: Field) -> Schema:
+    """One record field: its JSON type and shape, its meaning and unit."""
+    kind = field.type
+    shape = kind.shape
+    if shape == "int":
+        value = _unsigned(kind.max_int)
+    elif shape == "float":
+        value = dict(_FLOAT)
+    elif shape == "vector":
+        value = _array(_FLOAT, kind.items)
+    elif shape == "matrix":
+        value = _array(_array(_FLOAT, 3), 3)
+    elif shape == "ints":
+        value = _array(_unsigned(kind.max_int), kind.items)
+    else:  # text: latin-1, one character a byte, trailing spaces and NULs stripped
+        value = {"type": "string", "maxLength": kind.size}
+    meaning = field.meaning
+    if field.elements:
+        meaning = f"{meaning}: {', '.join(field.elements)}"
+    return _described(value, meaning, field.unit)
+
+
+# the fields every published record carries besides its own (docs/interface.md, section
+# 4; built in gateway.daemon.nodes.Node.tally), then a timed record's two; lqi and rssi
+# are the packet's two link quality bytes (aspp.events.LINK_QUALITY: an unsigned and a
+# signed byte)
+_COMMON: tuple[tuple[str, Schema, str, str], ...] = (
+    ("node", {"type": "integer", "minimum": MIN_NODE, "maximum": MAX_NODE},
+     "the node's address", ""),
+    ("seq", {"type": "integer", "minimum": 1}, "per node, +1 for each message published on "
+     "that node's topics: a gap is a loss", ""),
+    ("host_time", _FLOAT, "UNIX time when the packet's last byte was read", "s"),
+    ("lqi", _unsigned(U8.max_int), "link quality", ""),
+    ("rssi", {"type": "integer", "minimum": -128, "maximum": 127}, "signal strength", "dBm"),
+)
+_TIMED: tuple[tuple[str, Schema, str, str], ...] = (
+    ("device_time", _FLOAT, "the node's timer in seconds, unwrapped across rollovers, so "
+     "it never goes back", "s"),
+    ("time", _FLOAT, "UNIX time when the sample was taken, on one clock for every node",
+     "s"),
+)
+_STATION = _described({"type": "string"}, "the base station the record came through")
+
+
+def record_schema(spec: CommandSpec) -> Schema:
+    """The schema of ``spec``'s record as published (and recorded) on
+    ``gx2/<address>/<record>``; ValueError for a command without a reply."""
+    if spec.reply is None:
+        raise ValueError(f"{spec.name} has no reply: nothing is published for it")
+    properties = {f.name: field_schema(f) for f in spec.reply}
+    properties["record"] = _described({"type": "string", "const": spec.name},
+                                      "the record's name")
+    properties["command"] = _described({"type": "integer", "const": spec.code},
+                                       "the echo byte: the record's command byte")
+    common = _COMMON + (_TIMED if spec.timed else ())
+    for name, value, meaning, unit in common:
+        properties[name] = _described(value, meaning, unit)
+    required = [*spec.field_names, "record", "command", *(c[0] for c in common)]
+    properties["station"] = _STATION  # (not required: a record may come without it)
+    return {
+        "$schema": DRAFT,
+        "title": f"{PREFIX}{spec.name}",
+        "description": f"0x{spec.code:02X} {spec.name}: {spec.title}, as gx2-gateway "
+                       f"publishes it on gx2/<address>/{spec.name}; {_NULL_IS_NAN}",
+        "type": "object",
+        "properties": properties,
+        "required": required,
+        "additionalProperties": False,
+    }
+
+
+def _part(kind: str | list[str], meaning: str, required: tuple[str, ...] = (),
+          **properties: Schema) -> Schema:
+    """A part of the status: its type, what it is, and the keys every reader relies on
+    (the rest may come and go: additional properties are allowed)."""
+    schema: Schema = {"type": kind, "description": meaning}
+    if properties:
+        schema["properties"] = properties
+    if required:
+        schema["required"] = list(required)
+    return schema
+
+
+def status_schema() -> Schema:
+    """The status (``gx2ctl --json status``, published on gx2/gateway/status): its
+    top-level keys and their types; what is inside each part may grow."""
+    node = _part("object", "one node", ("node",), node={"type": "integer"})
+    return {
+        "$schema": DRAFT,
+        "title": STATUS_NAME,
+        "description": "the gateway's status report, published every heartbeat_s and at "
+                       f"once when the base station comes or goes; {_NULL_IS_NAN}",
+        "type": "object",
+        "properties": {
+            "gateway": _part("object", "the gateway: version, uptime, endpoints, counts",
+                             ("time",), time=_described(_FLOAT, "UNIX time of the report",
+                                                        "s"),
+                             version={"type": "string"}),
+            "link": _part("object", "the base station's serial link: port, state, "
+                          "counts of what was read and discarded"),
+            "nodes": {"type": "array", "items": node, "description": "one map a node: "
+                      "state, rates, losses, clock, health"},
+            "recording": _part(["object", "null"], "the recorder; null without record:"),
+            "replay": _part(["object", "null"], "the replay; null unless the port is "
+                            "replay://"),
+        },
+        "required": ["gateway", "link", "nodes", "recording", "replay"],
+        "additionalProperties": False,
+    }
+
+
+def mark_schema() -> Schema:
+    """A mark (``gx2ctl mark``), published on gx2/gateway/mark."""
+    return {
+        "$schema": DRAFT,
+        "title": MARK_NAME,
+        "description": f"a mark made with gx2ctl mark; {_NULL_IS_NAN}",
+        "type": "object",
+        "properties": {
+            "text": _described({"type": "string"}, "what happened (one line)"),
+            "time": _described(_FLOAT, "UNIX time the gateway took it, on the clock of "
+                               "every record's time", "s"),
+            "host_time": _described(_FLOAT, "the same moment, as a record's host_time",
+                                    "s"),
+            "nodes": _described({"type": "array", "items": {
+                "type": "integer", "minimum": MIN_NODE, "maximum": MAX_NODE}},
+                "the addresses it concerns; empty: the whole experiment"),
+        },
+        "required": ["text", "time", "host_time", "nodes"],
+        "additionalProperties": False,
+    }
+
+
+@cache
+def _table() -> dict[str, tuple[str, Schema]]:
+    """Every schema by what names its topic: a record's name, or the gateway's topic."""
+    table = {spec.name: (f"{PREFIX}{spec.name}", record_schema(spec))
+             for spec in all_specs() if spec.reply is not None}
+    table[STATUS_TOPIC.decode()] = (STATUS_NAME, status_schema())
+    table[MARK_TOPIC.decode()] = (MARK_NAME, mark_schema())
+    return table
+
+
+def schema_for_topic(topic: str) -> tuple[str, Schema] | None:
+    """The name and schema of what is published on ``topic``; None for a topic the
+    gateway does not publish (a record it does not know). The schema is shared: do not
+    change it."""
+    node = parse(topic)
+    return _table().get(node[1] if node is not None else topic)
