@@ -13,7 +13,8 @@ scheduler's background priority, whenever the node may have stopped doing it:
   gateway): two unsolicited records of one streamable record make it a stream, the
   node's rate read from their timer step; an operator's stop is then enforced again;
 * an operator's start or stop did not take (the node did not answer): the intent
-  stands, and it is tried again with backoff until it takes or is replaced.
+  stands, and it is tried again with backoff until it takes or is replaced; a node
+  kept stopped that comes back streaming is stopped at once.
 
 A node that does not answer is retried with backoff (0.5 s up to 30 s) and never holds
 up another. An out-of-range node whose stream comes back by itself is taken as it is.
@@ -30,8 +31,9 @@ from dataclasses import dataclass
 
 from aspp import commands
 from aspp.commands import EEPROM_DIVIDER
+from aspp.frame import encode_ping
 from aspp.records import Record, lookup
-from aspp.stop import GaveUp, SendStop, Stopped, StopPolicy
+from aspp.stop import GaveUp, NoAnswer, Probe, SendStop, Stopped, StopPolicy
 from aspp.timing import TICKS_PER_CLOCK, TIMER_MODULUS
 
 from .errors import LinkDown, NodeError
@@ -46,6 +48,9 @@ STOP_MIN_SILENCE = 0.3
 stalled read is not taken for a stopped stream."""
 STOP_POLL = 0.05
 """How often a stop looks at its policy while it waits for silence."""
+PROBE_PINGS = 3
+"""Wireless pings a stop sends to learn whether the node is within reach: a ping, like
+any packet, can be lost on the way while the node is there."""
 WATCH_MIN_SLEEP = 0.25
 """The least the stream watcher sleeps; also how long a stall's backlog is given to be
 read before any stream is judged silent."""
@@ -107,14 +112,22 @@ class Supervisor:
                 return
         if node.state is State.BUSY:
             return  # (its replies and any stragglers of its stream: not a stream now)
-        if node.state is State.STOPPING:
-            policy = self._stops.get(node.address)
-            if policy is not None:
-                now = time.monotonic()
-                if spec.streamable:
-                    policy.packet_seen(now)
-                if spec.code == 0xC4 and record.values[0] == 0:
-                    policy.stop_confirmed(now)
+        policy = self._stops.get(node.address)
+        if policy is not None:  # a stop runs (stopping, or still probing): its evidence
+            now = time.monotonic()
+            if spec.streamable:
+                policy.packet_seen(now)
+            if spec.code == 0xC4 and record.values[0] == 0:
+                policy.stop_confirmed(now)
+            return
+        if (node.state is State.UNREACHABLE and node.desired == OFF and spec.streamable
+                and not self.scheduler.expects(node.address, spec.code)):
+            # back within reach, streaming what an operator stopped: stopped now, not at
+            # the next retry of the stop (up to the last BACKOFF away)
+            node.streaming(spec.name)
+            log.info("node %s is back, streaming %s: stopping it again", node.label,
+                     spec.name)
+            self._pursue(node)
             return
         if not spec.streamable or spec.name == node.record:
             return
@@ -203,7 +216,11 @@ class Supervisor:
         await self._halt(node)
         held = Held(node.record)
         if held.streamed is not None:
-            await self._stop(node, Priority.OPERATOR)
+            try:
+                await self._stop(node, Priority.OPERATOR)
+            except BaseException:
+                self._pursue(node)  # (a node that did not answer is retried, as ever)
+                raise
         node.busy()
         try:
             yield held
@@ -253,7 +270,11 @@ class Supervisor:
         if not self.link_up or self.passive or self.closed:
             return
         desired = node.desired
-        if desired is None or (desired == OFF and node.record is None):
+        # a node kept stopped that streams nothing is left as it is, unless it is in
+        # trouble (it did not answer): then whether it streams is not known, and the
+        # stop is pursued (by pings alone until it answers)
+        if desired is None or (desired == OFF and node.record is None
+                               and node.trouble is None):
             node.settled()
             return
         self._pursuits[node.address] = asyncio.get_running_loop().create_task(
@@ -316,14 +337,29 @@ class Supervisor:
         node.streaming(lookup(code).name)
         return answer.attempts
 
+    # A stop is confirmed only by evidence that the node could hear it (issue 21:
+    # "stop 95" of a node out of range answered "stopped", exit 0, and the node then
+    # showed polled and OK). 0xFA has no reply, and the base station's ACK says only
+    # that it went on the air, so silence is all a stop has; but a node out of range is
+    # silent too. So the policy runs with check_reach (aspp.stop): silence proves the
+    # stop once the node has been heard since the stop began, by its stream's records
+    # (a node whose stream was arriving when the stop went out is within reach) or the
+    # long form's reply; otherwise a wireless ping must be answered (the base station
+    # says 02 only if the node answered). A node not known to stream (unreachable,
+    # silent, polled, being armed) is pinged before any 0xFA: one that does not answer
+    # is sent no command it cannot hear, and its background retries are pings alone.
+    # Not heard: NoAnswer, "not confirmed: no answer", exit 1; the node is marked
+    # unreachable, the operator's intent (off) stands, and the pursuit stops the node
+    # when it answers or its stream comes back (after_record).
     async def _stop(self, node: Node, priority: Priority) -> dict[str, object]:
-        """0xFA until the stream is silent (the long form in turn after a few tries)."""
+        """0xFA until the stream is silent (the long form in turn after a few tries),
+        confirmed only if the node was heard (its records, or an answered ping)."""
         if node.address in self._stops:
             raise NodeError(f"node {node.address}: a stop is already running")
-        policy = self._stops[node.address] = StopPolicy(node.period,
-                                                        min_silence=STOP_MIN_SILENCE)
+        policy = self._stops[node.address] = StopPolicy(
+            node.period, min_silence=STOP_MIN_SILENCE, check_reach=True,
+            streaming=node.state is State.STREAMING)
         losses = self.scheduler.link_losses
-        node.stopping()
         try:
             while True:
                 if self.scheduler.link_losses != losses or not self.scheduler.link_up:
@@ -332,18 +368,28 @@ class Supervisor:
                                    "be running")
                 action = policy.next_action(time.monotonic())
                 if isinstance(action, SendStop):
+                    if action.attempt == 1:
+                        node.stopping()
                     try:  # the long form's reply is not awaited: silence decides
                         await self.scheduler.send(node, action.command, priority=priority,
                                                   wait_for_reply=False)
                         policy.sent(time.monotonic())
                     except NodeError as error:  # not even ACKed: the policy tries again
                         log.info("%s", error)
+                elif isinstance(action, Probe):
+                    if await self._answers_ping(node, priority):
+                        policy.answered(time.monotonic())
+                    else:
+                        policy.unanswered(time.monotonic())
                 elif isinstance(action, Stopped):
                     node.polled()
                     log.info("node %s stopped after %d attempt%s", node.label,
                              action.attempts, "" if action.attempts == 1 else "s")
                     return {"node": node.address, "attempts": action.attempts,
                             "elapsed": round(action.elapsed, 3)}
+                elif isinstance(action, NoAnswer):
+                    node.unreachable()
+                    raise NodeError(self._no_answer(node, action))
                 elif isinstance(action, GaveUp):
                     raise NodeError(f"node {node.address}: still streaming after "
                                     f"{action.attempts} stop attempts")
@@ -355,6 +401,25 @@ class Supervisor:
             raise
         finally:
             del self._stops[node.address]
+
+    async def _answers_ping(self, node: Node, priority: Priority) -> bool:
+        """Whether the node answers one of PROBE_PINGS wireless pings."""
+        for _ in range(PROBE_PINGS):
+            try:
+                if await self.scheduler.ping(node.address, encode_ping(node.address),
+                                             priority):
+                    return True
+            except NodeError as error:  # no answer byte from the base station at all
+                log.info("%s", error)
+        return False
+
+    @staticmethod
+    def _no_answer(node: Node, result: NoAnswer) -> str:
+        sent = ("no stop sent" if result.attempts == 0 else
+                f"silent after {result.attempts} stop{'s' if result.attempts > 1 else ''}")
+        return (f"node {node.address}: stop not confirmed: no answer ({sent}; "
+                f"{PROBE_PINGS} pings unanswered: out of range?); the gateway stops it "
+                "when it is back")
 
     # -- shutdown -----------------------------------------------------------------------------
 

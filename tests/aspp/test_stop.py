@@ -7,7 +7,7 @@ import random
 
 import pytest
 
-from aspp.stop import GaveUp, SendStop, Stopped, StopPolicy, WaitUntil
+from aspp.stop import GaveUp, NoAnswer, Probe, SendStop, Stopped, StopPolicy, WaitUntil
 
 PERIOD = 0.01  # 100 Hz
 
@@ -112,3 +112,71 @@ def test_packets_queued_before_the_stops_ack_do_not_count():
     policy.sent(0.3)            # the ACK arrives after them
     assert policy.next_action(0.31) == WaitUntil(0.3 + policy.silence)
     assert policy.next_action(0.3 + policy.silence) == Stopped(1, 0.3 + policy.silence)
+
+
+# -- the node must be heard (issue 21: a node out of range is silent too) ---------------------
+
+
+def test_a_node_not_known_to_stream_that_does_not_answer_is_sent_no_stop():
+    policy = StopPolicy(PERIOD, check_reach=True, streaming=False)
+    assert policy.next_action(0.0) == Probe()
+    assert policy.next_action(0.05) == Probe()  # until the answer is reported
+    policy.unanswered(0.1)
+    assert policy.next_action(0.1) == NoAnswer(0, 0.1)
+    assert policy.attempts == 0
+
+
+def test_a_node_that_answers_the_probe_is_stopped_by_silence():
+    policy = StopPolicy(PERIOD, check_reach=True, streaming=False)
+    assert policy.next_action(0.0) == Probe()
+    policy.answered(0.01)
+    assert isinstance(policy.next_action(0.01), SendStop)
+    assert policy.next_action(0.01 + policy.silence) == Stopped(1, 0.01 + policy.silence)
+
+
+def test_records_during_the_probe_are_the_node_heard():
+    policy = StopPolicy(PERIOD, check_reach=True, streaming=False)
+    assert policy.next_action(0.0) == Probe()
+    policy.packet_seen(0.01)
+    policy.unanswered(0.1)  # (a ping lost on its way: the records say it is there)
+    assert isinstance(policy.next_action(0.1), SendStop)
+
+
+def test_a_stream_whose_records_arrive_after_the_stop_needs_no_probe():
+    result, sent = drive(StopPolicy(PERIOD, check_reach=True), stops_after_attempt=2)
+    assert isinstance(result, Stopped) and result.attempts == 2 and sent == [0xFA, 0xFA]
+
+
+def test_a_stream_silent_from_the_stop_on_is_probed_after_the_silence():
+    """Out of range just before the stop: the silence is no proof until it answers."""
+    policy = StopPolicy(PERIOD, check_reach=True)
+    assert isinstance(policy.next_action(0.0), SendStop)
+    assert policy.next_action(0.1) == WaitUntil(policy.silence)
+    assert policy.next_action(policy.silence) == Probe()
+    policy.unanswered(policy.silence + 0.1)
+    assert policy.next_action(policy.silence + 0.1) == NoAnswer(1, policy.silence + 0.1)
+
+
+def test_an_answered_probe_confirms_the_silence():
+    policy = StopPolicy(PERIOD, check_reach=True)
+    policy.next_action(0.0)
+    assert policy.next_action(policy.silence) == Probe()
+    policy.answered(policy.silence + 0.01)
+    assert policy.next_action(policy.silence + 0.01) == Stopped(1, policy.silence + 0.01)
+
+
+def test_a_record_during_the_probe_means_the_stream_goes_on():
+    policy = StopPolicy(PERIOD, check_reach=True, latency=0.05)
+    policy.next_action(0.0)
+    assert policy.next_action(policy.silence) == Probe()
+    policy.packet_seen(policy.silence + 0.005)  # it came within reach, streaming
+    policy.answered(policy.silence + 0.01)
+    action = policy.next_action(policy.silence + 0.01)
+    assert isinstance(action, SendStop) and action.attempt == 2
+
+
+def test_the_long_forms_reply_is_the_node_heard():
+    policy = StopPolicy(PERIOD, check_reach=True)
+    policy.next_action(0.0)
+    policy.stop_confirmed(0.03)
+    assert policy.next_action(0.03) == Stopped(1, 0.03)

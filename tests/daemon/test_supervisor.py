@@ -188,3 +188,67 @@ def test_a_capture_cancelled_at_shutdown_starts_nothing_afterwards() -> None:
             started = {t for t in asyncio.all_tasks() if not t.done()} - before
             assert started == set(), started  # (it was: the stream, started again)
     run(scenario)
+
+
+def sent_to(gw: Wired, address: int) -> list[int]:
+    """The first byte of every command packet the base station took for ``address``."""
+    return [e.command[0] for _, e in gw.station.from_host_log
+            if getattr(e, "node", None) == address and hasattr(e, "command")]
+
+
+def test_a_stop_of_a_node_out_of_range_is_not_confirmed_and_kept() -> None:
+    """Issue 21: node 95 (auto-started, out of range, being armed) is stopped: no answer,
+    so not confirmed; no 0xFA goes out; it stays unreachable, and when it comes within
+    reach streaming, the gateway stops it."""
+    async def scenario() -> None:
+        radio = {95: RadioLink(in_range=False)}
+        async with Wired([NodeSettings(95, stream="euler")],
+                         [{"address": 95, "stream": "euler"}], radio=radio) as gw:
+            node = gw.nodes[95]
+            await wait_for_async(lambda: node.state is State.UNREACHABLE, 5, "unreachable")
+            with pytest.raises(NodeError, match="node 95: stop not confirmed: no answer"):
+                await gw.run("stop", node=95)
+            assert (node.state, node.desired) == (State.UNREACHABLE, OFF)
+            await asyncio.sleep(0.3)  # (background retries at BACKOFF: pings alone)
+            assert 0xFA not in sent_to(gw, 95) and node.state is State.UNREACHABLE
+            radio[95].in_range = True
+            await wait_for_async(lambda: gw.node(95).continuous == 0, 5, "stopped")
+            await wait_for_async(lambda: node.state is State.POLLED, 5, "polled")
+            assert node.desired == OFF
+    run(scenario)
+
+
+def test_a_stream_that_goes_silent_as_it_is_stopped_is_not_confirmed(monkeypatch) -> None:
+    """Out of range a moment before the stop, still shown streaming: the 0xFA goes out,
+    the stream is silent, but no ping is answered; back within reach, still streaming,
+    it is stopped at once, not at the next retry (60 s away here)."""
+    monkeypatch.setattr(supervising, "BACKOFF", (60.0,))
+
+    async def scenario() -> None:
+        radio = {76: RadioLink()}
+        async with Wired([NodeSettings(76)], [{"address": 76, "stream": "euler"}],
+                         radio=radio) as gw:
+            node = gw.nodes[76]
+            await wait_for_async(lambda: node.state is State.STREAMING, 5, "streaming")
+            radio[76].in_range = False
+            with pytest.raises(NodeError, match="stop not confirmed: no answer"):
+                await gw.run("stop", node=76)
+            assert (node.state, node.desired) == (State.UNREACHABLE, OFF)
+            assert sent_to(gw, 76).count(0xFA) == 1
+            pings = 2 * supervising.PROBE_PINGS  # the operator's, then the retry's
+            await wait_for_async(lambda: gw.station.stats.pings == pings
+                                 and 76 not in gw.supervisor._stops, 5, "a retry, ended")
+            radio[76].in_range = True
+            await wait_for_async(lambda: gw.node(76).continuous == 0, 5, "stopped")
+            await wait_for_async(lambda: node.state is State.POLLED, 5, "polled")
+    run(scenario)
+
+
+def test_a_stop_of_a_polled_node_in_range_pings_then_stops() -> None:
+    async def scenario() -> None:
+        async with Wired([NodeSettings(76)], [{"address": 76}]) as gw:
+            await wait_for_async(lambda: gw.nodes[76].state is State.POLLED, 5, "polled")
+            result = await gw.run("stop", node=76)
+            assert result["attempts"] == 1 and gw.nodes[76].state is State.POLLED
+            assert gw.station.stats.pings >= 1
+    run(scenario)

@@ -1,5 +1,6 @@
 """Stopping a stream over a radio that loses 0xFA, through a real pty: retried until
-the stream is silent, and nothing arrives after the stop returns."""
+the stream is silent, and nothing arrives after the stop returns; a node out of range
+is not "stopped" by its silence (issue 21)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,9 @@ from pathlib import Path
 
 from gateway.sim.base_station import RadioLink
 from gateway.sim.node import NodeSettings
-from tests.helpers.simulated import continuous
+from tests.helpers.processes import gx2ctl
+from tests.helpers.simulated import continuous, received
+from tests.helpers.waiting import wait_for
 
 REPO = Path(__file__).resolve().parents[2]
 CLI_TIMEOUT = 15.0
@@ -79,3 +82,45 @@ def test_stop_under_stop_loss(simulator, gateway):
         assert status == 0
         sim.stop()
     assert max(attempts) > 1, f"no stop needed a second attempt at 50% loss: {attempts}"
+
+
+# -- 4. a stop the node cannot hear (issue 21) ---------------------------------------------------
+
+QUICK_STOP = 3.0
+"""Seconds a `gx2ctl stop` of a streaming node in range may take, start-up included: the
+0.3 s of silence that proves it, and the Python start-up of gx2ctl on a loaded machine."""
+
+
+def test_a_stop_of_a_node_out_of_range_is_not_confirmed_and_kept(simulator, gateway):
+    """Node 95 auto-starts euler but is out of range: `stop 95` answered "95 stopped
+    (1 attempt, 0.31 s)", exit 0, and the node then showed polled and OK. Now: exit 1,
+    not confirmed, still unreachable (ERROR), desired off; and when it comes within reach
+    streaming on its own, the gateway stops it. A stop of node 76, streaming in range,
+    is still confirmed at once."""
+    sim = simulator(NodeSettings(76), NodeSettings(95, stream="euler"),
+                    radio={95: RadioLink(in_range=False)})
+    gw = gateway(sim.path, [{"address": 76, "stream": "euler"},
+                            {"address": 95, "stream": "euler"}])
+    gw.wait_streaming(76)
+    wait_for(lambda: gw.node_status(95)["state"] == "unreachable", 10,
+             "the gateway to find node 95 unreachable")
+
+    ran = gx2ctl("--config", str(gw.path), "stop", "76")
+    assert ran.status == 0 and ran.stdout.startswith("76 stopped"), ran
+    assert ran.seconds < QUICK_STOP, ran
+    assert continuous(sim, 76) == 0
+
+    ran = gx2ctl("--config", str(gw.path), "stop", "95")
+    lines = (ran.stdout + ran.stderr).splitlines()
+    assert ran.status == 1 and len(lines) == 1, ran
+    assert "not confirmed: no answer" in lines[0], ran
+    node = gw.node_status(95)
+    assert (node["state"], node["health"], node["desired"]) == \
+        ("unreachable", "ERROR", "off"), node
+    assert received(sim, 95, 0xFA) == [] and continuous(sim, 95) == 0xCE
+
+    sim.call(lambda station, now: setattr(station.radio[95], "in_range", True))
+    wait_for(lambda: continuous(sim, 95) == 0, 10, "the gateway to stop node 95")
+    wait_for(lambda: gw.node_status(95)["state"] == "polled", 5, "node 95 polled")
+    node = gw.node_status(95)
+    assert (node["health"], node["desired"]) == ("OK", "off"), node
