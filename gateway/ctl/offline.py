@@ -107,7 +107,8 @@ def run_plot(args: argparse.Namespace) -> int:
     reading = Reading()
     try:
         found = records_of(paths, args.node, args.record, reading)
-        image = picture(args.node, found.record, found.payloads, found.name, found.marks)
+        image = picture(args.node, found.record, found.payloads, found.name, found.marks,
+                        found.counts)
     except (ValueError, RecordingError) as error:
         _report(reading)
         raise CtlError(str(error), Exit.USAGE) from None

@@ -6,8 +6,9 @@ recordings have (no ``serial`` channel: a subscriber never sees the bytes), mark
 The file is made when the gateway is first heard (its heartbeat, a record, a mark):
 one that publishes nothing in the wait for it (``--timeout``, and at least three
 heartbeats) leaves no file behind, and the run exits 1. ``--seconds`` counts from
-then. A progress line on stderr (records, rate, gaps) while it runs, in place on a
-terminal and every PROGRESS_PIPE_S otherwise; the file is finished on a signal, at the
+then. A progress line on stderr (records, rate, and the samples lost by the radio and
+by the gateway: :mod:`gateway.recording.losses`) while it runs, in place on a terminal
+and every PROGRESS_PIPE_S otherwise; the file is finished on a signal, at the
 end of ``--seconds`` and when the gateway falls silent, and flushed every second
 meanwhile. A disk that fails (full, a file size limit, an I/O error) ends the run with
 one line (exit 1): the file keeps what was written up to the last flush, ended there so
@@ -32,6 +33,7 @@ from gateway.common import curve
 from gateway.common.protocol import MAX_REPLY_BYTES, Exit
 from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC, topic
 from gateway.recording.files import RecordingWriter
+from gateway.recording.losses import Losses, Summary
 
 from . import PROG
 from .client import CtlError
@@ -219,8 +221,7 @@ class Capture:
         with self._guarded():
             if isinstance(event, Message):
                 self.writer.message(topic(event.node, event.record).decode(), event.payload)
-                progress.records += 1
-                progress.gaps += event.gap
+                progress.count(event)
             elif isinstance(event, Marked):
                 self.writer.message(MARK_CHANNEL, event.payload)
             else:
@@ -250,19 +251,29 @@ class Capture:
 
 
 class Progress:
-    """Records, rate and gaps so far, on stderr."""
+    """Records, rate and losses so far, on stderr: the radio's from each stream's timer
+    (counted as records come, on the steps before each alone), the gateway's from
+    ``seq`` (every message of the node: :attr:`Message.gap`)."""
 
     def __init__(self, target: Path, terminal: bool) -> None:
         self.target = target
         self.terminal = terminal
-        self.records = 0
-        self.gaps = 0
+        self.losses: Losses[None] = Losses(ahead=0)
+        self.summary = Summary()
         self._shown = 0.0
+
+    @property
+    def records(self) -> int:
+        return self.summary.received
+
+    def count(self, message: Message) -> None:
+        for counted in self.losses.add(message.node, message.record, message.payload, None):
+            self.summary.add(counted, message.gap)
 
     def line(self, elapsed: float) -> str:
         rate = self.records / elapsed if elapsed > 0 else 0.0
         return (f"{PROG}: {self.target}: {self.records:,} records in {elapsed:.0f} s, "
-                f"{rate:.1f}/s, {self.gaps:,} gaps")
+                f"{rate:.1f}/s, {self.summary.line()}")
 
     def show(self, elapsed: float) -> None:
         every = PROGRESS_S if self.terminal else PROGRESS_PIPE_S

@@ -1,17 +1,25 @@
 """Tables from recordings: one per node and record, a row per record.
 
-Columns: ``time``, ``host_time``, ``device_time``, ``seq``, ``lqi``, ``rssi``, then the
-record's fields in the order of its layout (:mod:`aspp.records`), vectors as
-``<field>_x/_y/_z``, matrices as ``<field>_11`` .. ``<field>_33`` (row, column), a
-record's list of integers as ``<field>_1`` .. ``<field>_n``. A value a record does not
-have (an untimed record's ``time``) or NaN (JSON's null) is an empty cell or a null.
+Columns: ``time``, ``host_time``, ``device_time``, ``seq``, ``lost_before``, ``lqi``,
+``rssi``, then the record's fields in the order of its layout (:mod:`aspp.records`),
+vectors as ``<field>_x/_y/_z``, matrices as ``<field>_11`` .. ``<field>_33`` (row,
+column), a record's list of integers as ``<field>_1`` .. ``<field>_n``. A value a record
+does not have (an untimed record's ``time``) or NaN (JSON's null) is an empty cell or a
+null.
+
+``lost_before`` is the samples of the node's stream missing just before the row, by its
+timer's steps (:mod:`.losses`): 0 normally, for rows that are not a stream's (polled
+records), and for a stream started afresh (counted from the node's start reply); empty
+where it is not known: a record without a timer, a table's first row, the first row
+after the node's timer restarted (a reboot) or the gateway's ``seq`` did.
 
 Marks (``gx2ctl mark``) go in a table of their own, ``marks.csv``: ``time``,
 ``host_time``, ``nodes`` (their addresses, space-separated; empty: the whole
 experiment), ``text``.
 
-Rows are written as they are read: a CSV export holds one row in memory at a time, a
-Parquet one a batch of BATCH rows per table. Each table is written under a temporary
+Rows are written as they are read, once the WINDOW rows of their table after them are
+read too (the steps that tell the stream's period): a CSV export holds that many rows a
+table in memory, a Parquet one a batch of BATCH rows more. Each table is written under a temporary
 name (TEMPORARY) and given its own when it is whole, so an export that fails or is
 interrupted leaves no cut table where a whole one is expected, and replaces the table
 of an earlier export only with a whole one.
@@ -30,8 +38,10 @@ from aspp.records import BY_NAME
 from gateway.common.topics import parse
 
 from .files import MARK, Entry, Mark, Reading, RecordingError, read_all
+from .losses import Counted, Losses
 
-LEADING = ("time", "host_time", "device_time", "seq", "lqi", "rssi")
+LEADING = ("time", "host_time", "device_time", "seq", "lost_before", "lqi", "rssi")
+LOST_BEFORE = LEADING.index("lost_before")
 BOOKKEEPING = frozenset((*LEADING, "node", "record", "command"))
 FORMATS = ("csv", "parquet")
 BATCH = 10_000
@@ -221,6 +231,7 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
         parquet_modules()
     out.mkdir(parents=True, exist_ok=True)
     tables: dict[tuple[int, str], tuple[Table, Output]] = {}
+    losses: Losses[tuple[Table, Output, list[Any]]] = Losses()
     outputs: list[Output] = []
     marks: Output | None = None
     done = [] if written is None else written
@@ -245,8 +256,8 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
                 outputs.append(output)
                 open_table = tables[where] = (table, output)
             table, output = open_table
-            output.add(table.row(payload))
-            table.rows += 1
+            _write(losses.add(*where, payload, (table, output, table.row(payload))))
+        _write(losses.finish())
         for output in outputs:
             output.finish()
             done.append(output.path)
@@ -256,6 +267,15 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
                 output.discard()
     return [(output.path, table) for table, output in tables.values()], (
         marks.rows if marks is not None else 0)
+
+
+def _write(counted: list[Counted[tuple[Table, Output, list[Any]]]]) -> None:
+    """Write rows whose ``lost_before`` is now known."""
+    for row in counted:
+        table, output, values = row.item
+        values[LOST_BEFORE] = row.lost
+        output.add(values)
+        table.rows += 1
 
 
 def mark_row(mark: Mark) -> list[Any]:

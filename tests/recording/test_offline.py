@@ -4,6 +4,7 @@ recording writer from payloads shaped as the gateway publishes them."""
 from __future__ import annotations
 
 import csv
+import itertools
 import math
 import os
 import subprocess
@@ -12,10 +13,13 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
+from matplotlib import pyplot
 
-from aspp.records import decode, encode
-from gateway.recording.files import RecordingWriter
-from gateway.recording.plot import picture
+from aspp.orientation import matrix_from_euler
+from aspp.records import BY_NAME, decode, encode
+from gateway.recording.files import Reading, RecordingWriter
+from gateway.recording.plot import figure_of, picture, records_of
+from gateway.sim.node import GX2, NodeSettings, SimNode
 from tests.helpers.processes import gx2ctl
 
 NAN = float("nan")
@@ -55,16 +59,20 @@ def nested(matrix: tuple) -> list:
 
 @pytest.fixture
 def recording(tmp_path: Path) -> tuple[Path, list[dict]]:
-    """Node 76 at 100 Hz with a seq gap and a time gap; node 77's orientation matrix;
-    a magnetometer of NaN; an untimed record; the status naming node 76."""
+    """Node 76 at 100 Hz with three samples lost over the radio (its timer skips them,
+    seq does not) and two lost by the gateway (seq skips them too); node 77's
+    orientation matrix; a magnetometer of NaN; an untimed record; the status naming
+    node 76."""
     entries: list[tuple[str, dict]] = [("gx2/gateway/status", {
         "gateway": {"time": T0}, "nodes": [{"node": 76, "name": "left-wing"}]})]
     streamed = []
     seq = 0
     for i in range(200):
         if i in (50, 51, 52):
-            continue  # lost: seq and time both skip
-        seq = i + 1
+            continue  # lost over the radio: the timer skips them, seq does not
+        seq += 2 if i == 122 else 1  # 120 and 121 lost by the gateway: seq skips too
+        if i in (120, 121):
+            continue
         p = payload(76, "accel_angrate_mag", seq, T0 + i / 100, timer=i * 196_608,
                     accel=(0.01 * i, 0.0, -1.0), ang_rate=(0.0, 0.5, 0.0), mag=(NAN,) * 3)
         streamed.append(p)
@@ -92,22 +100,28 @@ def test_export_csv_columns_values_and_empty_cells(recording, tmp_path):
     table = rows(out / "76_accel_angrate_mag.csv")
     with (out / "76_accel_angrate_mag.csv").open() as file:
         header = file.readline().strip().split(",")
-    assert header == ["time", "host_time", "device_time", "seq", "lqi", "rssi",
+    assert header == ["time", "host_time", "device_time", "seq", "lost_before", "lqi", "rssi",
                       "accel_x", "accel_y", "accel_z", "ang_rate_x", "ang_rate_y",
                       "ang_rate_z", "mag_x", "mag_y", "mag_z", "timer"]
-    assert len(table) == len(streamed) == 197
+    assert len(table) == len(streamed) == 195
     for row, sent in zip(table, streamed, strict=True):
         assert float(row["time"]) == sent["time"]
         assert float(row["host_time"]) == sent["host_time"]
         assert int(row["seq"]) == sent["seq"] and int(row["timer"]) == sent["timer"]
         assert [float(row[f"accel_{a}"]) for a in "xyz"] == sent["accel"]
         assert row["mag_x"] == row["mag_y"] == row["mag_z"] == ""  # NaN
+    # the first row: what came before it is not known; after it, the samples its timer
+    # skipped, whoever lost them (row 50 is i = 53, row 117 is i = 122), and none else
+    lost = [row["lost_before"] for row in table]
+    assert lost[0] == "" and lost[50] == "3" and lost[117] == "2"
+    assert set(lost[1:50] + lost[51:117] + lost[118:]) == {"0"}
     [matrix] = rows(out / "77_orientation.csv")
     assert [float(matrix[f"orientation_{r}{c}"]) for r in (1, 2, 3) for c in (1, 2, 3)] == [
         1.0, 0.0, 0.0, 0.0, 0.5, -0.5, 0.0, 0.5, 0.5]
     [untimed] = rows(out / "76_firmware_version.csv")
     assert untimed["time"] == untimed["device_time"] == "" and untimed["version"] == "2104"
-    assert "197 rows" in ran.stdout
+    assert untimed["lost_before"] == ""  # no timer: nothing to count by
+    assert "195 rows" in ran.stdout
 
 
 def test_export_parquet_has_the_same_table(recording, tmp_path):
@@ -115,8 +129,9 @@ def test_export_parquet_has_the_same_table(recording, tmp_path):
     ran = gx2ctl("export", str(path), "--out", str(tmp_path), "--format", "parquet")
     assert ran.status == 0, ran.stderr
     table = pq.read_table(tmp_path / "76_accel_angrate_mag.parquet").to_pydict()
-    assert list(table)[:8] == ["time", "host_time", "device_time", "seq", "lqi", "rssi",
-                               "accel_x", "accel_y"]
+    assert list(table)[:8] == ["time", "host_time", "device_time", "seq", "lost_before",
+                               "lqi", "rssi", "accel_x"]
+    assert table["lost_before"] == [None, *[0] * 49, 3, *[0] * 66, 2, *[0] * 77]
     assert table["seq"] == [p["seq"] for p in streamed]
     assert table["accel_x"] == [p["accel"][0] for p in streamed]
     assert table["mag_z"] == [None] * len(streamed)
@@ -174,11 +189,134 @@ def test_plot_writes_a_png_with_name_rate_losses_and_gaps(recording, tmp_path):
     assert ran.status == 0, ran.stderr
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 20_000
     image = picture(76, "accel_angrate_mag", streamed, "left-wing")
-    assert image.title.startswith("left-wing (76): accel_angrate_mag, 100.0 Hz, 3 lost")
+    # the radio's losses (by the timer) and the gateway's (by seq) apart, each a share
+    # of the 200 samples that should have come
+    assert image.title == ("left-wing (76): accel_angrate_mag, 100.0 Hz, 195 records\n"
+                           "radio: 3 lost (1.50%) · gateway: 2 lost (1.00%)")
     assert [p.title for p in image.panels] == ["accel", "ang rate"]  # mag all NaN: no panel
     assert image.panels[0].unit == "g"
-    # the three lost samples break the lines: a NaN where they would be
+    # the lost samples break the lines: a NaN where they would be
     x = image.x
     gap = next(i for i, v in enumerate(x) if math.isnan(v))
     assert x[gap - 1] == pytest.approx(0.49) and x[gap + 1] == pytest.approx(0.53)
     assert math.isnan(image.panels[0].lines["x"][gap])
+    assert sum(math.isnan(v) for v in x) == 2
+
+
+def test_plot_title_counts_losses_among_all_the_nodes_messages(tmp_path):
+    # a poll between two samples of the stream takes a seq: no gap; a message the
+    # gateway lost takes one too, and the timer shows the sample missing
+    entries, seq = [], 0
+    for i in range(100):
+        seq += 1
+        if i == 40:
+            entries.append(("gx2/76/temperatures", payload(
+                76, "temperatures", seq, T0 + i / 100 + 0.001, timer=i * 196_608 + 1,
+                temperature=(2000, 2100, 2102, 2099))))
+            seq += 1
+        if i == 70:
+            continue  # published as seq 72, lost by the gateway
+        entries.append(("gx2/76/euler", payload(76, "euler", seq, T0 + i / 100,
+                                                timer=i * 196_608, roll=0.1, pitch=0.2,
+                                                yaw=0.3)))
+    path = write(tmp_path / "run.mcap", entries)
+    found = records_of([path], 76, None, Reading())
+    image = picture(76, found.record, found.payloads, found.name, found.marks, found.counts)
+    assert image.title.endswith("radio: 0 lost (0.00%) · gateway: 1 lost (1.00%)")
+    drawn = gx2ctl("plot", str(path), "76", "--out", str(tmp_path / "76.png"))
+    assert drawn.status == 0, drawn
+
+
+def euler_payloads(yaw_degrees: list[float]) -> list[dict]:
+    return [payload(77, "euler", i + 1, T0 + i / 100, timer=i * 196_608, roll=0.1,
+                    pitch=-0.2, yaw=math.radians(yaw)) for i, yaw in enumerate(yaw_degrees)]
+
+
+def test_an_angle_that_wraps_is_broken_at_the_wrap_not_drawn_across():
+    yaws = [171.0 + 2 * i for i in range(10)]  # 171 .. 189: -179 after 179
+    image = picture(77, "euler", euler_payloads([math.remainder(y, 360) for y in yaws]),
+                    None)
+    [angles] = image.panels
+    assert angles.title == "Euler angles" and angles.unit == "deg" and angles.wraps
+    yaw, roll = angles.lines["yaw"], angles.lines["roll"]
+    assert len(yaw) == len(image.x) == 11  # one point inserted, at the wrap
+    wrap = next(i for i, v in enumerate(yaw) if math.isnan(v))
+    assert yaw[wrap - 1] == pytest.approx(179) and yaw[wrap + 1] == pytest.approx(-179)
+    # x and the angles that do not wrap go on through the inserted point
+    assert image.x[wrap] == pytest.approx(0.045) and roll[wrap] == pytest.approx(
+        math.degrees(0.1))
+    steps = [abs(b - a) for a, b in itertools.pairwise(yaw)
+             if not (math.isnan(a) or math.isnan(b))]
+    assert max(steps) == pytest.approx(2, abs=1e-3)  # (f32 angles)
+
+
+def test_an_orientation_matrix_is_drawn_as_angles_with_its_wraps_broken():
+    rows = []
+    for i in range(20):
+        yaw = math.remainder(math.radians(150 + 5 * i), math.tau)
+        rows.append(payload(77, "orientation", i + 1, T0 + i / 100, timer=i * 196_608,
+                            orientation=nested(matrix_from_euler(0.1, -0.2, yaw))))
+    image = picture(77, "orientation", rows, None)
+    [angles] = image.panels
+    assert angles.unit == "deg" and set(angles.lines) == {"roll", "pitch", "yaw"}
+    assert angles.lines["roll"][0] == pytest.approx(math.degrees(0.1))
+    assert angles.lines["pitch"][0] == pytest.approx(math.degrees(-0.2))
+    assert sum(math.isnan(v) for v in angles.lines["yaw"]) == 1  # the wrap past 180
+    assert not any(math.isnan(v) for v in angles.lines["roll"])
+
+
+STREAMED = [spec for spec in BY_NAME.values() if spec.streamable]
+
+
+@pytest.mark.parametrize("spec", STREAMED, ids=lambda spec: spec.name)
+def test_every_record_a_node_streams_has_a_picture(spec):
+    # the records as a 3DM-GX2 (which has a magnetometer) in gx2-sim makes them
+    node = SimNode(NodeSettings(76, model=GX2), 0.0)
+    rows = []
+    for i in range(1, 30):
+        record = decode(node.record(spec.code, i / 100)).as_dict()
+        values = {k: [list(r) for r in v] if isinstance(v, tuple) and isinstance(
+            v[0], tuple) else list(v) if isinstance(v, tuple) else v
+                  for k, v in record.items()}
+        rows.append({**values, "node": 76, "record": spec.name, "command": spec.code,
+                     "seq": i, "host_time": T0 + i / 100, "lqi": 200, "rssi": -50,
+                     "device_time": i / 100, "time": T0 + i / 100})
+    image = picture(76, spec.name, rows, None)
+    drawn = {field for panel in image.panels for field in panel.lines}
+    assert image.panels and drawn
+    for panel in image.panels:
+        for label, values in panel.lines.items():
+            assert any(not math.isnan(v) for v in values), (panel.title, label)
+    shown = {f.name for f in spec.reply} - {"timer"}
+    titles = " ".join(panel.title for panel in image.panels).replace(" ", "_")
+    assert all(name in titles or name in drawn for name in shown), (shown, titles)
+    figure = figure_of(image)
+    assert len([axis for axis in figure.axes if axis.lines]) == len(image.panels)
+    pyplot.close(figure)
+
+
+def test_the_legends_are_off_the_data():
+    image = picture(77, "euler_angrate", [
+        payload(77, "euler_angrate", i + 1, T0 + i / 100, timer=i * 196_608, roll=0.1,
+                pitch=-0.2, yaw=0.01 * i, ang_rate=(0.0, 0.0, 0.2)) for i in range(50)], None)
+    figure = figure_of(image)
+    figure.canvas.draw()
+    renderer = figure.canvas.get_renderer()
+    axes = [axis for axis in figure.axes if axis.get_legend() is not None]
+    assert len(axes) == 2
+    for axis in axes:
+        legend = axis.get_legend().get_window_extent(renderer)
+        inside = axis.get_window_extent(renderer)
+        assert legend.x0 >= inside.x1, (legend, inside)  # to its right, not over it
+        assert legend.x1 <= figure.bbox.x1  # and in the picture
+
+
+def test_a_record_with_nothing_to_draw_is_refused_in_one_line(tmp_path):
+    # an Inertia-Link's magnetometer: NaN in every sample
+    path = write(tmp_path / "run.mcap", [("gx2/95/mag", payload(
+        95, "mag", i + 1, T0 + i / 100, timer=i * 196_608, mag=(NAN,) * 3))
+        for i in range(20)])
+    ran = gx2ctl("plot", str(path), "95", "--out", str(tmp_path / "95.png"))
+    assert ran.status == 2, ran
+    assert "no values to draw" in ran.stderr and len(ran.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "95.png").exists()
