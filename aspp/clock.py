@@ -28,6 +28,7 @@ refit touches only a few hundred vertices, once every BLOCK seconds.
 from __future__ import annotations
 
 import bisect
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -65,7 +66,8 @@ RESIDUALS = 256
 SLEW = 0.5
 """When the line drops below the last time given (a faster packet than any before),
 times advance at least at this share of the device's rate until they meet it again:
-never backwards, never twice the same."""
+never backwards, never twice the same (two records of one cycle: one step of a double
+apart)."""
 
 Point = tuple[float, float]
 
@@ -177,7 +179,13 @@ class NodeClock:
     def _give(self, device: float, time: float) -> float:
         given = self._given
         if given is not None and device >= given[0]:
-            time = max(time, given[1] + SLEW * (device - given[0]) + 1e-9)
+            # strictly above the floor by a double's step there, not by a fixed
+            # nanosecond: that is lost in rounding once the host clock reads 2**24 s
+            # (a monotonic clock after 194 days up; the UNIX clock always, which is why
+            # gateway.daemon.nodes keeps the promise again after converting to it)
+            floor = given[1] + SLEW * (device - given[0])
+            if time <= floor:
+                time = math.nextafter(floor, math.inf)
         self._given = (device, time)
         return time
 
@@ -219,6 +227,14 @@ class NodeClock:
         self._fitted_at = now
         self._drift = drift
         self._offset = min(y - drift * x for x, y in hull)
+
+    def device_at(self, host: float) -> float | None:
+        """The device time of a packet that reaches the host at ``host`` with the least
+        delay seen (the line there), or None before the estimate is locked: what the
+        timer unwrapper judges a reading by (:class:`aspp.timing.TimerUnwrapper`)."""
+        if self._locked_since is None:
+            return None
+        return (host - self._offset) / (1 + self._drift)
 
     @property
     def points(self) -> int:

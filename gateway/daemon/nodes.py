@@ -11,6 +11,7 @@ no copies.
 
 from __future__ import annotations
 
+import math
 import time
 from enum import StrEnum
 from typing import Any, NamedTuple
@@ -20,9 +21,8 @@ from aspp.events import LINK_QUALITY
 from aspp.records import Record
 from aspp.timing import (
     BITS_PER_BYTE,
+    CLOCK_HZ,
     DEFAULT_DIVIDER,
-    TICKS_PER_CLOCK,
-    TIMER_MODULUS,
     TimerUnwrapper,
     data_rate,
     sample_period,
@@ -41,6 +41,12 @@ out of range."""
 STEPS_CHECKED = 32
 """Timer steps of a stream compared before its divider is corrected from them (a real
 node may apply a new divider only after a power cycle, whatever its EEPROM says)."""
+_NO_STEP = 1 << 62
+"""The shortest step before any step is seen: longer than any."""
+TIME_NOISE = 1e-3
+"""Seconds by which a record's ``time`` may come out below the last one's from the
+conversion to UNIX seconds alone (see :meth:`Node._after_last_time`); a larger fall is
+a step of the host's clock, which ``time`` follows."""
 OFF = "off"
 """The desired stream of a node an operator stopped: it is kept stopped."""
 
@@ -98,6 +104,10 @@ class Node:
         self._state = State.UNKNOWN
         self.record: str | None = None
         """The record it streams, as far as the gateway knows."""
+        self._unwrapper = TimerUnwrapper(expect=self.clock.device_at)
+        """Its timer unwrapped, each reading judged against the clock's line (the least
+        delay seen): a reading far from it is a reboot unless it is a backlog read late
+        (:mod:`aspp.timing`), whose first step the divider bounds (``divider``)."""
         self.divider = DEFAULT_DIVIDER
         self.seq = 0
         self.packets = 0
@@ -114,11 +124,14 @@ class Node:
         self.timer_reset = False
         """Its timer went back with no discovery packet to announce it: a reboot the
         supervisor has not dealt with yet (see :meth:`take_timer_reset`)."""
-        self._unwrapper = TimerUnwrapper()
         self._reboot_announced = False
-        self._last_stream_timer: int | None = None
+        """A discovery packet said the node rebooted, and its timer has not shown it yet
+        (see :meth:`TimerUnwrapper.expect_reset`): the reset to come is not counted."""
+        self._last_stream_device: float | None = None
+        self._last_time = -math.inf
+        """The last ``time`` published: each one after it is greater."""
         self._steps = 0
-        self._shortest_step = TIMER_MODULUS
+        self._shortest_step = _NO_STEP
         self._stream_seen = 0.0
         """time.monotonic() of the last record of the stream (or of its start)."""
         self.stream_started = 0.0
@@ -135,8 +148,19 @@ class Node:
         return self._state
 
     @property
+    def divider(self) -> int:
+        """Its calculation-cycle divider: its stream's rate, and the sample period its
+        timer steps by (what tells a backlog read late from a reboot)."""
+        return self._divider
+
+    @divider.setter
+    def divider(self, divider: int) -> None:
+        self._divider = divider
+        self._unwrapper.late_step = SILENCE_PERIODS * sample_period(divider)
+
+    @property
     def period(self) -> float:
-        return sample_period(self.divider)
+        return sample_period(self._divider)
 
     @property
     def expected_hz(self) -> float | None:
@@ -173,23 +197,23 @@ class Node:
         is_stream = name == self.record
         timer = payload.get("timer")
         if timer is not None:
+            # the clock (and the unwrapper, judging by it) runs on the monotonic clock, fed
+            # when the packet began to reach the host (its own bytes on the line before
+            # the read); the sample was taken the radio's latency before it left, and
+            # goes out on the UNIX clock of the read, so a step of that clock moves it
+            # by the step and no more
+            arrival = monotonic - len(raw) * self._byte_time
             unwrapper = self._unwrapper
-            payload["device_time"] = device = unwrapper.update(timer, monotonic)
+            payload["device_time"] = device = unwrapper.update(timer, arrival)
             if unwrapper.last_was_reset:
-                if not self._reboot_announced:  # a reboot seen only in the timer
-                    self.reboots += 1
-                    self.timer_reset = True
-                self._reboot_announced = False
-                self._last_stream_timer = None  # no gap across a power-up
-                self.clock.reset()
-            # the clock runs on the monotonic clock, fed when the packet began to reach
-            # the host (its own bytes on the line before the read); the sample was taken
-            # the radio's latency before it left, and goes out on the UNIX clock of the
-            # read, so a step of that clock moves it by the step and no more
-            payload["time"] = (self.clock.update(device, monotonic - len(raw) * self._byte_time)
-                               - self._latency + host_time - monotonic)
+                self._timer_restarted()
+            sampled = (self.clock.update(device, arrival) - self._latency + host_time
+                       - monotonic)
+            if sampled <= self._last_time:
+                sampled = self._after_last_time(sampled)
+            payload["time"] = self._last_time = sampled
             if is_stream:
-                self._count_gaps(timer)
+                self._count_gaps(device)
         if is_stream:
             self._stream_seen = time.monotonic()
             if self._state is State.SILENT:
@@ -203,25 +227,48 @@ class Node:
         self.unusual = not is_stream or self._state is not State.STREAMING or self.timer_reset
         return payload
 
-    def _count_gaps(self, timer: int) -> None:
-        """Samples lost over the air, from the device timer: the stream's records are
-        exactly one period apart, so a longer step is records that never arrived.
+    def _timer_restarted(self) -> None:
+        """Its timer restarted: a reboot, counted here unless a discovery packet
+        announced it (:meth:`rebooted` counted it then)."""
+        if not self._reboot_announced:
+            self.reboots += 1
+            self.timer_reset = True
+        self._reboot_announced = False
+        self._last_stream_device = None  # no gap across a power-up
+        self.clock.reset()
+
+    def _after_last_time(self, sampled: float) -> float:
+        """``time`` for a record whose ``sampled`` is not above the last one published.
+        The clock gives every record a later time than the one before, if only by a
+        nanosecond (two records of one cycle); converted to UNIX seconds, near 1.7e9
+        where a double's step is 238 ns, that nanosecond is lost, and the UNIX clock
+        less the monotonic one, read one after the other at each read, moves by a
+        fraction of a microsecond between reads: such a fall is moved to just above the
+        last time. A fall of TIME_NOISE or more is the host's clock stepped back (NTP),
+        and ``time`` moves by the step (docs/interface.md, Sample time)."""
+        last = self._last_time
+        return math.nextafter(last, math.inf) if last - sampled < TIME_NOISE else sampled
+
+    def _count_gaps(self, device: float) -> None:
+        """Samples lost over the air, from the device time (the timer unwrapped, so an
+        outage of any length, wraps included, is counted whole): the stream's records
+        are exactly one period apart, so a longer step is records that never arrived.
 
         Every STEPS_CHECKED steps the shortest one is compared with the divider: a
         stream that never once stepped by one period does not run at it."""
-        last, self._last_stream_timer = self._last_stream_timer, timer
+        last, self._last_stream_device = self._last_stream_device, device
         if last is None:
             return
-        step = round(((timer - last) % TIMER_MODULUS) / TICKS_PER_CLOCK)
+        step = round((device - last) * CLOCK_HZ)  # in periods of the 51,200 Hz clock
         if step < self._shortest_step:
             self._shortest_step = step
         self._steps += 1
         if self._steps == STEPS_CHECKED:
-            if self._shortest_step != self.divider and valid_divider(self._shortest_step):
+            if self._shortest_step != self._divider and valid_divider(self._shortest_step):
                 self.divider = self._shortest_step
-            self._steps, self._shortest_step = 0, TIMER_MODULUS
-        missing = round(step / self.divider) - 1
-        if 0 < missing < 10_000:
+            self._steps, self._shortest_step = 0, _NO_STEP
+        missing = round(step / self._divider) - 1
+        if missing > 0:
             self.lost_radio += missing
 
     def _close_rate_window(self, now: float) -> None:
@@ -263,8 +310,8 @@ class Node:
         self._restart_stream()
 
     def _restart_stream(self) -> None:
-        self._last_stream_timer = None
-        self._steps, self._shortest_step = 0, TIMER_MODULUS
+        self._last_stream_device = None
+        self._steps, self._shortest_step = 0, _NO_STEP
         self._stream_seen = self.stream_started = time.monotonic()
 
     def settled(self) -> None:
@@ -296,16 +343,18 @@ class Node:
         its timer starts again."""
         self.reboots += 1
         self.clock.reset()
-        self._reboot_announced = True  # its timer going back is the same reboot
+        # its timer restarting is the same reboot: the unwrapper takes the next reading
+        # that is not of the old power-up as the new one's, whatever its timer says
+        self._reboot_announced = self._unwrapper.expect_reset()
         self.record = None
         self._state = State.REBOOTED
-        self._last_stream_timer = None
+        self._last_stream_device = None
 
     def rebooted_quietly(self) -> None:
         """A reboot its timer showed (counted by :meth:`tally`): its stream is unknown."""
         self.record = None
         self._state = State.REBOOTED
-        self._last_stream_timer = None
+        self._last_stream_device = None
 
     def take_timer_reset(self) -> bool:
         """Whether the timer showed an unannounced reboot since the last call."""
@@ -315,7 +364,7 @@ class Node:
     def link_lost(self) -> None:
         """The base station went away: what is missed now is not lost over the air."""
         self._state = State.LINK_DOWN
-        self._last_stream_timer = None
+        self._last_stream_device = None
 
     def silent_at(self) -> float | None:
         """When (``time.monotonic()``) the stream falls silent if no record comes first;

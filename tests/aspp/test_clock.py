@@ -168,3 +168,19 @@ def test_a_long_run_of_waits_behind_another_node_is_not_taken_for_a_drift() -> N
     ramp = [abs(e) for d, e in found if 40 <= d < 80]
     assert max(ramp) < 0.1e-3, max(ramp)
     assert clock.estimate().drift == pytest.approx(drift, abs=2e-6)
+
+
+def test_two_records_of_one_cycle_get_two_times_on_a_clock_up_for_a_year() -> None:
+    """Issue 19: the nanosecond that set the second time above the first is lost in
+    rounding once the clock reads 2**24 s (a double's step there is 3.7 ns)."""
+    clock = NodeClock()
+    first = clock.update(1.0, 3.2e7)
+    assert clock.update(1.0, 3.2e7 + 0.001) > first
+
+
+def test_device_at_is_the_line_read_backwards() -> None:
+    clock = NodeClock()
+    assert clock.device_at(100.0) is None  # no line yet
+    for d, h, _ in stream(5, 40e-6, 1000.0, seed=1, bursts=0):
+        clock.update(d, h)
+    assert clock.device_at(1000.0 + FLOOR + (1 + 40e-6) * 4.0) == pytest.approx(4.0, abs=NEAR)

@@ -3,11 +3,15 @@ stream falls silent, what its timer says of its rate, its losses and its reboots
 
 from __future__ import annotations
 
+import itertools
+import random
 import time
+
+import pytest
 
 from aspp.frame import encode_reply_packet
 from aspp.records import decode, encode
-from aspp.timing import TICKS_PER_CLOCK, TICKS_PER_SECOND
+from aspp.timing import TICKS_PER_CLOCK, TICKS_PER_SECOND, TIMER_MODULUS, WRAP_SECONDS
 from gateway.daemon.config import NodeEntry
 from gateway.daemon.nodes import SILENCE_MIN, STEPS_CHECKED, Node, State
 
@@ -93,3 +97,108 @@ def test_time_is_the_sample_instant_and_a_step_of_the_host_clock_moves_it_by_the
         found.append(payload["time"] - (unix + sampled + step))
     assert max(abs(e) for e in found[100:]) < 1e-6
     assert node.status(time.time())["clock"]["locked"] is True
+
+
+# -- issue 19: reboots, long outages and time through the conversion to UNIX seconds -----
+
+FLOOR = 0.003
+"""The least delay of a packet (what base_station.latency_ms gives the gateway)."""
+STEP = 512 * TICKS_PER_CLOCK
+"""A 100 Hz stream's timer step."""
+
+
+class Stream:
+    """A 100 Hz accel_angrate stream of one node into ``node``: each record sampled at
+    a known instant (the host's monotonic clock) and read FLOOR and a little later."""
+
+    def __init__(self, node: Node, seed: int = 1) -> None:
+        self.node, self.rng = node, random.Random(seed)
+        self.unix_minus_monotonic = 1.7e9
+
+    def send(self, timer: float, sampled: float, record: str = "accel_angrate") -> dict:
+        """One record with the timer at ``timer`` seconds, sampled at ``sampled``."""
+        ticks = round(timer * TICKS_PER_SECOND) % TIMER_MODULUS
+        fields = ({"accel": (0, 0, -1), "ang_rate": (0, 0, 0)} if record == "accel_angrate"
+                  else {"roll": 0.0, "pitch": 0.0, "yaw": 0.0})
+        raw = encode_reply_packet(self.node.address, encode(record, **fields, timer=ticks))
+        at = sampled + FLOOR + self.rng.uniform(0.0, 0.0005)
+        payload = self.node.tally(raw, decode(raw, 7, len(raw) - 4),
+                                  at + self.unix_minus_monotonic, at)
+        payload["truth"] = sampled + self.unix_minus_monotonic
+        return payload
+
+    def run(self, timer: float, sampled: float, count: int) -> list[dict]:
+        return [self.send(timer + i * 0.01, sampled + i * 0.01) for i in range(count)]
+
+
+def streaming_node() -> Node:
+    node = Node(NodeEntry(address=76), byte_time=0.0, latency=FLOOR)
+    node.streaming("accel_angrate", 512)
+    return node
+
+
+def test_a_quiet_reboot_whose_timer_lands_ahead_modulo_the_wrap_is_counted_and_timed():
+    """Issue 19: up for 217.4 s (1 s short of the wrap), off for 10 s with the discovery
+    packet lost, back at 100 Hz from a timer at 0: the first record's timer is 1 s ahead
+    of the last one's modulo the wrap, 10 s less than the host clock advanced. It is a
+    reboot, counted once, and ``time`` is each sample's instant from the first record
+    on (taken for a backlog read late, it was 9 s early for a minute)."""
+    node = streaming_node()
+    stream = Stream(node)
+    stream.run(WRAP_SECONDS - 4.0, 1000.0, 300)
+    after = stream.run(0.01, 1000.0 + 2.99 + 10.0, 300)
+    assert node.reboots == 1 and node.take_timer_reset()
+    assert max(abs(p["time"] - p["truth"]) for p in after) < 1e-3
+    assert node.lost_radio == 0, "the reboot counted as samples lost"
+    devices = [p["device_time"] for p in after]
+    assert devices == sorted(devices)
+
+
+def test_an_announced_reboot_leaves_nothing_behind_for_the_next_one():
+    """The discovery packet came, and the new timer landed ahead as above: the reboot is
+    counted once, and a later reboot whose discovery is lost is counted too (the
+    announcement, never matched by a timer that went back, used to swallow it)."""
+    node = streaming_node()
+    stream = Stream(node)
+    stream.run(WRAP_SECONDS - 4.0, 1000.0, 300)
+    node.rebooted()  # the discovery packet
+    node.streaming("accel_angrate", 512)  # re-armed
+    after = stream.run(0.01, 1000.0 + 2.99 + 10.0, 300)
+    assert node.reboots == 1 and not node.take_timer_reset()
+    assert max(abs(p["time"] - p["truth"]) for p in after[150:]) < 1e-3
+    stream.run(0.01, 1000.0 + 2.99 + 10.0 + 3.0 + 0.5, 100)  # a battery swap, unannounced
+    assert node.reboots == 2 and node.take_timer_reset()
+
+
+@pytest.mark.parametrize("outage", [60, 120, 250])
+def test_the_samples_an_outage_of_any_length_lost_are_counted(outage):
+    """Issue 19: out of range for 120 s nothing was counted, for 250 s (past a wrap)
+    3,154 of 24,999: the steps were taken from the raw timer, modulo its wrap, and
+    10,000 missing or more ignored. From the device time they are exact."""
+    node = streaming_node()
+    stream = Stream(node)
+    stream.run(150.0, 1000.0, 200)
+    stream.run(150.0 + 1.99 + outage, 1000.0 + 1.99 + outage, 100)
+    assert node.lost_radio == outage * 100 - 1
+    assert node.reboots == 0
+
+
+def test_time_is_strictly_increasing_through_the_conversion_to_unix_seconds():
+    """A poll's reply in the same cycle as the stream's record has its timer: the clock
+    gives it a time a nanosecond later, and UNIX seconds near 1.7e9 are 238 ns apart,
+    so both got one ``time``; and the UNIX clock less the monotonic one moves by a
+    fraction of a microsecond between reads. Each is now above the last. A step of
+    the UNIX clock back (NTP) still moves ``time`` by the step."""
+    node = streaming_node()
+    stream = Stream(node)
+    times = []
+    for i in range(300):
+        sampled = 1000.0 + i * 0.01
+        times.append(stream.send(40.0 + i * 0.01, sampled)["time"])
+        if i % 10 == 0:
+            stream.unix_minus_monotonic -= 1e-7
+            times.append(stream.send(40.0 + i * 0.01, sampled, "euler")["time"])
+    assert all(b > a for a, b in itertools.pairwise(times)), "time stood still or went back"
+    stream.unix_minus_monotonic -= 5.0
+    stepped = stream.send(40.0 + 3.0, 1003.0)
+    assert stepped["time"] - times[-1] == pytest.approx(0.01 - 5.0, abs=1e-3)
