@@ -64,6 +64,7 @@ def test_the_promised_alerts_are_there() -> None:
         "gx2_node_health == 2 unless on(instance, job) gx2_link_up == 0"
     assert exprs["Gx2GatewayStalled"] == "time() - gx2_gateway_status_timestamp_seconds > 30"
     assert exprs["Gx2NodeWeakSignal"] == "gx2_node_rssi_dbm < -90"
+    assert exprs["Gx2RecordingFailed"] == "gx2_gateway_health == 2"
     assert exprs["Gx2NodeRadioLoss"].endswith("> 0.05")
     assert "gx2_node_lost_radio_total" in exprs["Gx2NodeRadioLoss"]
 

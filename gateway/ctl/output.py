@@ -123,10 +123,14 @@ def status_lines(result: Mapping[str, Any], now: float) -> list[str]:
     """The gateway line, the link line and a table of nodes."""
     gateway = as_map(result.get("gateway"))
     link = as_map(result.get("link"))
+    health = gateway.get("health")
+    why = reasons(gateway)
     lines = [f"gateway  version {cell(gateway.get('version'))}, "
              f"up {duration(gateway.get('uptime'))}, "
              f"publish {cell(gateway.get('publish_endpoint'))}, "
-             f"control {cell(gateway.get('control_endpoint'))}"]
+             f"control {cell(gateway.get('control_endpoint'))}"
+             + (f", health {cell(health)}" if health is not None else "")
+             + (f" ({why})" if why else "")]
     since = number(link.get("since"))
     for_how_long = f" for {duration(now - since)}" if since is not None else ""
     error = link.get("error")
@@ -143,7 +147,7 @@ def status_lines(result: Mapping[str, Any], now: float) -> list[str]:
                      f"written {cell(recording.get('written'))}, "
                      f"dropped {cell(recording.get('dropped'))}"
                      + (f" (last error: {cell(error)})" if isinstance(error, str) and error
-                        else ""))
+                        else "") + _kept(recording))
     replay = result.get("replay")
     if isinstance(replay, Mapping):
         lines.append(f"replay   {cell(replay.get('reads'))} reads played"
@@ -166,6 +170,16 @@ def status_lines(result: Mapping[str, Any], now: float) -> list[str]:
     return lines
 
 
+def _kept(recording: Mapping[str, Any]) -> str:
+    """What the recordings of the directory take, and the oldest kept ("" from a
+    gateway that does not say)."""
+    size, oldest = number(recording.get("bytes")), recording.get("oldest")
+    if size is None:
+        return ""
+    name = oldest.rsplit("/", 1)[-1] if isinstance(oldest, str) and oldest else ""
+    return f", {size / 1e6:.1f} MB kept" + (f" since {name}" if name else "")
+
+
 def node_maps(result: Mapping[str, Any]) -> list[Mapping[str, Any]]:
     nodes = result.get("nodes")
     return [node for node in (nodes if isinstance(nodes, list) else [])
@@ -173,22 +187,34 @@ def node_maps(result: Mapping[str, Any]) -> list[Mapping[str, Any]]:
 
 
 def reasons(node: Mapping[str, Any]) -> str:
-    """Why a node is not OK, in one line ("" if it is, or if the gateway gave none)."""
+    """Why a node (or the gateway itself) is not OK, in one line ("" if it is, or if
+    the gateway gave none)."""
     given = node.get("reasons")
     return "; ".join(cell(r) for r in given) if isinstance(given, list) else ""
 
 
 def unhealthy(result: Mapping[str, Any]) -> str | None:
-    """Why a status is not all well (the link down, a node not OK), or None."""
+    """Why a status is not all well (the link down, the gateway itself not OK, a node
+    not OK), or None. A gateway that reports no health of its own (an older one) is
+    judged by its link and nodes."""
+    problems = []
     link = as_map(result.get("link"))
     if link.get("state") != "up":
-        return f"the link is {cell(link.get('state'))}"
-    nodes = node_maps(result)
-    if not nodes:
-        return "the gateway reported no nodes"
-    bad = [f"{cell(n.get('node'))} {cell(n.get('health'))}" for n in nodes
-           if n.get("health") != HealthLevel.OK]
-    return f"{len(bad)} of {len(nodes)} nodes not OK: {', '.join(bad)}" if bad else None
+        problems.append(f"the link is {cell(link.get('state'))}")
+    gateway = as_map(result.get("gateway"))
+    health = gateway.get("health")
+    if health is not None and health != HealthLevel.OK:
+        why = reasons(gateway)
+        problems.append(f"the gateway is {cell(health)}" + (f": {why}" if why else ""))
+    if link.get("state") == "up":
+        nodes = node_maps(result)
+        bad = [f"{cell(n.get('node'))} {cell(n.get('health'))}" for n in nodes
+               if n.get("health") != HealthLevel.OK]
+        if not nodes:
+            problems.append("the gateway reported no nodes")
+        elif bad:
+            problems.append(f"{len(bad)} of {len(nodes)} nodes not OK: {', '.join(bad)}")
+    return "; ".join(problems) or None
 
 
 def answered(result: Mapping[str, Any]) -> dict[Any, bool]:

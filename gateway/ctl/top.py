@@ -312,6 +312,11 @@ def frame(watch: Watch, now: float, silent_for: float, width: int,
         for row in rows[1:]:
             row.stylize("dim")
     lines = [*header(watch, now, silent_for), *rows]
+    gateway = as_map((watch.status or {}).get("gateway"))
+    health = gateway.get("health")
+    if health is not None and health != HealthLevel.OK and (why := reasons(gateway)):
+        lines.append(Text("gateway ").append(f"{cell(health)}: {why}",
+                                             HEALTH_STYLE.get(str(health), "")))
     for node in nodes:
         if node.get("health") != HealthLevel.OK and (why := reasons(node)):
             lines.append(Text(f"{cell(node.get('node'))} ").append(

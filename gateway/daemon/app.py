@@ -118,6 +118,7 @@ class Gateway:
         on_data = self.reader.on_data
         if config.record is not None:
             self.recorder = Recorder(config.record, self._recording_metadata())
+            self.health.recorder = self.recorder
             self.publisher.record = self.recorder.published
             on_data = self._read_and_record
         # only once nothing above can fail: the embedded simulator makes a directory

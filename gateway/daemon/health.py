@@ -10,6 +10,13 @@ ERROR: the node delivers nothing (the link is down, it is unreachable, its strea
 silent). WARN: it delivers, but worse than it should (rate under its expected rate,
 radio loss, weak signal, a clock estimate that has not locked, records the gateway
 could not publish, reboots). Thresholds: :class:`~.config.HealthConfig`.
+
+The gateway has a health of its own, judged the same way (:func:`judge_gateway`): its
+recorder. ERROR while the recorder cannot write (the directory cannot be made, the disk
+is full, an I/O error): publishing goes on, but nothing is kept, and monitoring must
+hear of it (issue 20: a read-only directory and a full disk passed ``status --check``).
+WARN while the recorder's queue overflowed within the window (the disk does not keep
+up). ``gx2ctl status --check`` fails on either; ``gx2_gateway_health`` carries it.
 """
 
 from __future__ import annotations
@@ -18,7 +25,7 @@ import logging
 import statistics
 from collections import deque
 from collections.abc import Iterable
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 from gateway.common.protocol import HealthLevel as Level
 
@@ -162,8 +169,39 @@ def judge(node: Node, recent: Recent, now: float, limits: HealthConfig) -> Verdi
     return Verdict(Level.WARN if reasons else Level.OK, tuple(reasons))
 
 
+class Recording(Protocol):
+    """What the gateway's health reads of its recorder (:class:`~.recorder.Recorder`)."""
+
+    @property
+    def overflowed(self) -> int:
+        """Messages dropped so far because its queue was full."""
+
+    @property
+    def failure(self) -> str:
+        """Why it cannot write now; "" while it writes."""
+
+
+def judge_gateway(failure: str, overflowed: int, seconds: float) -> Verdict:
+    """The gateway's own health: its recorder's ``failure`` now, and what its queue
+    dropped (``overflowed``) over the last ``seconds``."""
+    if failure:
+        return Verdict(Level.ERROR, (f"recording failed: {failure}",))
+    if overflowed:
+        return Verdict(Level.WARN, (f"recording dropped {overflowed} messages in "
+                                    f"{seconds:.0f} s: its queue was full (the disk does "
+                                    "not keep up)",))
+    return Verdict(Level.OK, ())
+
+
+def _trim(samples: deque[tuple[float, int]], now: float, seconds: float) -> None:
+    """Keep the samples of the last ``seconds``, and the one before them."""
+    while len(samples) > 1 and samples[1][0] <= now - seconds:
+        samples.popleft()
+
+
 class Health:
-    """Every node's window and verdict, and the link's recent throughput."""
+    """Every node's window and verdict, the gateway's own, and the link's recent
+    throughput."""
 
     def __init__(self, nodes: Iterable[Node], limits: HealthConfig) -> None:
         self.limits = limits
@@ -171,12 +209,27 @@ class Health:
         self._windows = {node.address: Window(limits.window_s) for node in self.nodes}
         self._verdicts: dict[int, Verdict] = {}
         self._link: deque[tuple[float, int]] = deque()
+        self.recorder: Recording | None = None
+        """The gateway's recorder, if it records: what its own health is judged by."""
+        self._overflows: deque[tuple[float, int]] = deque()
+        self._gateway = Verdict(Level.OK, ())
 
     def sample(self, now: float, bytes_read: int) -> None:
-        """Once a second: sample every counter, and log each node whose health changed."""
+        """Once a second: sample every counter, and log each node whose health changed
+        (and the gateway, if its own did)."""
         self._link.append((now, bytes_read))
-        while len(self._link) > 1 and self._link[1][0] <= now - LINK_SPAN:
-            self._link.popleft()
+        _trim(self._link, now, LINK_SPAN)
+        if self.recorder is not None:
+            if not self._overflows:  # (what overflowed before the first sample counts)
+                self._overflows.append((now, 0))
+            self._overflows.append((now, self.recorder.overflowed))
+            _trim(self._overflows, now, self.limits.window_s)
+        verdict, before = self.gateway(now), self._gateway
+        self._gateway = verdict
+        if verdict.level != before.level:
+            log.log(logging.INFO if verdict.level is Level.OK else logging.WARNING,
+                    "gateway health %s -> %s%s", before.level, verdict.level,
+                    f": {'; '.join(verdict.reasons)}" if verdict.reasons else "")
         for node in self.nodes:
             self._windows[node.address].sample(node, now)
             verdict = self.verdict(node, now)
@@ -190,6 +243,22 @@ class Health:
 
     def recent(self, node: Node, now: float) -> Recent:
         return self._windows[node.address].recent(node, now)
+
+    def gateway(self, now: float) -> Verdict:
+        """The gateway's own health at ``now`` (``time.monotonic()``)."""
+        recorder = self.recorder
+        if recorder is None:
+            return Verdict(Level.OK, ())
+        overflowed, seconds = 0, 0.0
+        if self._overflows:
+            at, before = self._overflows[0]
+            overflowed, seconds = recorder.overflowed - before, now - at
+        return judge_gateway(recorder.failure, overflowed, seconds)
+
+    def gateway_status(self, now: float) -> dict[str, Any]:
+        """What status adds to the gateway's map."""
+        verdict = self.gateway(now)
+        return {"health": str(verdict.level), "reasons": list(verdict.reasons)}
 
     def verdict(self, node: Node, now: float) -> Verdict:
         return judge(node, self.recent(node, now), now, self.limits)

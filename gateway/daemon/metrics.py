@@ -81,6 +81,8 @@ RECORDING = (
     ("gx2_recording_dropped_total", COUNTER, "Messages never written (queue full or disk "
      "failed)", "dropped"),
     ("gx2_recording_errors_total", COUNTER, "Disk failures while recording", "errors"),
+    ("gx2_recording_bytes", GAUGE, "Bytes the recordings of its directory take (the file "
+     "being written included)", "bytes"),
 )
 HEALTH_VALUES = {Level.OK: 0, Level.WARN: 1, Level.ERROR: 2}
 
@@ -112,6 +114,10 @@ def families(report: Mapping[str, Any]) -> Iterator[Metric]:
             yield GAUGE("gx2_gateway_start_time_seconds", "UNIX time the gateway started",
                         value=made - uptime)
     yield from _table(GATEWAY, [], [([], gateway)])
+    if gateway.get("health") in HEALTH_VALUES:
+        yield GAUGE("gx2_gateway_health", "The gateway's own health: 0 OK, 1 WARN (its "
+                    "recorder's queue overflowed), 2 ERROR (its recorder cannot write); "
+                    "status gives the reasons", value=HEALTH_VALUES[gateway["health"]])
     yield GAUGE("gx2_link_up", "1 while the base station's port is open", value=float(
         link.get("state") == "up"))
     yield from _table(LINK, [], [([], link)])

@@ -7,9 +7,24 @@ the queue is full, or the disk fails, messages are dropped and counted, never he
 The thread wakes every WAKE_S, writes what is queued, and flushes the chunk in
 progress at least every FLUSH_S, so a process killed without warning leaves a file
 readable up to about the last second. Files are finished (summary and index) when
-they rotate, by age or size, and when the gateway stops. After a write fails (a full
-disk) the file is closed as it is (readable up to its last flush) and a new one is
-tried every RETRY_S; meanwhile messages are dropped and counted.
+they rotate, by age or size, and when the gateway stops.
+
+A disk that fails (full, an I/O error, a directory that cannot be made) is loud and
+leaves nothing broken behind (issue 20): the recorder's ``failure`` says why it
+cannot write, which makes the gateway's own health ERROR (:mod:`.health`). A file that
+could not be started (created, but its header could not be written) is removed, never
+left empty; a file cut short is cut back to its last flush and ended there (a data end
+and a footer, as the MCAP spec allows), so every reader reads it whole, and removed if
+that flush kept nothing (``RecordingWriter.abandon``). Meanwhile messages are dropped
+and counted, and a new file is tried every RETRY_S; recording has resumed, and says
+so, once a flush of the new file has put messages on the disk (a file created on a
+full disk is not yet a file written).
+
+Retention (``record.keep_gb``, ``record.keep_days``) runs in the same thread once a
+second: finished files of the directory (named as :func:`file_name` names them) are
+deleted oldest first, each deletion logged, never the file being written. The
+directory is listed when the thread starts and whenever a new file is opened; in
+between, the files this thread finishes are added to what it knows.
 
 Closing is bounded, so that the gateway keeps its promise to exit within 2 s: close()
 is given what is left of it. The thread writes what is queued for DRAIN_SHARE of that
@@ -26,20 +41,22 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import re
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, NamedTuple
 
-from gateway.recording.files import WRITTEN, RecordingWriter, file_name
+from gateway.recording.files import SUFFIX, WRITTEN, RecordingWriter, file_name
 
 from .config import RecordConfig
 
 log = logging.getLogger("gx2.record")
 WAKE_S = 0.1
 FLUSH_S = 1.0
+"""Also how often retention looks at the directory's files."""
 RETRY_S = 5.0
 CLOSE_S = 1.0
 """What close() takes at the most unless told otherwise."""
@@ -48,11 +65,32 @@ DRAIN_SHARE = 0.5
 summary's (a handful of writes)."""
 SERIAL, SENT, PUBLISHED = 0, 1, 2
 """What a queued item is: a read, a write, a published message."""
+GB = 1e9
+DAY_S = 86400.0
+OWN_FILE = re.compile(r"gx2-\d{8}T\d{6}\.\d{3}Z" + re.escape(SUFFIX))
+"""The names :func:`file_name` gives: the only files retention ever deletes."""
+
+
+def size_text(count: float) -> str:
+    """``812 B``, ``30.0 kB``, ``117.2 MB``, ``84.0 GB`` (powers of 10, as keep_gb)."""
+    for unit, scale in (("GB", GB), ("MB", 1e6), ("kB", 1e3)):
+        if count >= scale:
+            return f"{count / scale:.1f} {unit}"
+    return f"{count:.0f} B"
 
 
 def exclusive(path: Path) -> IO[bytes]:
     """A new file, never one that exists."""
     return path.open("xb")
+
+
+class Kept(NamedTuple):
+    """A finished file of the directory, as retention knows it."""
+
+    path: Path
+    size: int
+    modified: float
+    """UNIX time of its last write: its age is that of the last data it holds."""
 
 
 class Recorder:
@@ -65,6 +103,8 @@ class Recorder:
         self.directory = Path(config.directory)
         self.rotate_s = config.rotate_minutes * 60
         self.rotate_bytes = int(config.rotate_mb * 1e6)
+        self.keep_bytes = None if config.keep_gb is None else config.keep_gb * GB
+        self.keep_s = None if config.keep_days is None else config.keep_days * DAY_S
         self.capacity = config.queue
         self.metadata = metadata
         self._queue: deque[tuple[Any, ...]] = deque()
@@ -76,15 +116,28 @@ class Recorder:
         self.lost = 0
         """Messages the thread could not write: the disk failed."""
         self.written = 0
+        """Messages on the disk: handed to the OS by a flush (or a finish)."""
         self.errors = 0
         self.files = 0
         self.last_error = ""
+        self._failure = ""
+        """Why nothing can be written now ("" while files are written)."""
+        self._lost_before = 0
+        """``lost`` when the failure began: what resuming says was dropped."""
         self.path: Path | None = None
+        """The file being written, or the last one."""
         self._writer: RecordingWriter | None = None
         self._output: Any = None
+        """The file being written, open (None between files)."""
         self._opened = 0.0
         self._unflushed = 0
         self._retry_at = 0.0
+        self._kept: list[Kept] = []
+        """The finished files of the directory, oldest first."""
+        self.bytes = 0
+        """What the directory's recordings take, the file being written included."""
+        self.oldest = ""
+        """The oldest file kept."""
         self._closing = False
         self._drain_until = 0.0
         """Once closing, the time.monotonic() past which no more of the queue is written."""
@@ -121,10 +174,21 @@ class Recorder:
         """Messages never written: the queue was full, or the disk failed."""
         return self.overflowed + self.lost
 
+    @property
+    def failure(self) -> str:
+        """Why the recorder cannot write now, or "" while it writes (read on the loop:
+        one attribute, set by the thread)."""
+        if self._thread.ident is not None and not self._thread.is_alive() \
+                and not self._closing:
+            return "its thread stopped"
+        return self._failure
+
     def status(self) -> dict[str, Any]:
-        return {"directory": str(self.directory), "file": str(self.path or ""),
+        return {"directory": str(self.directory),
+                "file": str(self.path) if self._output is not None else "",
                 "files": self.files, "written": self.written, "queued": len(self._queue),
-                "dropped": self.dropped, "errors": self.errors, "error": self.last_error}
+                "dropped": self.dropped, "errors": self.errors, "error": self.last_error,
+                "failure": self.failure, "bytes": self.bytes, "oldest": self.oldest}
 
     def start(self) -> None:
         self._thread.start()
@@ -149,13 +213,16 @@ class Recorder:
     # -- the thread ---------------------------------------------------------------------------
 
     def _run(self) -> None:
-        last_flush = time.monotonic()
+        self._list()
+        last_tick = time.monotonic()
         while not self._stop.wait(WAKE_S):
             self._drain()
             now = time.monotonic()
-            if self._writer is not None and now - last_flush >= FLUSH_S:
-                last_flush = now
-                self._guarded(self._flush)
+            if now - last_tick >= FLUSH_S:
+                last_tick = now
+                if self._writer is not None:
+                    self._guarded(self._flush)
+                self._retain()
         self._drain()
         self.cut = len(self._queue)
         self.lost += self.cut
@@ -185,12 +252,15 @@ class Recorder:
             writer.serial(item[1], item[2], item[3])
         else:
             writer.serial(item[1], item[2], item[3], topic=WRITTEN)
-        self.written += 1
         self._unflushed += 1
 
     def _flush(self) -> None:
-        self._writer.flush()  # type: ignore[union-attr]
+        writer = self._writer
+        writer.flush()  # type: ignore[union-attr]
+        self.written += self._unflushed
         self._unflushed = 0
+        if self._failure and writer.kept:  # type: ignore[union-attr]
+            self._resumed()
         if (time.monotonic() - self._opened >= self.rotate_s
                 or self._output.tell() >= self.rotate_bytes):
             self._finish()
@@ -207,22 +277,32 @@ class Recorder:
                 time.sleep(0.001)
                 path = self.directory / file_name()
             self._output = self.create(path)
+            self.path = path
             self._writer = RecordingWriter(self._output, self.metadata)
+            # its header on the disk now: a file that cannot even be started is found
+            # out here and removed (a full disk left an empty file every retry)
+            self._output.flush()
         except OSError as error:
             self._failed(error)
             return None
-        self.path = path
         self.files += 1
         self._opened = time.monotonic()
-        log.info("recording to %s", path)
+        if self._failure:
+            log.debug("recording: trying %s", path)
+        else:
+            log.info("recording to %s", path)
+        self._list()
         return self._writer
 
     def _finish(self) -> None:
-        if self._writer is None:
+        writer, path = self._writer, self.path
+        if writer is None or path is None:
             return
-        writer, self._writer = self._writer, None
         writer.finish()
-        self._output = None
+        self.written += self._unflushed
+        self._unflushed = 0
+        self._writer = self._output = None
+        self._keep(path)
 
     def _guarded(self, action: Any, *args: Any) -> bool:
         """Run a disk action; on failure, count it, drop the file and say so."""
@@ -236,16 +316,101 @@ class Recorder:
     def _failed(self, error: OSError) -> None:
         why = error.strerror or str(error)
         self.errors += 1
-        if why != self.last_error:
+        self.last_error = why
+        if why != self._failure:
+            if not self._failure:
+                self._lost_before = self.lost
             log.error("recording to %s failed: %s; messages are dropped (and counted) "
                       "until a new file can be written, tried every %g s",
                       self.directory, why, RETRY_S)
-        self.last_error = why
+            self._failure = why
         # what the failed file holds up to its last flush stays readable
         self.lost += self._unflushed
         self._unflushed = 0
+        self._abandon()
+        self._retry_at = time.monotonic() + RETRY_S
+
+    def _abandon(self) -> None:
+        """The file being written, after a failure: cut back to its last flush and ended
+        there, or removed if that kept nothing."""
+        writer, output, path = self._writer, self._output, self.path
+        self._writer = self._output = None
+        if output is None or path is None:
+            return
+        if writer is not None:
+            writer.abandon(path)
+        else:  # (created, its writer never started)
+            with contextlib.suppress(OSError, ValueError):
+                output.close()
+            with contextlib.suppress(OSError):
+                path.unlink()
+        if path.exists():
+            log.warning("recording: %s cut short, readable up to its last flush (%d "
+                        "messages)", path, writer.kept if writer else 0)
+            self._keep(path)
+        else:
+            log.debug("recording: %s removed: nothing of it reached the disk", path)
+
+    def _resumed(self) -> None:
+        log.warning("recording resumed in %s after %d messages dropped (%s)", self.path,
+                    self.lost - self._lost_before, self._failure)
+        self._failure = ""
+
+    # -- retention ------------------------------------------------------------------------
+
+    def _list(self) -> None:
+        """What the directory holds (another process may have added or deleted files)."""
+        try:
+            paths = sorted(p for p in self.directory.iterdir() if OWN_FILE.fullmatch(p.name))
+        except OSError:
+            return
+        kept = []
+        for path in paths:
+            if path == self.path and self._output is not None:
+                continue  # (being written)
+            with contextlib.suppress(OSError):
+                found = path.stat()
+                kept.append(Kept(path, found.st_size, found.st_mtime))
+        self._kept = kept
+
+    def _keep(self, path: Path) -> None:
+        """A file just finished (or cut short): retention's from now on."""
+        with contextlib.suppress(OSError):
+            self._kept.append(Kept(path, path.stat().st_size, time.time()))
+
+    def _retain(self) -> None:
+        """Delete finished files, oldest first, until the directory is within
+        ``keep_gb`` and ``keep_days``; update what status says it holds."""
+        writing = 0
         if self._output is not None:
             with contextlib.suppress(OSError, ValueError):
-                self._output.close()
-        self._writer = self._output = None
-        self._retry_at = time.monotonic() + RETRY_S
+                writing = self._output.tell()
+        total = writing + sum(kept.size for kept in self._kept)
+        now = time.time()
+        while self._kept:
+            oldest = self._kept[0]
+            if self.keep_s is not None and now - oldest.modified > self.keep_s:
+                why = f"older than keep_days {self.keep_s / DAY_S:g}"
+            elif self.keep_bytes is not None and total > self.keep_bytes:
+                why = (f"the recordings took {size_text(total)}, over keep_gb "
+                       f"{self.keep_bytes / GB:g}")
+            else:
+                break
+            del self._kept[0]
+            total -= oldest.size
+            try:
+                oldest.path.unlink()
+            except FileNotFoundError:
+                continue  # (someone else deleted it)
+            except OSError as error:
+                total += oldest.size  # (still there)
+                log.warning("recording: cannot delete %s (%s): %s", oldest.path,
+                            error.strerror or error, why)
+                continue
+            log.info("recording: deleted %s (%s, last written %s): %s",
+                     oldest.path.name, size_text(oldest.size),
+                     time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(oldest.modified)), why)
+        self.bytes = total
+        first = self._kept[0].path if self._kept else (
+            self.path if self._output is not None else None)
+        self.oldest = str(first or "")

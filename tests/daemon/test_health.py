@@ -229,3 +229,45 @@ def test_the_links_bytes_per_second_are_over_its_last_few_seconds() -> None:
     for second in range(10):
         health.sample(float(second), second * 1000)
     assert health.bytes_per_s(10.0, 10_000) == pytest.approx(1000.0)
+
+
+class FakeRecorder:
+    """What the gateway's health reads of its recorder."""
+
+    def __init__(self) -> None:
+        self.overflowed = 0
+        self.failure = ""
+
+
+def test_the_gateway_is_an_error_while_its_recorder_cannot_write(caplog) -> None:
+    caplog.set_level(logging.INFO, "gx2.health")
+    health = Health([], LIMITS)
+    assert health.gateway_status(1.0) == {"health": "OK", "reasons": []}  # records nothing
+    recorder = health.recorder = FakeRecorder()
+    health.sample(1.0, 0)
+    recorder.failure = "No space left on device"
+    assert health.gateway_status(1.5) == {
+        "health": "ERROR", "reasons": ["recording failed: No space left on device"]}
+    health.sample(2.0, 0)
+    recorder.failure = ""
+    health.sample(3.0, 0)
+    assert health.gateway(3.0).level is Level.OK
+    said = [r.message for r in caplog.records]
+    assert said == ["gateway health OK -> ERROR: recording failed: No space left on device",
+                    "gateway health ERROR -> OK"], said
+
+
+def test_the_gateway_warns_while_its_recorders_queue_overflowed_within_the_window() -> None:
+    health = Health([], LIMITS)
+    recorder = health.recorder = FakeRecorder()
+    for second in range(10):
+        health.sample(float(second), 0)
+    recorder.overflowed = 250
+    health.sample(10.0, 0)
+    verdict = health.gateway(10.0)
+    assert verdict.level is Level.WARN
+    assert verdict.reasons == ("recording dropped 250 messages in 10 s: its queue was full "
+                               "(the disk does not keep up)",)
+    for second in range(11, 11 + int(LIMITS.window_s) + 1):
+        health.sample(float(second), 0)
+    assert health.gateway(second).level is Level.OK  # out of the window

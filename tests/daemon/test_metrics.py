@@ -37,7 +37,8 @@ def report(**changes: Any) -> dict[str, Any]:
     base: dict[str, Any] = {
         "gateway": {"version": "1.2.3", "uptime": 100.0, "time": 1_800_000_100.0,
                     "published": 5000, "publish_failures": 0, "control_requests": 7,
-                    "control_rejected": 1, "curve_denied": 0},
+                    "control_rejected": 1, "curve_denied": 0, "health": "OK",
+                    "reasons": []},
         "link": {"state": "up", "reconnects": 2, "bytes_read": 123_456, "bytes_per_s": 9500.0,
                  "line_bytes_per_s": 11520.0, "discarded": {"garbage": 40, "truncated": 2},
                  "unknown_node_packets": 3, "bad_records": 0, "retries": 4, "failures": 1},
@@ -118,10 +119,23 @@ def test_the_values_are_the_reports(server) -> None:
 def test_the_link_down_is_a_zero_and_recording_counters_appear_when_it_records(
         server) -> None:
     server.update(report(link={"state": "down"}, recording={"written": 9, "dropped": 2,
-                                                            "errors": 1}))
+                                                            "errors": 1, "bytes": 12_345}))
     got = {name: values(family) for name, family in scrape(server).items()}
     assert got["gx2_link_up"] == {(): 0.0}
     assert got["gx2_recording_dropped"] == {(): 2.0}
+    assert got["gx2_recording_bytes"] == {(): 12_345.0}
+    assert got["gx2_gateway_health"] == {(): 0.0}
+
+
+@pytest.mark.parametrize(("health", "value"), [("OK", 0.0), ("WARN", 1.0), ("ERROR", 2.0)])
+def test_the_gateways_own_health_is_a_gauge_absent_from_a_gateway_without_one(
+        server, health: str, value: float) -> None:
+    base = report()
+    server.update({**base, "gateway": {**base["gateway"], "health": health,
+                                       "reasons": ["recording failed: Disk full"]}})
+    assert values(scrape(server)["gx2_gateway_health"]) == {(): value}
+    server.update({**base, "gateway": {"version": "0.9", "time": 1.0}})
+    assert "gx2_gateway_health" not in scrape(server)
 
 
 def test_a_report_of_another_shape_loses_only_what_it_lacks(server) -> None:

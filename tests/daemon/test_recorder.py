@@ -3,7 +3,10 @@ rotates and finishes files, and what it cannot write is counted."""
 
 from __future__ import annotations
 
+import errno
 import io
+import logging
+import os
 import threading
 import time
 from pathlib import Path
@@ -11,8 +14,10 @@ from typing import Any
 
 from mcap.reader import NonSeekingReader, make_reader
 
+from gateway.daemon import recorder as recorder_module
 from gateway.daemon.config import RecordConfig
 from gateway.daemon.recorder import Recorder
+from gateway.recording.files import file_name
 from tests.helpers.waiting import wait_for
 
 SLACK = 0.3
@@ -121,7 +126,8 @@ def test_a_backlog_the_disk_cannot_take_in_time_is_cut_and_the_file_finished(tmp
         recorder.serial(b"\xaa" * 40, 1.0 + seq, 1.0)
     disk.slow.set()
     recorder.start()
-    wait_for(lambda: recorder.written, 5, "the thread to be writing the backlog")
+    wait_for(lambda: recorder.status()["queued"] < queued, 5,
+             "the thread to be writing the backlog")
     start = time.monotonic()
     recorder.close(timeout=1.0)
     took = time.monotonic() - start
@@ -154,3 +160,127 @@ def test_a_disk_too_slow_for_the_summary_leaves_the_file_readable_to_its_last_ch
     finally:
         disk.released.set()  # the thread left behind finishes, and the test with it
         recorder._thread.join(5)
+
+
+class FullDisk:
+    """Files on a disk that fills up (every write to the OS fails with ENOSPC while
+    ``full`` is set) and frees again; buffered as a file opened by Python is."""
+
+    def __init__(self) -> None:
+        self.full = threading.Event()
+        self.created: list[Path] = []
+
+    def create(self, path: Path) -> Any:
+        disk = self
+
+        class Filling(io.FileIO):
+            def write(self, data: Any) -> int:
+                if disk.full.is_set():
+                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                return super().write(data)
+        file = io.BufferedWriter(Filling(path, "xb"))
+        self.created.append(path)
+        return file
+
+
+def feed(recorder: Recorder, seconds: float, start: int = 0) -> int:
+    """Reads at a stream's pace for ``seconds``; how many."""
+    sent = start
+    until = time.monotonic() + seconds
+    while time.monotonic() < until:
+        recorder.serial(b"\xaa" * 40, 1.0 + sent, 1.0)
+        sent += 1
+        time.sleep(0.005)  # (a stream's pace, not a synchronisation)
+    return sent - start
+
+
+def test_a_full_disk_fails_loudly_leaves_no_broken_file_and_recording_resumes(
+        tmp_path, monkeypatch, caplog):
+    monkeypatch.setattr(recorder_module, "RETRY_S", 0.2)
+    disk = FullDisk()
+    recorder = Recorder(RecordConfig(directory=str(tmp_path)), {}, create=disk.create)
+    recorder.start()
+    sent = 0
+    try:
+        while not recorder.written:  # (the first flush: a second)
+            sent += feed(recorder, 0.1, sent)
+        assert recorder.failure == ""
+        disk.full.set()
+        while not recorder.failure:
+            sent += feed(recorder, 0.1, sent)
+        kept = recorder.written
+        assert recorder.status()["failure"] == "No space left on device"
+        # files tried meanwhile could not be started: removed, never left empty
+        while len(disk.created) < 4:
+            sent += feed(recorder, 0.1, sent)
+        assert sorted(tmp_path.iterdir()) == [disk.created[0]]
+        assert readable(disk.created[0]) == (kept, True)  # cut at its last flush, ended
+        assert recorder.failure
+        disk.full.clear()
+        while recorder.failure:
+            sent += feed(recorder, 0.1, sent)
+    finally:
+        recorder.close()
+    assert recorder.written + recorder.dropped == sent
+    assert recorder.lost > 0 and recorder.overflowed == 0
+    paths = sorted(tmp_path.iterdir())
+    assert len(paths) == 2 and paths[0] == disk.created[0], paths
+    assert finished(paths[1]) == recorder.written - kept
+    said = [r.message for r in caplog.records if r.name == "gx2.record"]
+    assert sum("failed: No space left on device" in line for line in said) == 1, said
+    resumed = [line for line in said if "recording resumed in" in line]
+    assert len(resumed) == 1 and str(paths[1]) in resumed[0], said
+    assert f"after {recorder.lost} messages dropped" in resumed[0]
+
+
+def seed(directory: Path, ages_days: list[float], size: int) -> list[Path]:
+    """Finished recordings of ``size`` bytes, last written ``ages_days`` ago, named as
+    the recorder names them (by their start, an hour before)."""
+    paths = []
+    for age in ages_days:
+        modified = time.time() - age * 86400
+        path = directory / file_name(modified - 3600)
+        path.write_bytes(bytes(size))
+        os.utime(path, (modified, modified))
+        paths.append(path)
+    return paths
+
+
+def test_retention_deletes_the_oldest_finished_files_never_the_current_one(
+        tmp_path, caplog):
+    caplog.set_level(logging.INFO, "gx2.record")
+    old, newer = seed(tmp_path, [40, 20], 1000), seed(tmp_path, [2, 1], 300_000)
+    foreign = tmp_path / "notes.mcap"
+    foreign.write_bytes(bytes(100))
+    recorder = Recorder(RecordConfig(directory=str(tmp_path), keep_days=30,
+                                     keep_gb=0.0005), {})
+    recorder.start()
+    try:
+        wait_for(lambda: not old[0].exists(), 5, "the file older than 30 days deleted")
+        # 20 days old, but within the days: deleted for the space (500 kB) only
+        wait_for(lambda: not newer[0].exists(), 5, "the oldest deleted for space")
+        assert not old[1].exists() and newer[1].exists() and foreign.exists()
+        feed(recorder, 1.5)
+        status = recorder.status()
+        current = Path(status["file"])
+        assert current.exists() and status["oldest"] == str(newer[1])
+        assert status["bytes"] >= 300_000 + current.stat().st_size - 16_384
+    finally:
+        recorder.close()
+    deleted = [r.message for r in caplog.records if "deleted" in r.message]
+    assert len(deleted) == 3 and all("\n" not in line for line in deleted), deleted
+    assert deleted[0].startswith(f"recording: deleted {old[0].name} (1.0 kB, last written ") and \
+        deleted[0].endswith("older than keep_days 30"), deleted
+    assert "over keep_gb 0.0005" in deleted[2] and newer[0].name in deleted[2], deleted
+
+
+def test_retention_never_deletes_the_file_being_written(tmp_path):
+    recorder = Recorder(RecordConfig(directory=str(tmp_path), keep_gb=1e-9), {})
+    recorder.start()
+    try:
+        feed(recorder, 2.5)
+        status = recorder.status()
+        assert Path(status["file"]).exists() and status["oldest"] == status["file"]
+    finally:
+        recorder.close()
+    assert len(list(tmp_path.iterdir())) == 1

@@ -1,0 +1,185 @@
+"""A recording disk that fills and frees again, and one that is read-only, under the
+real gateway and gx2-sim (issue 20): the gateway itself is an ERROR while it cannot
+write (status, ``gx2ctl status --check``, the metric), publishing goes on, no empty or
+unreadable file is left, and recording resumes in a new file by itself.
+
+The disk is a real 1 MiB tmpfs in a mount namespace of its own (unshare(1), as root),
+held by a process that lives as long as the test: the gateway joins that namespace
+(setns(2), before it starts), and the test reaches the same tmpfs through the holder's
+``/proc/PID/root``. The tmpfs fills with a file the test writes until the kernel says
+ENOSPC, and frees when the test deletes it: the gateway meets the very error a full
+disk gives. Files are read back with the ``mcap`` package's own readers and
+``gx2ctl export``, while the holder keeps the tmpfs after the gateway has stopped.
+"""
+
+from __future__ import annotations
+
+import csv
+import ctypes
+import errno
+import os
+import shutil
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from mcap.reader import NonSeekingReader, make_reader
+
+from gateway.sim.node import NodeSettings
+from tests.e2e.test_watching import Scraper
+from tests.helpers.ports import free_port
+from tests.helpers.processes import gx2ctl
+from tests.helpers.waiting import wait_for
+
+CLONE_NEWNS = 0x00020000
+"""setns(2)'s flag for a mount namespace (<sched.h>)."""
+NODES = [{"address": 76, "stream": "accel_angrate"}]
+HOLD = 'mount -t tmpfs -o "$2" gx2-test "$1" && echo mounted && exec cat >/dev/null'
+"""The holder: mounts the tmpfs in its own namespace, says so, and keeps it until its
+standard input closes (the test ends, or dies)."""
+
+
+class SmallDisk:
+    """A tmpfs at ``inside`` that only the gateway (and the test, through ``outside``)
+    sees."""
+
+    def __init__(self, tmp_path: Path, options: str) -> None:
+        unshare = shutil.which("unshare")
+        if os.geteuid() != 0 or unshare is None:
+            pytest.skip("a tmpfs of its own needs root and unshare(1)")
+        self.inside = tmp_path / "disk"
+        self.inside.mkdir()
+        self._holder = subprocess.Popen(
+            [unshare, "--mount", "--propagation", "private", "sh", "-c", HOLD, "sh",
+             str(self.inside), options], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE, text=True)
+        if self._holder.stdout.readline().strip() != "mounted":  # type: ignore[union-attr]
+            why = self._holder.communicate(timeout=10)[1].strip()
+            pytest.skip(f"no tmpfs of its own here: {why}")
+        self.outside = Path(f"/proc/{self._holder.pid}/root{self.inside}")
+        self._namespace = os.open(f"/proc/{self._holder.pid}/ns/mnt", os.O_RDONLY)
+        self._setns = ctypes.CDLL(None, use_errno=True).setns
+
+    def enter(self) -> None:
+        """In the gateway's process, before it starts: the holder's mount namespace."""
+        if self._setns(self._namespace, CLONE_NEWNS) != 0:
+            os._exit(126)
+
+    def fill(self) -> int:
+        """Fill what is left of the disk (the filler grows); the bytes added."""
+        added = 0
+        with (self.outside / "filler").open("ab", buffering=0) as filler:
+            for block in (65536, 4096, 512, 1):
+                try:
+                    while True:
+                        added += filler.write(bytes(block))
+                except OSError as error:
+                    assert error.errno == errno.ENOSPC, error
+        return added
+
+    def free(self) -> None:
+        (self.outside / "filler").unlink()
+
+    def close(self) -> None:
+        os.close(self._namespace)
+        self._holder.communicate(timeout=10)  # (stdin closed: the tmpfs goes with it)
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path) -> Iterator[SmallDisk]:
+    disk = SmallDisk(tmp_path, "size=1m")
+    yield disk
+    disk.close()
+
+
+@pytest.fixture
+def read_only_disk(tmp_path: Path) -> Iterator[SmallDisk]:
+    disk = SmallDisk(tmp_path, "ro")
+    yield disk
+    disk.close()
+
+
+def readable_to_its_end(path: Path) -> int:
+    """Messages in ``path`` by mcap's front-to-back reader, which raises on a file that
+    stops short of its footer."""
+    with path.open("rb") as stream:
+        return sum(1 for _ in NonSeekingReader(stream).iter_messages(log_time_order=False))
+
+
+def records_of(path: Path, topic: str) -> int:
+    with path.open("rb") as stream:
+        return sum(1 for _, channel, _ in make_reader(stream).iter_messages()
+                   if channel.topic == topic)
+
+
+def test_a_full_disk_makes_the_gateway_an_error_and_recording_resumes_when_it_frees(
+        simulator, gateway, small_disk, tmp_path):
+    sim = simulator(NodeSettings(76))
+    metrics = f"127.0.0.1:{free_port()}"
+    recordings = small_disk.inside / "recordings"
+    gw = gateway(sim.path, NODES, record={"directory": str(recordings)},
+                 metrics={"endpoint": metrics}, preexec=small_disk.enter)
+    scrape = Scraper(metrics)
+    gw.wait_streaming(76)
+    wait_for(lambda: gw.status()["recording"]["written"], 10, "the first flush")
+    assert gw.status()["recording"]["errors"] == 0
+
+    small_disk.fill()
+    wait_for(lambda: gw.status()["recording"]["errors"], 10, "the disk to refuse")
+    small_disk.fill()  # (the file cut short gave back its last, partial chunk)
+    check = gx2ctl("--config", str(gw.path), "status", "--check")
+    assert check.status == 1, check
+    assert gw.status()["gateway"]["reasons"] == ["recording failed: No space left on device"]
+    assert "the gateway is ERROR: recording failed: No space left on device" in check.stderr
+    assert "health ERROR (recording failed: No space left on device)" in check.stdout
+    assert scrape.value("gx2_gateway_health") == 2.0
+    # publishing goes on; a file tried meanwhile could not be started: removed
+    sub = gw.subscribe("gx2/76/")
+    sub.until(lambda m: len(m) > 50, 10, "records published while nothing is recorded")
+    wait_for(lambda: "removed: nothing of it reached the disk" in gw.log(), 10,
+             "a new file tried, and removed")
+    files = sorted((small_disk.outside / "recordings").iterdir())
+    assert len(files) == 1 and files[0].stat().st_size > 0, files
+
+    small_disk.free()
+    wait_for(lambda: gw.status()["gateway"]["health"] == "OK", 15, "recording to resume")
+    wait_for(lambda: scrape.value("gx2_gateway_health") == 0.0, 5, "the metric to follow")
+    resumed = [line for line in gw.log().splitlines() if "recording resumed in" in line]
+    assert len(resumed) == 1 and "messages dropped (No space left on device)" in resumed[0]
+    written = gw.status()["recording"]["written"]
+    wait_for(lambda: gw.status()["recording"]["written"] > written, 5, "more recorded")
+    status, _ = gw.terminate()
+    assert status == 0, gw.log()
+
+    # two files: the first cut short at its last flush and ended there, the second
+    # finished; each read whole by mcap's own reader, nothing empty
+    files = sorted((small_disk.outside / "recordings").iterdir())
+    assert len(files) == 2, files
+    cut, whole = files
+    assert str(cut.name) in gw.log() and "cut short" in gw.log()
+    assert readable_to_its_end(cut) > 0 and readable_to_its_end(whole) > 0
+    with whole.open("rb") as stream:
+        assert make_reader(stream).get_summary() is not None
+    recorded = sum(records_of(path, "gx2/76/accel_angrate") for path in files)
+    # export reads every record that was written, and skips nothing
+    out = tmp_path / "out"
+    run = gx2ctl("export", str(small_disk.outside / "recordings"), "--out", str(out))
+    assert run.status == 0, run
+    with (out / "76_accel_angrate.csv").open() as table:
+        assert sum(1 for _ in csv.DictReader(table)) == recorded > 100
+
+
+def test_a_read_only_directory_makes_the_gateway_an_error_and_leaves_nothing(
+        simulator, gateway, read_only_disk):
+    sim = simulator(NodeSettings(76))
+    gw = gateway(sim.path, NODES, record={"directory": str(read_only_disk.inside)},
+                 preexec=read_only_disk.enter)
+    gw.wait_streaming(76)
+    wait_for(lambda: gw.status()["recording"]["errors"], 10, "the directory to refuse")
+    check = gx2ctl("--control", gw.control_endpoint, "status", "--check")
+    assert check.status == 1 and "Read-only file system" in check.stderr, check
+    assert gw.status()["gateway"]["reasons"] == ["recording failed: Read-only file system"]
+    assert list(read_only_disk.outside.iterdir()) == []
+    status, _ = gw.terminate()
+    assert status == 0
