@@ -23,7 +23,7 @@ from . import PROG
 from .client import CtlError
 
 if TYPE_CHECKING:
-    from gateway.recording.files import Reading
+    from gateway.recording.reports import Reading
 
 
 def add_commands(commands: Any) -> None:
@@ -70,7 +70,7 @@ def _report(reading: Reading) -> int:
 
 def run_export(args: argparse.Namespace) -> int:
     from gateway.recording.export import MARKS, MissingExtra, RecordingError, export
-    from gateway.recording.files import Reading
+    from gateway.recording.reports import Reading
     paths = _files(args.files)
     reading = Reading()
     written: list[Path] = []
@@ -101,8 +101,9 @@ def run_export(args: argparse.Namespace) -> int:
 
 def run_plot(args: argparse.Namespace) -> int:
     from gateway.recording.export import MissingExtra
-    from gateway.recording.files import Reading, RecordingError
+    from gateway.recording.files import RecordingError
     from gateway.recording.plot import draw, picture, records_of
+    from gateway.recording.reports import Reading
     paths = _files([args.file])
     reading = Reading()
     try:

@@ -32,8 +32,8 @@ from gateway.client import Message, Status, Subscriber
 from gateway.common import curve
 from gateway.common.protocol import MAX_REPLY_BYTES, Exit
 from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC, topic
-from gateway.recording.files import RecordingWriter
 from gateway.recording.losses import Losses, Summary
+from gateway.recording.writer import RecordingWriter
 
 from . import PROG
 from .client import CtlError

@@ -49,7 +49,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any, NamedTuple
 
-from gateway.recording.files import SUFFIX, WRITTEN, RecordingWriter, file_name
+from gateway.recording.files import SUFFIX, WRITTEN, file_name
+from gateway.recording.writer import RecordingWriter
 
 from .config import RecordConfig
 

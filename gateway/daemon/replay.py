@@ -38,16 +38,9 @@ from typing import Any
 from urllib.parse import parse_qs
 
 from gateway.common.topics import parse
-from gateway.recording.files import (
-    MARK,
-    SERIAL,
-    Entry,
-    FileReport,
-    Reading,
-    RecordingError,
-    read,
-    usable_files,
-)
+from gateway.recording.files import MARK, SERIAL, RecordingError, usable_files
+from gateway.recording.reader import Entry, read
+from gateway.recording.reports import FileReport, Reading
 
 log = logging.getLogger("gx2.replay")
 SCHEME = "replay://"

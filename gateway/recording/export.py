@@ -37,8 +37,10 @@ from typing import IO, Any
 from aspp.records import BY_NAME
 from gateway.common.topics import parse
 
-from .files import MARK, Entry, Mark, Reading, RecordingError, read_all
+from .files import MARK, RecordingError
 from .losses import Counted, Losses
+from .reader import Entry, Mark, read_all
+from .reports import Reading
 
 LEADING = ("time", "host_time", "device_time", "seq", "lost_before", "lqi", "rssi")
 LOST_BEFORE = LEADING.index("lost_before")

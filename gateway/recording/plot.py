@@ -37,8 +37,10 @@ from aspp.records import BY_NAME
 from gateway.common.topics import parse
 
 from .export import MissingExtra
-from .files import MARK, Mark, Reading, read_all
+from .files import MARK
 from .losses import Counted, Losses, Stream, Summary
+from .reader import Mark, read_all
+from .reports import Reading
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

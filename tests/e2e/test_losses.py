@@ -10,8 +10,8 @@ import re
 from pathlib import Path
 
 from aspp.timing import TICKS_PER_CLOCK
-from gateway.recording.files import Reading
 from gateway.recording.plot import picture, records_of
+from gateway.recording.reports import Reading
 from gateway.sim.base_station import RadioLink
 from gateway.sim.node import NodeSettings
 from tests.e2e.test_service import demo_sections

@@ -12,8 +12,8 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 
-from gateway.recording.files import Reading
 from gateway.recording.plot import picture, records_of
+from gateway.recording.reports import Reading
 from gateway.sim.node import NodeSettings
 from tests.helpers.processes import Running, gx2ctl
 from tests.helpers.waiting import wait_for

@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 
 from aspp.timing import TICKS_PER_SECOND, WRAP_SECONDS
-from gateway.recording.files import RecordingWriter
+from gateway.recording.writer import RecordingWriter
 from gateway.sim.base_station import RADIO_LATENCY, BaseStation
 from gateway.sim.node import NodeSettings, SimNode
 from tests.e2e.test_sample_time import errors

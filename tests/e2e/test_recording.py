@@ -17,7 +17,8 @@ import yaml
 from mcap.reader import NonSeekingReader, make_reader
 
 from gateway.common.jsontext import strict
-from gateway.recording.files import Reading, read
+from gateway.recording.reader import read
+from gateway.recording.reports import Reading
 from gateway.sim.node import NodeSettings
 from tests.helpers.gateway import gateway_config
 from tests.helpers.processes import Running, gx2ctl, script, spawn_run

@@ -8,7 +8,7 @@ import json
 import subprocess
 from pathlib import Path
 
-from gateway.recording.files import RecordingWriter
+from gateway.recording.writer import RecordingWriter
 from gateway.sim.node import NodeSettings
 from tests.helpers.processes import Running, gx2ctl, script
 from tests.helpers.waiting import wait_for

@@ -12,8 +12,10 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from gateway.recording.files import Reading, RecordingWriter, read_all
 from gateway.recording.plot import picture, records_of
+from gateway.recording.reader import read_all
+from gateway.recording.reports import Reading
+from gateway.recording.writer import RecordingWriter
 from tests.helpers.processes import gx2ctl, script
 from tests.helpers.waiting import wait_for
 from tests.recording.test_offline import T0, payload, rows

@@ -17,8 +17,9 @@ from matplotlib import pyplot
 
 from aspp.orientation import matrix_from_euler
 from aspp.records import BY_NAME, decode, encode
-from gateway.recording.files import Reading, RecordingWriter
 from gateway.recording.plot import figure_of, picture, records_of
+from gateway.recording.reports import Reading
+from gateway.recording.writer import RecordingWriter
 from gateway.sim.node import GX2, NodeSettings, SimNode
 from tests.helpers.processes import gx2ctl
 

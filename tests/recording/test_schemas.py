@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 
 from aspp.records import decode, encode
 from gateway.common.jsontext import strict
-from gateway.recording.files import RecordingWriter
+from gateway.recording.writer import RecordingWriter
 from gateway.sim.node import NodeSettings
 from tests.helpers.processes import Running, gx2ctl
 from tests.helpers.waiting import wait_for

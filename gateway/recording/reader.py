@@ -1,0 +1,370 @@
+"""Reading recordings back, past any damage: the messages of one file or several, in
+the order written, and a report of what could not be read (:mod:`.reports`)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+import zlib
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+import zstandard
+from mcap.opcode import Opcode
+
+from .files import (
+    CHUNK_HEAD,
+    FOOTER_BYTES,
+    LARGEST_CHUNK,
+    MAGIC,
+    MESSAGE_HEAD,
+    PRIVATE_OPCODES,
+    RECORD_HEAD,
+    SCAN_BYTES,
+    RecordingError,
+    unreadable,
+)
+from .reports import FileReport, Loss, Reading
+
+# --- reading --------------------------------------------------------------------------------
+#
+# Files are read record by record (the MCAP spec's framing: an opcode byte, a u64 length,
+# the body), not through the mcap package's readers: those stop at the first thing they
+# cannot parse, and a file damaged in the middle (a bad sector, a copy cut and resumed)
+# would lose everything after it. Here a chunk that does not decompress or fails its CRC
+# is skipped by its length, and the walk goes on at the next record; where the framing
+# itself is broken (no record starts where the last one ended), the walk scans forward
+# for the next chunk whose header is consistent (its lengths add up to its record's)
+# and whose content passes its CRC. A file is read front to back, so one whose writer
+# was killed reads up to its last whole chunk; its summary (a finished file's channels
+# and message count) is read first, when there is one, so that a damaged chunk that
+# held a channel's definition loses no later message and the messages lost are counted
+# exactly.
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One message of a recording."""
+
+    topic: str
+    log_time: int
+    publish_time: int
+    data: bytes
+
+    def payload(self) -> dict[str, Any]:
+        """A JSON channel's message; RecordingError if it is not a JSON object."""
+        try:
+            value = json.loads(self.data)
+        except ValueError:
+            raise RecordingError(f"a message on {self.topic} is not JSON") from None
+        if not isinstance(value, dict):
+            raise RecordingError(f"a message on {self.topic} is not a JSON object")
+        return value
+
+
+@dataclass(frozen=True)
+class Mark:
+    """A mark (``gx2ctl mark``): what happened, when (UNIX s), to which nodes."""
+
+    time: float
+    host_time: float
+    nodes: tuple[int, ...]
+    text: str
+
+    @classmethod
+    def of(cls, entry: Entry) -> Mark:
+        """The mark an entry on MARK holds, its recorded times standing in for a
+        missing or non-numeric ``time`` or ``host_time``."""
+        payload = entry.payload()
+        host_time = _seconds(payload.get("host_time"), entry.log_time / 1e9)
+        nodes = payload.get("nodes")
+        return cls(_seconds(payload.get("time"), entry.publish_time / 1e9), host_time,
+                   tuple(n for n in nodes if isinstance(n, int) and not isinstance(n, bool))
+                   if isinstance(nodes, list) else (), str(payload.get("text") or ""))
+
+    def concerns(self, node: int) -> bool:
+        """A mark of the whole experiment, or one naming ``node``."""
+        return not self.nodes or node in self.nodes
+
+
+def _seconds(value: Any, default: float) -> float:
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+        return float(value)
+    return default
+
+
+def read(path: Path, reading: Reading, topics: Iterable[str] | None = None
+         ) -> Iterator[Entry]:
+    """The messages of one file, in the order written, past any damage; what was
+    skipped (the whole file, or stretches of it) goes in a report added to ``reading``."""
+    report = FileReport(path)
+    reading.files.append(report)
+    report.skipped = unreadable(path)
+    if not report.skipped:
+        wanted = None if topics is None else frozenset(topics)
+        try:
+            with path.open("rb") as stream:
+                yield from _Walk(stream, report).entries(wanted)
+        except OSError as error:  # the disk failing under the reader
+            report.skipped = (f"reading failed after {report.read:,} messages: "
+                              f"{error.strerror or error}")
+    reading.done(report)
+
+
+def read_all(paths: Iterable[Path], reading: Reading,
+             topics: Iterable[str] | None = None) -> Iterator[Entry]:
+    for path in paths:
+        yield from read(path, reading, topics)
+
+
+class _Walk:
+    """One MCAP file read record by record, skipping what cannot be read."""
+
+    def __init__(self, stream: IO[bytes], report: FileReport) -> None:
+        self._stream = stream
+        self._report = report
+        self._size = os.fstat(stream.fileno()).st_size
+        self._channels: dict[int, str] = {}
+        self._waiting: list[Loss] = []
+        """Losses waiting for the next message read: when they ended."""
+        self._counting: Loss | None = None
+        """A damaged chunk, whose message index (after it) counts its messages."""
+
+    def _at(self, offset: int, size: int) -> bytes:
+        self._stream.seek(offset)
+        return self._stream.read(size)
+
+    def entries(self, wanted: frozenset[str] | None) -> Iterator[Entry]:
+        end = self._summary()
+        at = len(MAGIC)
+        while at < end:
+            head = self._at(at, RECORD_HEAD.size)
+            opcode, length = RECORD_HEAD.unpack(head) if len(head) == RECORD_HEAD.size \
+                else (0, 0)
+            after = at + RECORD_HEAD.size + length
+            if not _known(opcode) or after > end:
+                at = self._resync(at, end, chunk=opcode == Opcode.CHUNK)
+                continue
+            if opcode == Opcode.DATA_END:
+                self._report.whole = True
+                break
+            if opcode == Opcode.CHUNK:
+                found = self._chunk(self._at(at + RECORD_HEAD.size, length))
+                if found is None:
+                    at = self._damaged_chunk(at, after, end)
+                    continue
+                self._counting = None
+                for channel, log_time, publish_time, data in found:
+                    entry = self._entry(channel, log_time, publish_time, data)
+                    if entry is not None and (wanted is None or entry.topic in wanted):
+                        yield entry
+            elif opcode in (Opcode.MESSAGE, Opcode.CHANNEL, Opcode.MESSAGE_INDEX):
+                body = self._at(at + RECORD_HEAD.size, length)
+                try:
+                    entry = self._top_level(opcode, body)
+                except (struct.error, UnicodeDecodeError):
+                    at = self._resync(at, end, chunk=False)
+                    continue
+                if entry is not None and (wanted is None or entry.topic in wanted):
+                    yield entry
+            at = after
+        if at >= end and end < self._size:
+            self._report.whole = True  # at the summary of a finished file
+
+    def _summary(self) -> int:
+        """Where the data section ends: a finished file's summary (its channels and
+        message count read here), else the end of the file."""
+        if self._size < len(MAGIC) + FOOTER_BYTES:
+            return self._size
+        tail = self._at(self._size - FOOTER_BYTES, FOOTER_BYTES)
+        opcode, length = RECORD_HEAD.unpack_from(tail)
+        if tail[-len(MAGIC):] != MAGIC or opcode != Opcode.FOOTER or length != 20:
+            return self._size
+        footer = self._size - FOOTER_BYTES
+        start, offsets, _ = struct.unpack_from("<QQI", tail, RECORD_HEAD.size)
+        if not len(MAGIC) <= start <= footer:
+            return footer
+        summary = self._at(start, (offsets if start < offsets <= footer else footer) - start)
+        at = 0
+        try:
+            while at + RECORD_HEAD.size <= len(summary):
+                opcode, length = RECORD_HEAD.unpack_from(summary, at)
+                body = summary[at + RECORD_HEAD.size:at + RECORD_HEAD.size + length]
+                if opcode == Opcode.CHANNEL:
+                    channel, topic = _channel(body)
+                    self._channels[channel] = topic
+                elif opcode == Opcode.STATISTICS:
+                    (self._report.expected,) = struct.unpack_from("<Q", body)
+                at += RECORD_HEAD.size + length
+        except (struct.error, UnicodeDecodeError):
+            pass  # a damaged summary: the data section read alone says what is there
+        return start
+
+    def _chunk(self, body: bytes) -> list[tuple[int, int, int, bytes]] | None:
+        """(channel, log_time, publish_time, data) of a chunk's messages, its channels
+        registered; None if the chunk is damaged (nothing of it is used then)."""
+        try:
+            _, _, size, crc, width = CHUNK_HEAD.unpack_from(body)
+            compression = body[CHUNK_HEAD.size:CHUNK_HEAD.size + width].decode()
+            (stored,) = struct.unpack_from("<Q", body, CHUNK_HEAD.size + width)
+            data = body[CHUNK_HEAD.size + width + 8:]
+            if len(data) != stored:
+                return None
+            if size > LARGEST_CHUNK:
+                return None
+            records = _decompress(compression, data, size)
+            if len(records) != size or (crc and zlib.crc32(records) != crc):
+                return None
+            return self._records(records)
+        # a damaged chunk fails in whatever decodes it (a struct, the decompressor, a
+        # name's UTF-8): every one of them means the same, the chunk is skipped
+        except Exception:
+            return None
+
+    def _records(self, records: bytes) -> list[tuple[int, int, int, bytes]]:
+        """The messages of a chunk's records, whose CRC held (struct.error if their
+        framing does not add up all the same)."""
+        found = []
+        channels = {}
+        at = 0
+        while at < len(records):
+            opcode, length = RECORD_HEAD.unpack_from(records, at)
+            body_at = at + RECORD_HEAD.size
+            at = body_at + length
+            if at > len(records):
+                raise struct.error("a record runs past its chunk")
+            if opcode == Opcode.MESSAGE:
+                channel, _, log_time, publish_time = MESSAGE_HEAD.unpack_from(records,
+                                                                                body_at)
+                found.append((channel, log_time, publish_time,
+                              records[body_at + MESSAGE_HEAD.size:at]))
+            elif opcode == Opcode.CHANNEL:
+                channel, topic = _channel(records[body_at:at])
+                channels[channel] = topic
+        self._channels.update(channels)
+        return found
+
+    def _top_level(self, opcode: int, body: bytes) -> Entry | None:
+        """A record outside chunks: a message (an unchunked file), a channel, or the
+        message index of the chunk before it."""
+        if opcode == Opcode.CHANNEL:
+            channel, topic = _channel(body)
+            self._channels[channel] = topic
+        elif opcode == Opcode.MESSAGE_INDEX:
+            _, width = struct.unpack_from("<HI", body)
+            if self._counting is not None:
+                self._counting.messages = (self._counting.messages or 0) + width // 16
+        else:
+            channel, _, log_time, publish_time = MESSAGE_HEAD.unpack_from(body)
+            return self._entry(channel, log_time, publish_time, body[MESSAGE_HEAD.size:])
+        return None
+
+    def _entry(self, channel: int, log_time: int, publish_time: int,
+               data: bytes) -> Entry | None:
+        topic = self._channels.get(channel)
+        if topic is None:
+            self._report.orphans += 1
+            return None
+        self._report.read += 1
+        self._report.last = log_time
+        for loss in self._waiting:
+            loss.before = log_time
+        self._waiting.clear()
+        return Entry(topic, log_time, publish_time, data)
+
+    def _lost(self, offset: int, size: int, chunk: bool) -> Loss:
+        loss = Loss(offset, size, chunk, after=self._report.last)
+        self._report.losses.append(loss)
+        self._waiting.append(loss)
+        return loss
+
+    def _damaged_chunk(self, at: int, after: int, end: int) -> int:
+        """Where to go on after a chunk that cannot be read: the next record if its
+        length led to one (only its content is damaged), else the next chunk found."""
+        if after == end or self._plausible(after, end):
+            self._counting = self._lost(at, after - at, chunk=True)
+            return after
+        return self._resync(at, end, chunk=True)
+
+    def _plausible(self, at: int, end: int) -> bool:
+        head = self._at(at, RECORD_HEAD.size)
+        if len(head) < RECORD_HEAD.size:
+            return False
+        opcode, length = RECORD_HEAD.unpack(head)
+        return _known(opcode) and at + RECORD_HEAD.size + length <= end
+
+    def _resync(self, at: int, end: int, chunk: bool) -> int:
+        """The next chunk after ``at`` that reads, the stretch before it lost; none in a
+        file cut short: the rest is its unfinished tail, not damage (its writer died
+        writing it); none in a finished file: the rest is lost."""
+        found = self._next_chunk(at + 1, end)
+        if found is None and end == self._size:
+            return end
+        stop = end if found is None else found
+        self._counting = None
+        self._lost(at, stop - at, chunk)
+        return stop
+
+    def _next_chunk(self, start: int, end: int) -> int | None:
+        """The offset of the next chunk record at or after ``start`` whose header is
+        consistent and whose content reads (its CRC holds)."""
+        offset = start
+        while offset < end:
+            block = self._at(offset, min(SCAN_BYTES, end - offset))
+            at = block.find(bytes((Opcode.CHUNK,)))
+            while at >= 0:
+                if self._is_chunk(offset + at, end):
+                    return offset + at
+                at = block.find(bytes((Opcode.CHUNK,)), at + 1)
+            offset += len(block)
+            if not block:
+                break
+        return None
+
+    def _is_chunk(self, at: int, end: int) -> bool:
+        head = self._at(at, RECORD_HEAD.size + CHUNK_HEAD.size)
+        if len(head) < RECORD_HEAD.size + CHUNK_HEAD.size:
+            return False
+        _, length = RECORD_HEAD.unpack_from(head)
+        start, stop, _, _, width = CHUNK_HEAD.unpack_from(head, RECORD_HEAD.size)
+        if width > 16 or start > stop or at + RECORD_HEAD.size + length > end:
+            return False
+        body_at = at + RECORD_HEAD.size
+        stored = self._at(body_at + CHUNK_HEAD.size + width, 8)
+        if len(stored) < 8 or struct.unpack("<Q", stored)[0] != (
+                length - CHUNK_HEAD.size - width - 8):
+            return False
+        # (read twice when it is the one: a chunk found this way is rare)
+        return self._chunk(self._at(body_at, length)) is not None
+
+
+_OPCODES = frozenset(int(opcode) for opcode in Opcode)
+
+
+def _known(opcode: int) -> bool:
+    """An opcode a record can have: where another is found, the framing is broken."""
+    return opcode >= PRIVATE_OPCODES or opcode in _OPCODES
+
+
+def _channel(body: bytes) -> tuple[int, str]:
+    """(id, topic) of a channel record's body."""
+    channel, _, width = struct.unpack_from("<HHI", body)
+    topic = body[8:8 + width]
+    if len(topic) != width:
+        raise struct.error("a channel's topic runs past its record")
+    return channel, topic.decode()
+
+
+def _decompress(compression: str, data: bytes, size: int) -> bytes:
+    if compression == "zstd":
+        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+    if compression == "lz4":
+        import lz4.frame
+        return lz4.frame.decompress(data)
+    if compression == "":
+        return data
+    raise ValueError(f"unknown compression {compression!r}")

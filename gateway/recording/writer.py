@@ -1,0 +1,116 @@
+"""Writing a recording: one MCAP file, its channels registered as they first appear
+(see :mod:`.files` for what each holds)."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+import os
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import IO, Any
+
+from mcap.writer import CompressionType, Writer
+
+from gateway.common.jsontext import compact
+from gateway.common.schemas import ENCODING as SCHEMA_ENCODING
+from gateway.common.schemas import schema_for_topic
+from gateway.common.version import VERSION
+
+from .files import CHUNK_BYTES, END, JSON_ENCODING, PROFILE, RAW_ENCODING, SERIAL, ns
+
+
+class RecordingWriter:
+    """One MCAP file being written: channels registered as they first appear."""
+
+    def __init__(self, output: IO[bytes], metadata: Mapping[str, str] | None = None) -> None:
+        self._output = output
+        self._writer = Writer(output, chunk_size=CHUNK_BYTES,
+                              compression=CompressionType.ZSTD)
+        self._writer.start(profile=PROFILE, library=f"gx2-gateway {VERSION}")
+        if metadata:
+            self._writer.add_metadata("gx2-gateway", dict(metadata))
+        self._channels: dict[str, int] = {}
+        self._schemas: dict[str, int] = {}
+        self.messages = 0
+        self.kept = 0
+        """Messages handed to the OS by the last flush: what a failed disk leaves."""
+        self._kept_at = 0
+
+    def _channel(self, topic: str, encoding: str) -> int:
+        channel = self._channels.get(topic)
+        if channel is None:
+            schema = self._schema(topic) if encoding == JSON_ENCODING else 0
+            channel = self._channels[topic] = self._writer.register_channel(
+                topic, encoding, schema_id=schema)
+        return channel
+
+    def _schema(self, topic: str) -> int:
+        """The id of the JSON Schema of what is published on ``topic``, written into the
+        file the first time a channel needs it (0, no schema, for a topic the gateway
+        does not publish). PlotJuggler skips a channel without a schema; the serial
+        channels' raw bytes have none, as MCAP allows."""
+        found = schema_for_topic(topic)
+        if found is None:
+            return 0
+        name, schema = found
+        schema_id = self._schemas.get(name)
+        if schema_id is None:
+            schema_id = self._schemas[name] = self._writer.register_schema(
+                name, SCHEMA_ENCODING, compact(schema).encode())
+        return schema_id
+
+    def serial(self, data: bytes, host_time: float, monotonic: float,
+               topic: str = SERIAL) -> None:
+        """A read from (or, with ``topic=WRITTEN``, a write to) the base station."""
+        self.messages += 1
+        self._writer.add_message(self._channel(topic, RAW_ENCODING), ns(host_time), data,
+                                 ns(monotonic), self.messages)
+
+    def message(self, topic: str, payload: Mapping[str, Any]) -> None:
+        """A published message: a node's record, or the gateway's status."""
+        logged = payload.get("host_time")
+        if logged is None:
+            gateway = payload.get("gateway")
+            logged = gateway.get("time") if isinstance(gateway, Mapping) else None
+        if not isinstance(logged, (int, float)) or not math.isfinite(logged):
+            logged = time.time()
+        sampled = payload.get("time")
+        if not isinstance(sampled, (int, float)) or not math.isfinite(sampled):
+            sampled = logged
+        self.messages += 1
+        self._writer.add_message(self._channel(topic, JSON_ENCODING), ns(logged),
+                                 compact(payload).encode(), ns(sampled), self.messages)
+
+    def flush(self) -> None:
+        """Close the chunk in progress and hand it to the OS: what a process killed
+        from now on leaves readable."""
+        self._writer.flush()
+        self.kept = self.messages
+        self._kept_at = self._output.tell()
+
+    def abandon(self, path: Path) -> None:
+        """After a write failed (a full disk): the file ``path`` cut back to its last
+        flush and ended there (a data end and a footer without summary, as the MCAP
+        spec allows), so a reader reads what it keeps whole; a file that keeps no
+        message is removed. If the disk refuses even that, what it has stays readable
+        up to its last whole chunk."""
+        with contextlib.suppress(OSError, ValueError):
+            self._output.close()
+        with contextlib.suppress(OSError):
+            if not self.kept:
+                path.unlink()
+                return
+            os.truncate(path, self._kept_at)
+            with path.open("ab") as output:
+                output.write(END)
+
+    def finish(self) -> None:
+        """Write the summary and index, make sure the disk has it all, close the file."""
+        self._writer.finish()
+        self._output.flush()
+        with contextlib.suppress(OSError, AttributeError, io.UnsupportedOperation):
+            os.fsync(self._output.fileno())
+        self._output.close()
