@@ -303,26 +303,41 @@ def header(watch: Watch, now: float, silent_for: float) -> list[Text]:
 
 
 def frame(watch: Watch, now: float, silent_for: float, width: int,
-          ellipsis: str = "…") -> list[Text]:
-    """Every line of one frame, none wider than ``width`` cells; the nodes dimmed while
-    the gateway is silent (what they show is its last word)."""
+          ellipsis: str = "…", height: int | None = None) -> list[Text]:
+    """Every line of one frame, none wider than ``width`` cells and, given a ``height``,
+    no more lines than it less one (the footer's): nodes that do not fit are counted in
+    a last ``+N more`` row, before any reason is dropped; the nodes dimmed while the
+    gateway is silent (what they show is its last word)."""
     nodes = watch.shown()
     rows = table(nodes, now, width, ellipsis)
     if watch.status is not None and silent_for > watch.silence:
         for row in rows[1:]:
             row.stylize("dim")
-    lines = [*header(watch, now, silent_for), *rows]
+    head, body = [*header(watch, now, silent_for), *rows[:1]], rows[1:]
+    notes: list[Text] = []
     gateway = as_map((watch.status or {}).get("gateway"))
     health = gateway.get("health")
     if health is not None and health != HealthLevel.OK and (why := reasons(gateway)):
-        lines.append(Text("gateway ").append(f"{cell(health)}: {why}",
+        notes.append(Text("gateway ").append(f"{cell(health)}: {why}",
                                              HEALTH_STYLE.get(str(health), "")))
     for node in nodes:
         if node.get("health") != HealthLevel.OK and (why := reasons(node)):
-            lines.append(Text(f"{cell(node.get('node'))} ").append(
+            notes.append(Text(f"{cell(node.get('node'))} ").append(
                 f"{cell(node.get('health'))}: {why}",
                 HEALTH_STYLE.get(str(node.get("health")), "")))
-    return [cut(line, width, ellipsis) for line in lines]
+    if height is not None:
+        body, notes = _within(height - 1 - len(head), body, notes)
+    return [cut(line, width, ellipsis) for line in (*head, *body, *notes)]
+
+
+def _within(room: int, body: list[Text], notes: list[Text]) -> tuple[list[Text], list[Text]]:
+    """The node rows and reasons that fit in ``room`` lines: every node (or all but the
+    last that fit, and a ``+N more`` row counting the rest), then the reasons that fit.
+    At least the count is shown, however little room there is."""
+    if len(body) > max(room, 1):
+        kept = max(room - 1, 0)
+        return [*body[:kept], Text(f"+{len(body) - kept} more", "bold")], []
+    return body, notes[:max(room - len(body), 0)]
 
 
 # --- running -------------------------------------------------------------------------
@@ -375,7 +390,8 @@ def run_top(nodes: list[int], where: Endpoints, timeout: float, as_json: bool) -
                     watch.take(event)
                 if event is not None or time.monotonic() - drawn >= REDRAW:
                     width = console.width
-                    lines = frame(watch, watch.now(), sub.silent_for(), width, ellipsis)
+                    lines = frame(watch, watch.now(), sub.silent_for(), width, ellipsis,
+                                  console.height)
                     live.update(Group(*lines, cut(Text(QUIT, "dim"), width, ellipsis)),
                                 refresh=True)
                     drawn = time.monotonic()

@@ -166,3 +166,25 @@ def test_no_line_is_ever_wider_than_the_terminal(nodes: list[dict[str, Any]], wi
     for line in frame(watch, watch.now(), 10.0 if silent else 0.5, width):
         assert cell_len(line.plain) <= width, (width, line.plain)
         assert "\n" not in line.plain
+
+
+def test_nodes_that_do_not_fit_the_terminals_height_are_counted_not_dropped() -> None:
+    """Issue 21: 30 nodes at 80x24 lost nodes 119-129 with no sign, and the 'q quits'
+    line with them: the frame keeps to the height less the footer's line, its last row
+    counting what it could not show."""
+    nodes = [node(100 + i) for i in range(30)]
+    drawn = [line.plain for line in frame(Watch("tcp://gw:5555", status=status(*nodes)),
+                                          NOW, 0.5, 80, height=24)]
+    assert len(drawn) <= 23
+    shown = [line for line in drawn if line[:3].isdigit()]
+    assert drawn[-1] == f"+{30 - len(shown)} more"
+    assert [int(line.split()[0]) for line in shown] == list(range(100, 100 + len(shown)))
+
+
+def test_reasons_give_way_to_nodes_and_a_frame_that_fits_is_whole() -> None:
+    nodes = [node(76), node(77, health="WARN", reasons=["RSSI -93 dBm"])]
+    watch = Watch("tcp://gw:5555", status=status(*nodes))
+    whole = [line.plain for line in frame(watch, NOW, 0.5, 100)]
+    assert [line.plain for line in frame(watch, NOW, 0.5, 100, height=40)] == whole
+    tight = [line.plain for line in frame(watch, NOW, 0.5, 100, height=len(whole))]
+    assert "77 WARN: RSSI -93 dBm" not in tight and tight[-1].startswith("77 ")
