@@ -20,7 +20,7 @@ import zmq
 from gateway.common import curve
 from gateway.common.curve import ClientKeys
 
-from .ports import endpoint
+from .ports import endpoint, free_port
 from .processes import EXIT, script
 from .waiting import wait_for
 
@@ -181,6 +181,11 @@ def gateway_config(port: str, nodes: list[dict[str, Any]], **sections: Any) -> d
     }
     for key, value in sections.items():
         config.setdefault(key, {}).update(value)
+    # a metrics section without its endpoint would take the default, 127.0.0.1:9105:
+    # the demo's, which a user may be running beside the suite (issue 24)
+    metrics = config.get("metrics")
+    if isinstance(metrics, dict) and "endpoint" not in metrics:
+        metrics["endpoint"] = f"127.0.0.1:{free_port()}"
     return config
 
 
