@@ -95,10 +95,10 @@ def test_the_unit_runs_what_readme_installs():
     steps = deployment_steps()
     settings = service_settings(UNIT.read_text())
     venv = re.search(r"python3 -m venv (\S+)", steps)
-    config = re.search(r"install .*config/nodes\.yaml (\S+)", steps)
+    config = re.search(r"install .*config/nodes\.yaml\"? (\S+)", steps)
     user = re.search(r"useradd .* (\S+)\n", steps)
     assert venv and config and user, steps
-    assert "cp deploy/gx2-gateway.service /etc/systemd/system/" in steps
+    assert re.search(r"cp \S*deploy/gx2-gateway\.service\"? /etc/systemd/system/", steps), steps
     assert settings["User"] == [user[1]]
     commands = {key: shlex.split(settings[key][0].lstrip("-+!@:"))
                 for key in ("ExecStart", "ExecStartPre")}

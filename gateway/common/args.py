@@ -1,5 +1,6 @@
 """Command-line helpers every console script shares: one-line usage errors (exit 2),
-argparse types for the values of :mod:`gateway.common.values`, and ``fail``."""
+argparse types for the values of :mod:`gateway.common.values`, and ``fail``; every
+program's ``--version``, ``--print-completion`` and ``--print-man``."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import sys
 from collections.abc import Callable
 from typing import Any, NoReturn
 
+from .completion import add_options as add_completion_options
 from .endpoints import check_endpoint
 from .protocol import Exit
 from .values import NODE, POLLABLE_RECORD, STREAMABLE_RECORD, Kind
@@ -18,13 +20,15 @@ from .version import VERSION
 
 class ArgumentParser(argparse.ArgumentParser):
     """argparse, but a usage error is one line (and exit status 2), a mistyped choice
-    gets a suggestion, and every program has ``--version``."""
+    gets a suggestion, and every program has ``--version`` and prints its shell
+    completion and man page (:mod:`gateway.common.completion`)."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         if self.prog.count(" ") == 0:  # the program itself, not a subcommand's parser
             self.add_argument("--version", action="version",
                               version=f"%(prog)s {VERSION}")
+            add_completion_options(self)
 
     def error(self, message: str) -> NoReturn:
         self.exit(Exit.USAGE, f"{self.prog}: {message}{suggestion(message)} "
@@ -49,6 +53,7 @@ def argtype(kind: Kind) -> Callable[[str], Any]:
         except ValueError as error:
             raise argparse.ArgumentTypeError(str(error)) from None
     parse.__name__ = kind.name  # what argparse calls it in its own messages
+    parse.kind = kind  # type: ignore[attr-defined]  # what its shell completion offers
     return parse
 
 

@@ -48,6 +48,12 @@ def read_mapping(path: str | Path) -> dict[str, Any]:
         where = f"line {mark.line + 1}: " if mark is not None else ""
         problem = getattr(error, "problem", None) or "invalid YAML"
         raise ConfigError(f"{source}: {where}{problem}") from None
+    except ValueError as error:
+        # PyYAML's own constructors raise plain ValueError for a value that parses but
+        # cannot be built, e.g. the impossible date 2026-02-30.
+        raise ConfigError(f"{source}: {error}") from None
+    except RecursionError:
+        raise ConfigError(f"{source}: nested too deeply") from None
     if data is None:
         return {}
     if not isinstance(data, dict):

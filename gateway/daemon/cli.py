@@ -28,13 +28,19 @@ def main(argv: list[str] | None = None) -> int:
     from gateway.common.args import ArgumentParser, fail
 
     from .config import ConfigError, load_config, unwritable
+    from .shipped import PrintFiles
 
     parser = ArgumentParser(prog="gx2-gateway", description="Gateway for MicroStrain "
                             "3DM-GX2 / Inertia-Link wireless sensors: owns the base "
                             "station's serial port and publishes every node's records "
                             "over ZeroMQ.")
     parser.add_argument("--config", required=True, metavar="FILE",
-                        help="the gateway's YAML configuration (see config/nodes.yaml)")
+                        help="the gateway's YAML configuration (see config/nodes.yaml, "
+                        "also in the --files directory)")
+    parser.add_argument("--files", action=PrintFiles,
+                        help="print the directory of the files shipped with gx2-gateway "
+                        "(deploy/: systemd unit, udev rule, alerting rules; config/: "
+                        "example configurations; README.md) and exit")
     parser.add_argument("--check", action="store_true",
                         help="validate the configuration and exit (0: valid, 2: not)")
     parser.add_argument("--log-level", default="INFO",

@@ -17,7 +17,7 @@ import random
 from collections import deque
 from dataclasses import dataclass, field
 
-from aspp.frame import ACK, FLAGS_DISCOVERY, NACK, PING, encode_reply_packet
+from aspp.frame import ACK, FLAGS_DISCOVERY, FLAGS_REPLY, NACK, PING, encode_reply_packet
 from aspp.host_side import CommandPacket, Garbled, HostStreamDecoder, PingRequest
 from aspp.timing import byte_time
 
@@ -113,7 +113,8 @@ class BaseStation:
         self._held_ack_since: float | None = None
         self._held_acks = 0
         self._arrived: dict[int, float] = {}  # node -> when its last packet arrived
-        self._in_air: list[tuple[float, int, int, bytes]] = []  # (arrival, seq, node, reply)
+        self._in_air: list[tuple[float, int, int, bytes, int]] = []
+        """Packets on their way from the nodes: (arrival, seq, node, reply, flags)."""
         self._jitter = {a: random.Random(self.rng.random()) for a in self.nodes}
         """A stream of random numbers per node: a node's delays are the same however
         the simulator's thread batches its work."""
@@ -177,10 +178,16 @@ class BaseStation:
     def reboot(self, address: int, now: float) -> None:
         """The node lost power and came back: it announces itself with a discovery
         packet (delivery flags 0x00) and starts over."""
-        node = self.nodes[address]
-        node.power_up(now)
-        self._send_packet(address, b"\x01" + FIRMWARE_VERSION.to_bytes(4, "big"), now,
-                          flags=FLAGS_DISCOVERY)
+        # The announcement is one of the node's packets: it goes over the radio behind
+        # those the node sent before it lost power, and a caller that is late (the
+        # simulator's thread was not scheduled) first brings the station up to ``now``,
+        # so what reached the base station before the reboot is on the line before it.
+        # Put straight on the line, it overtook a record still in the air, whose timer
+        # then read as the restarted one (issue 24: 0.4 s after a reboot, under load).
+        self.advance(now)
+        self.nodes[address].power_up(now)
+        self._launch(address, now, b"\x01" + FIRMWARE_VERSION.to_bytes(4, "big"),
+                     FLAGS_DISCOVERY)
 
     def advance(self, now: float) -> None:
         """Everything due by ``now``, in time order: commands reach nodes, nodes finish
@@ -209,12 +216,16 @@ class BaseStation:
         each cycle's record is in the air from when it is made until its arrival."""
         for address, node in self.nodes.items():
             for c, reply in node.run_until(t - RADIO_LATENCY):
-                self._seq += 1  # (a node's replies keep the order it made them in)
-                heapq.heappush(self._in_air, (self._arrival(address, c), self._seq,
-                                              address, reply))
+                self._launch(address, c, reply)
         while self._in_air and self._in_air[0][0] <= t:
-            arrival, _, address, reply = heapq.heappop(self._in_air)
-            self._send_packet(address, reply, arrival)
+            arrival, _, address, reply, flags = heapq.heappop(self._in_air)
+            self._send_packet(address, reply, arrival, flags)
+
+    def _launch(self, address: int, sent: float, reply: bytes, flags: int = FLAGS_REPLY) -> None:
+        """A packet the node sends at ``sent`` takes to the air."""
+        self._seq += 1  # (a node's packets keep the order it sent them in)
+        heapq.heappush(self._in_air, (self._arrival(address, sent), self._seq, address,
+                                      reply, flags))
 
     def _arrival(self, address: int, sent: float) -> float:
         """When a packet the node sent at ``sent`` reaches the base station: the radio's
@@ -236,7 +247,8 @@ class BaseStation:
         self._held_ack_since, self._held_acks = None, 0
         return acks
 
-    def _send_packet(self, address: int, reply: bytes, t: float, flags: int = 0x07) -> None:
+    def _send_packet(self, address: int, reply: bytes, t: float,
+                     flags: int = FLAGS_REPLY) -> None:
         link = self.radio[address]
         if not link.in_range or self.rng.random() < link.data_loss:
             self.stats.packets_lost_radio += 1

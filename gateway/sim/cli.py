@@ -41,6 +41,8 @@ def build_parser() -> ArgumentParser:
     parser.add_argument("--link", metavar="PATH",
                         help="make PATH a symlink to the pty (stable across unplugs)")
     parser.add_argument("--config", metavar="FILE", help="YAML file of nodes and faults")
+    parser.add_argument("--check", action="store_true",
+                        help="validate --config and the options and exit (0: valid, 2: not)")
     nodes = parser.add_argument_group("settings of the --nodes nodes")
     nodes.add_argument("--model", choices=(INERTIA_LINK, GX2), default=INERTIA_LINK)
     nodes.add_argument("--stream", type=streamable_record, metavar="RECORD",
@@ -126,6 +128,10 @@ def main(argv: list[str] | None = None) -> int:
         config = merged_config(args)
     except ConfigError as error:
         fail(PROG, str(error), 2)
+    if args.check:
+        count = len(config.nodes)
+        print(f"{args.config or 'command line'}: valid ({count} node{'s' if count != 1 else ''})")
+        return 0
     done = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: done.set())

@@ -98,6 +98,10 @@ BAD_CONFIGS: dict[str, tuple[Any, list[str]]] = {
                                 [r"record\.keep_days", r"number"]),
     "yaml-syntax-error": ("base_station: {port: [/dev/ttyUSB0\nnodes: - 76\n",
                           [r"line \d+"]),
+    "impossible-date": ("base_station: {port: sim://}\nnodes: [76]\nwhen: 2026-02-30\n",
+                        [r"day is out of range"]),
+    "nested-too-deeply": ("nodes: " + "[" * 5000 + "]" * 5000 + "\n",
+                          [r"nested too deeply"]),
     "no-such-file": (None, [r"[Nn]o such file|does not exist|cannot read"]),
     "a-directory": ("directory", [r"[Ii]s a directory|cannot read"]),
 }

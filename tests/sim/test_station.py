@@ -8,8 +8,20 @@ from itertools import pairwise
 
 import pytest
 
-from aspp import Ack, Decoder, Discarded, Frame, Nack, PingOk, Reply, commands, decode
+from aspp import (
+    TICKS_PER_SECOND,
+    Ack,
+    Decoder,
+    Discarded,
+    Frame,
+    Nack,
+    PingOk,
+    Reply,
+    commands,
+    decode,
+)
 from aspp.frame import encode_command_packet, encode_ping
+from aspp.timing import DEFAULT_DIVIDER, sample_period
 from gateway.sim.base_station import (
     BUFFER_BYTES,
     GLUE_WAIT,
@@ -163,6 +175,29 @@ def test_reboot_announces_itself_and_restarts_the_timer():
     assert after[0].timer < 0.05 * 19_660_800  # timer restarted at power-up
     assert bench.station.nodes[77].continuous == 0  # set by command: lost on reboot
     assert bench.station.nodes[76].continuous == 0xCE  # auto-start from EEPROM
+
+
+@pytest.mark.parametrize("late", [0.0, 0.05], ids=["on-time", "late-caller"])
+def test_a_reboot_is_announced_behind_what_the_node_sent_before_it(late):
+    """The discovery packet is the node's: the records it sent before it lost power,
+    still in the air or not yet on the line because the simulator's thread ran late, go
+    on the line first. One that overtook it read as the restarted timer (issue 24:
+    test_reboot_announces_itself_and_restarts saw 0.4 s after a reboot under load)."""
+    period = sample_period(DEFAULT_DIVIDER)
+    for offset in range(20):  # reboots at instants spread over a cycle
+        bench = Bench(NodeSettings(77, stream="euler"), radio={77: RadioLink(jitter=0.004)})
+        events = bench.run(0.4 + offset * period / 20)
+        bench.now += late  # the station is told of the reboot this late
+        rebooted_at = bench.now
+        bench.station.reboot(77, rebooted_at)
+        events += bench.run(0.1)
+        frame = next(i for i, e in enumerate(events) if type(e) is Frame)
+        before = [decode(r.payload).timer / TICKS_PER_SECOND for r in replies(events[:frame])]
+        after = [decode(r.payload).timer / TICKS_PER_SECOND for r in replies(events[frame:])]
+        assert after and max(after) < 0.1, (offset, after[:3])
+        # and it ran until the power went: its records up to then reached the line (its
+        # timer counts from T0, when the bench powered it up)
+        assert before[-1] > rebooted_at - T0 - RADIO_LATENCY - period, (offset, before[-3:])
 
 
 def test_nack_fault_refuses_good_packets_without_delivering_them():
