@@ -23,6 +23,14 @@ chain, amortised O(1) a point), and the window's hull is rebuilt from the blocks
 vertices when a block closes; a point that falls below the line meanwhile (a faster
 packet than any before, or a drift that changed) lowers the line to it at once. A
 refit touches only a few hundred vertices, once every BLOCK seconds.
+
+A serial line over capacity breaks the model's premise that some packets come through
+fast: every packet then waits behind a queue that grows until the base station's buffer
+is full, so the lowest points rise with the queue (a drift of hundreds of ppm) and, a
+window later, the floor under them leaves and the line jumps by the queue's length
+(issue 21: 306-314 ms). The gateway, which sees the line's load, :meth:`~NodeClock.hold`s
+the estimate for as long as it lasts; and whatever moves the line, ``time`` follows it
+at a bounded rate (SLEW), never by a step.
 """
 
 from __future__ import annotations
@@ -32,9 +40,15 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
-MAX_DRIFT = 500e-6
-"""A crystal is within a few hundred ppm of its nominal rate; beyond this the fit is
-wrong (too few points), not the crystal."""
+# The drift the estimate may take. The reference gives the node's clock: "The system
+# clock has an accuracy of +/- 0.01%" (3DM-GX2 Data Communications Protocol, the
+# timer field), so 100 ppm; the host's clock, against which the drift is measured, may
+# be as far off again when nothing disciplines it (a PC's crystal, tens of ppm; NTP
+# keeps it within a few). A fit beyond the sum is wrong (too few points, or a backlog
+# growing under the packets), not the crystals.
+NODE_CLOCK_ACCURACY = 100e-6
+HOST_CLOCK_ACCURACY = 100e-6
+MAX_DRIFT = NODE_CLOCK_ACCURACY + HOST_CLOCK_ACCURACY
 WINDOW = 60.0
 """Seconds of device time the hull spans."""
 BLOCK = 2.0
@@ -64,10 +78,13 @@ FLOOR_NOISE = 0.5e-3
 RESIDUALS = 256
 """Recent residuals (delay above the line) kept for the spread."""
 SLEW = 0.5
-"""When the line drops below the last time given (a faster packet than any before),
-times advance at least at this share of the device's rate until they meet it again:
-never backwards, never twice the same (two records of one cycle: one step of a double
-apart)."""
+"""When the line moves against the last time given, times follow it at this share of
+the device's rate at most: a line that drops (a faster packet than any before) is met
+with times advancing at half the device's rate (never backwards, never twice the same:
+two records of one cycle are one step of a double apart); a line that rises (old low
+points leaving the window, a refit) with times advancing at one and a half. So ``time``
+never steps against the device's time by more than half the time between two
+records."""
 
 Point = tuple[float, float]
 
@@ -115,6 +132,7 @@ class NodeClock:
         "_fitted",
         "_fitted_at",
         "_given",
+        "_held",
         "_last",
         "_locked_since",
         "_offset",
@@ -127,6 +145,8 @@ class NodeClock:
         self._fitted = 0.0
         """Device seconds over which the drift has been fitted (kept through a reset:
         the drift is the crystal's)."""
+        self._held = False
+        """Whether the line is over capacity (:meth:`hold`); kept through a reset."""
         self.reset()
 
     def reset(self) -> None:
@@ -151,6 +171,8 @@ class NodeClock:
         ``device`` arrives with the least delay seen (the line evaluated there), or,
         if the line has just dropped below the last time given, a time advancing from
         that one at SLEW of the device's rate."""
+        if self._held:  # (hold(): the packets' delay is a backlog's)
+            return self._give(device, device + self._offset + self._drift * device)
         if self._points and (device < self._last or device - self._last > WINDOW):
             if device < self._last:  # not in order (a reset missed): it says nothing
                 return self._give(device, device + self._offset + self._drift * device)
@@ -183,11 +205,35 @@ class NodeClock:
             # nanosecond: that is lost in rounding once the host clock reads 2**24 s
             # (a monotonic clock after 194 days up; the UNIX clock always, which is why
             # gateway.daemon.nodes keeps the promise again after converting to it)
-            floor = given[1] + SLEW * (device - given[0])
+            elapsed = device - given[0]
+            floor = given[1] + SLEW * elapsed
             if time <= floor:
                 time = math.nextafter(floor, math.inf)
+            elif time > given[1] + (1 + SLEW) * elapsed:
+                time = max(given[1] + (1 + SLEW) * elapsed, math.nextafter(floor, math.inf))
         self._given = (device, time)
         return time
+
+    def hold(self) -> None:
+        """The serial line is over capacity: every packet from now on waits behind a
+        backlog, and its delay says how long the queue is, not where the clock is. The
+        line is kept as it is (extrapolated at its drift) and learns nothing until
+        :meth:`release`; the estimate shows unlocked meanwhile. A drift fitted over too
+        short a base line to be settled may already be the backlog's growth (it came
+        with the first packets): it is dropped for the crystal's nominal rate."""
+        if self._held:
+            return
+        self._held = True
+        if self._fitted < SETTLE_SPAN and self._points:
+            self._offset += self._drift * self._last  # the same line where it is now
+            self._drift = self._fitted = 0.0
+
+    def release(self) -> None:
+        """The line has room again: the estimate starts over from fresh packets (the
+        drift, a settled one, kept), and ``time`` slews to it (SLEW)."""
+        if self._held:
+            self._held = False
+            self._restart()
 
     def _restart(self) -> None:
         drift, given = self._drift, self._given
@@ -232,7 +278,7 @@ class NodeClock:
         """The device time of a packet that reaches the host at ``host`` with the least
         delay seen (the line there), or None before the estimate is locked: what the
         timer unwrapper judges a reading by (:class:`aspp.timing.TimerUnwrapper`)."""
-        if self._locked_since is None:
+        if self._locked_since is None or self._held:
             return None
         return (host - self._offset) / (1 + self._drift)
 
@@ -243,12 +289,17 @@ class NodeClock:
 
     @property
     def locked(self) -> bool:
-        """Whether a second of packets has been fitted since the last reset."""
-        return self._locked_since is not None
+        """Whether a second of packets has been fitted since the last reset, and the
+        line is not held (:meth:`hold`)."""
+        return self._locked_since is not None and not self._held
+
+    @property
+    def held(self) -> bool:
+        return self._held
 
     def estimate(self) -> Estimate:
         """The current estimate (for status)."""
         ordered = sorted(self._residuals)
         spread = ordered[int(0.9 * (len(ordered) - 1))] if ordered else 0.0
-        return Estimate(self._offset, self._drift, spread, self._locked_since is not None,
-                        self._locked_since)
+        return Estimate(self._offset, self._drift, spread, self.locked,
+                        None if self._held else self._locked_since)

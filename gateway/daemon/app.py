@@ -23,7 +23,7 @@ import zmq
 import zmq.asyncio
 from zmq.auth.asyncio import AsyncioAuthenticator
 
-from aspp.timing import byte_time
+from aspp.timing import BITS_PER_BYTE, byte_time
 from gateway.common.curve import AllowList, KeyPair
 from gateway.common.version import VERSION
 from gateway.recording.files import PARTIAL
@@ -70,7 +70,8 @@ class Gateway:
         self.nodes = {n.address: Node(n, byte_time=byte_time(station.baudrate),
                                       latency=station.latency_ms / 1000)
                       for n in config.nodes}
-        self.health = Health(self.nodes.values(), config.health)
+        self.health = Health(self.nodes.values(), config.health,
+                             station.baudrate / BITS_PER_BYTE)
         self.systemd = Notifier()
         self._ready = False
         self._context = zmq.asyncio.Context()

@@ -30,14 +30,19 @@ from typing import Any, NamedTuple, Protocol
 from gateway.common.protocol import HealthLevel as Level
 
 from .config import HealthConfig
+from .lineload import LineLoad
 from .nodes import Node, State
 
 log = logging.getLogger("gx2.health")
 
 SAMPLE_PERIOD = 1.0
 """Seconds between samples of the counters (the daemon's tick)."""
-LINK_SPAN = 5.0
-"""Seconds over which the link's bytes per second are measured."""
+LINE_OVER_CAPACITY = "line over capacity: sample times unreliable"
+"""A streaming node's reason while its serial line is over capacity (:mod:`.lineload`)."""
+
+
+LEVELS = list(Level)
+"""The levels, least severe first."""
 
 
 class Verdict(NamedTuple):
@@ -152,7 +157,9 @@ def judge(node: Node, recent: Recent, now: float, limits: HealthConfig) -> Verdi
                                         - 1 / recent.stream_seconds):
             reasons.append(f"rate {rate:.1f} Hz of {expected:.4g} in "
                            f"{recent.stream_seconds:.0f} s")
-        if node.clock.points and not node.clock.locked:
+        if node.clock.held:
+            reasons.append(LINE_OVER_CAPACITY)
+        elif node.clock.points and not node.clock.locked:
             reasons.append("clock not locked")
     window = f"in {recent.seconds:.0f} s"
     if recent.seconds >= min(limits.window_s, limits.settle_s):  # enough to go by
@@ -203,12 +210,13 @@ class Health:
     """Every node's window and verdict, the gateway's own, and the link's recent
     throughput."""
 
-    def __init__(self, nodes: Iterable[Node], limits: HealthConfig) -> None:
+    def __init__(self, nodes: Iterable[Node], limits: HealthConfig,
+                 line_bytes_per_s: float = 11520.0) -> None:
         self.limits = limits
         self.nodes = list(nodes)
         self._windows = {node.address: Window(limits.window_s) for node in self.nodes}
         self._verdicts: dict[int, Verdict] = {}
-        self._link: deque[tuple[float, int]] = deque()
+        self.line = LineLoad(line_bytes_per_s)
         self.recorder: Recording | None = None
         """The gateway's recorder, if it records: what its own health is judged by."""
         self._overflows: deque[tuple[float, int]] = deque()
@@ -217,8 +225,13 @@ class Health:
     def sample(self, now: float, bytes_read: int) -> None:
         """Once a second: sample every counter, and log each node whose health changed
         (and the gateway, if its own did)."""
-        self._link.append((now, bytes_read))
-        _trim(self._link, now, LINK_SPAN)
+        if self.line.sample(now, bytes_read):
+            # every node's clock is held while the line is over capacity (aspp.clock)
+            for node in self.nodes:
+                if self.line.over:
+                    node.clock.hold()
+                else:
+                    node.clock.release()
         if self.recorder is not None:
             if not self._overflows:  # (what overflowed before the first sample counts)
                 self._overflows.append((now, 0))
@@ -247,13 +260,17 @@ class Health:
     def gateway(self, now: float) -> Verdict:
         """The gateway's own health at ``now`` (``time.monotonic()``)."""
         recorder = self.recorder
-        if recorder is None:
-            return Verdict(Level.OK, ())
-        overflowed, seconds = 0, 0.0
-        if self._overflows:
-            at, before = self._overflows[0]
-            overflowed, seconds = recorder.overflowed - before, now - at
-        return judge_gateway(recorder.failure, overflowed, seconds)
+        verdict = Verdict(Level.OK, ())
+        if recorder is not None:
+            overflowed, seconds = 0, 0.0
+            if self._overflows:
+                at, before = self._overflows[0]
+                overflowed, seconds = recorder.overflowed - before, now - at
+            verdict = judge_gateway(recorder.failure, overflowed, seconds)
+        if self.line.over:
+            verdict = Verdict(max(verdict.level, Level.WARN, key=LEVELS.index),
+                              (*verdict.reasons, self.line.reason()))
+        return verdict
 
     def gateway_status(self, now: float) -> dict[str, Any]:
         """What status adds to the gateway's map."""
@@ -265,10 +282,7 @@ class Health:
 
     def bytes_per_s(self, now: float, bytes_read: int) -> float:
         """Bytes read per second over the last few seconds."""
-        if not self._link:
-            return 0.0
-        at, before = self._link[0]
-        return (bytes_read - before) / (now - at) if now > at else 0.0
+        return self.line.bytes_per_s(now, bytes_read)
 
     def status(self, node: Node, now: float) -> dict[str, Any]:
         """What status adds to a node's map."""

@@ -40,6 +40,7 @@ def report(gateway: Gateway) -> dict[str, Any]:
                  "reconnects": link.reconnects, "bytes_read": link.bytes_read,
                  "bytes_per_s": round(health.bytes_per_s(monotonic, link.bytes_read), 1),
                  "line_bytes_per_s": config.base_station.baudrate / BITS_PER_BYTE,
+                 "over_capacity": health.line.over,
                  "error": link.last_error,
                  "discarded_bytes": stats.bytes_discarded,
                  "discarded": {str(k): v for k, v in stats.discarded_bytes.items()},

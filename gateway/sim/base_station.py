@@ -34,9 +34,15 @@ GLUE_WAIT = 0.050
 """How long a held ACK waits for a packet to be glued to."""
 HOST_LOG = 10_000
 """Command packets and pings from the host remembered for tests (the newest)."""
+# The base station's serial output buffer; packets arriving to a full buffer are lost
+# (counted: StationStats.packets_dropped_full). The reference gives no size; the base
+# station is a small microcontroller between a 250 kbit/s radio and a 115200-baud UART,
+# and what matters to the host is that its queue is bounded, as every real one is: at
+# 4 KiB a full buffer is 0.36 s of line, so over capacity a packet waits at most that
+# long and the rest are lost (a queue without bound would instead make every record
+# later than the one before, for ever). ACK, NACK and ping answers are never dropped:
+# they are the base station's own answers.
 BUFFER_BYTES = 4096
-"""The base station's serial output buffer; packets arriving to a full buffer are lost.
-ACK, NACK and ping answers are never dropped: they are the base station's own answers."""
 
 
 @dataclass

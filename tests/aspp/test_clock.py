@@ -184,3 +184,66 @@ def test_device_at_is_the_line_read_backwards() -> None:
     for d, h, _ in stream(5, 40e-6, 1000.0, seed=1, bursts=0):
         clock.update(d, h)
     assert clock.device_at(1000.0 + FLOOR + (1 + 40e-6) * 4.0) == pytest.approx(4.0, abs=NEAR)
+
+
+def overloaded(seconds: float, drift: float, seed: int) -> list[tuple[float, float]]:
+    """(device, host) for a 100 Hz node on a line over capacity: from the start every
+    packet waits behind a queue that grows at a third of real time until the base
+    station's buffer (0.36 s of line) is full, then stays full (gx2-sim's, issue 21)."""
+    rng = random.Random(seed)
+    pairs = []
+    for i in range(int(seconds / PERIOD)):
+        device = i * PERIOD
+        queue = min(0.36, device / 3) + rng.uniform(0, 0.004)
+        pairs.append((device, 1000.0 + (1 + drift) * device + FLOOR + queue))
+    return pairs
+
+
+def test_a_backlog_never_makes_time_step_against_the_device() -> None:
+    # with nothing said of the line (the gateway has not noticed yet): the fit takes
+    # the queue's growth for a drift, and a window later the floor under it leaves;
+    # ``time`` follows the line at a bounded rate, never by a step (issue 21 saw 306 ms)
+    clock = NodeClock()
+    given = [(device, clock.update(device, host)) for device, host in overloaded(90, 0, 1)]
+    steps = [(t2 - d2) - (t1 - d1) for (d1, t1), (d2, t2) in itertools.pairwise(given)]
+    assert max(abs(s) for s in steps) <= PERIOD / 2 + 1e-12
+    assert all(t2 > t1 for (_, t1), (_, t2) in itertools.pairwise(given))
+    assert abs(clock.estimate().drift) <= MAX_DRIFT
+
+
+def test_a_held_estimate_learns_nothing_from_the_backlog_and_comes_back_after_it() -> None:
+    drift = 30e-6
+    clock = NodeClock()
+    pairs = overloaded(40, drift, 2)
+    for device, host in pairs[:300]:  # 3 s before the gateway says the line is full
+        clock.update(device, host)
+    clock.hold()
+    assert not clock.locked and clock.device_at(1003.0) is None
+    assert clock.estimate().locked_since is None
+    for device, host in pairs[300:]:
+        clock.update(device, host)
+    # the queue's growth in the first seconds was not kept for the crystal's drift
+    assert abs(clock.estimate().drift) <= 50e-6, clock.estimate().drift
+    clock.release()
+    # the line has room: delays back to the floor within a second, as the queue drains
+    errors_after = []
+    last = pairs[-1][0]
+    for i in range(1, 1500):
+        device = last + i * PERIOD
+        queue = max(0.0, 0.36 - i * PERIOD * 0.5) + random.Random(i).expovariate(1 / 0.0005)
+        host = 1000.0 + (1 + drift) * device + FLOOR + queue
+        truth = 1000.0 + (1 + drift) * device + FLOOR
+        errors_after.append((i * PERIOD, clock.update(device, host) - truth))
+    assert clock.locked
+    assert max(abs(e) for t, e in errors_after if t >= 10.0) <= 1e-3
+
+
+def test_a_hold_through_a_reboot_stays_a_hold() -> None:
+    clock = NodeClock()
+    for device, host in overloaded(5, 0, 3):
+        clock.update(device, host)
+    clock.hold()
+    clock.reset()
+    assert clock.held and not clock.locked
+    clock.release()
+    assert not clock.held

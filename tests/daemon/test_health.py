@@ -271,3 +271,25 @@ def test_the_gateway_warns_while_its_recorders_queue_overflowed_within_the_windo
     for second in range(11, 11 + int(LIMITS.window_s) + 1):
         health.sample(float(second), 0)
     assert health.gateway(second).level is Level.OK  # out of the window
+
+
+def test_a_line_over_capacity_warns_for_the_gateway_and_holds_its_nodes_clocks(caplog) -> None:
+    node = streaming_node()
+    stream = Stream(node)
+    health = Health([node], LIMITS, line_bytes_per_s=11520.0)
+    now = settled(node)
+    for second in range(8):  # the line full, second after second
+        stream.send(100)
+        health.sample(now + second, 11520 * second)
+    assert node.clock.held and not node.clock.locked
+    verdict = health.gateway(now + 7)
+    assert verdict.level is Level.WARN
+    assert verdict.reasons == ("line over capacity: 100% of 11520 B/s: sample times "
+                               "unreliable",)
+    assert "line over capacity: sample times unreliable" in health.verdict(node, now + 7).reasons
+    assert "clock not locked" not in health.verdict(node, now + 7).reasons
+    for second in range(8, 16):  # room again
+        stream.send(100)
+        health.sample(now + second, 11520 * 7 + 5000 * (second - 7))
+    assert not node.clock.held
+    assert health.gateway(now + 15).level is Level.OK

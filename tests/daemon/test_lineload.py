@@ -1,0 +1,45 @@
+"""When the serial line is over capacity (pure: fed bytes read at given times)."""
+
+from __future__ import annotations
+
+from gateway.daemon.lineload import AT_CAPACITY, ROOM, SPAN, LineLoad
+
+CAPACITY = 11520.0
+
+
+def run(line: LineLoad, shares: list[float], start: float = 0.0, read: int = 0) -> list[bool]:
+    """Sample once a second, the line carrying each share in turn; ``over`` after each."""
+    said = []
+    for second, share in enumerate(shares):
+        read += int(share * CAPACITY)
+        line.sample(start + second + 1, read)
+        said.append(line.over)
+    return said
+
+
+def test_a_full_line_is_over_capacity_once_a_span_of_it_is_seen() -> None:
+    line = LineLoad(CAPACITY)
+    line.sample(0.0, 0)
+    said = run(line, [1.0] * 8)
+    assert said.index(True) + 1 == 0.8 * SPAN  # (judged from four fifths of a span on)
+    assert line.share == 1.0
+    assert line.reason() == "line over capacity: 100% of 11520 B/s: sample times unreliable"
+
+
+def test_a_busy_line_under_capacity_is_never_over_it() -> None:
+    line = LineLoad(CAPACITY)
+    line.sample(0.0, 0)
+    # 90%, with a stall of a whole second and its catching up (what bench/timesync.py does)
+    assert not any(run(line, [0.9, 0.9, 0.0, 1.0, 1.0, 0.9, 0.9, 0.9, 0.9] * 4))
+
+
+def test_over_capacity_has_room_again_only_below_room() -> None:
+    line = LineLoad(CAPACITY)
+    line.sample(0.0, 0)
+    run(line, [1.0] * 6)
+    assert line.over
+    between = (AT_CAPACITY + ROOM) / 2
+    read = int(6 * CAPACITY)
+    assert all(run(line, [between] * 10, 6.0, read))  # no flapping between the two
+    read += int(10 * between * CAPACITY)
+    assert not run(line, [0.5] * 6, 16.0, read)[-1]
