@@ -28,12 +28,13 @@ def zmq_context() -> Iterator[zmq.Context]:
 @pytest.fixture
 def simulator(tmp_path: Path) -> Iterator[Callable[..., Simulator]]:
     """``simulator(NodeSettings(76, ...), ..., radio=..., line=...)``: started, on a pty
-    behind ``tmp_path/gx2``; stopped (and checked for loop errors) afterwards."""
+    behind ``tmp_path/gx2`` (``name=`` another, for a second base station); stopped (and
+    checked for loop errors) afterwards."""
     started: list[Simulator] = []
 
     def start(*nodes: NodeSettings, radio: dict[int, RadioLink] | None = None,
-              line: LineFaults | None = None, **options: Any) -> Simulator:
-        sim = Simulator(list(nodes), link=tmp_path / "gx2", radio=radio, line=line,
+              line: LineFaults | None = None, name: str = "gx2", **options: Any) -> Simulator:
+        sim = Simulator(list(nodes), link=tmp_path / name, radio=radio, line=line,
                         **options).start()
         started.append(sim)
         return sim
@@ -47,12 +48,13 @@ def simulator(tmp_path: Path) -> Iterator[Callable[..., Simulator]]:
 @pytest.fixture
 def gateway(tmp_path: Path, zmq_context: zmq.Context) -> Iterator[Callable[..., RunningGateway]]:
     """``gateway(port, nodes, **sections)``: gx2-gateway running on that port, ready
-    (its control endpoint answers and the base station is open); ``wait=False`` returns
+    (its control endpoint answers and the base station is open; ``gateway(None, [],
+    base_stations=[...])`` several, each open); ``wait=False`` returns
     at once, ``env`` replaces its environment, ``preexec`` runs in the child before it
     starts (resource limits)."""
     started: list[RunningGateway] = []
 
-    def start(port: str, nodes: list[dict[str, Any]], *, wait: bool = True,
+    def start(port: str | None, nodes: list[dict[str, Any]], *, wait: bool = True,
               env: dict[str, str] | None = None, preexec: Callable[[], None] | None = None,
               **sections: Any) -> RunningGateway:
         running = RunningGateway(gateway_config(port, nodes, **sections), tmp_path,
@@ -66,7 +68,11 @@ def gateway(tmp_path: Path, zmq_context: zmq.Context) -> Iterator[Callable[..., 
                 raise AssertionError(f"gateway exited {running.proc.returncode}:\n"
                                      f"{running.log()}")
             reply = running.control.try_call("status", timeout=0.5)
-            return bool(reply and reply["ok"] and reply["result"]["link"]["state"] == "up")
+            if not (reply and reply["ok"]):
+                return False
+            result = reply["result"]
+            return all(link["state"] == "up" for link in result.get("stations", [])
+                       or [result["link"]])
         wait_for(link_up, STARTUP, "the gateway to answer with its link up")
         return running
 

@@ -129,7 +129,8 @@ def test_the_gateways_own_schemas_are_valid_and_name_their_keys() -> None:
     status, mark = status_schema(), mark_schema()
     for schema in (status, mark):
         Draft202012Validator.check_schema(schema)
-    assert set(status["properties"]) == {"gateway", "link", "nodes", "recording", "replay"}
+    assert set(status["properties"]) == {"gateway", "link", "stations", "nodes", "recording",
+                                          "replay"}
     assert types(status["properties"]["recording"]) == {"object", "null"}
     assert set(mark["required"]) == {"text", "time", "nodes", "host_time"}
 

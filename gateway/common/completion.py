@@ -125,11 +125,14 @@ def node_addresses(path: str) -> list[int]:
     # whatever the reason: besides ConfigError, PyYAML raises ValueError for a date
     # that cannot be (2001-02-30) and RecursionError for brackets nested thousands deep
     try:
-        nodes = read_mapping(path).get("nodes")
+        config = read_mapping(path)
     except Exception:
         return []
-    if not isinstance(nodes, list):
-        return []
+    # the one-station form's nodes:, or every station's (base_stations:)
+    stations = config.get("base_stations")
+    groups = [config.get("nodes")] + ([s.get("nodes") for s in stations if isinstance(s, dict)]
+                                      if isinstance(stations, list) else [])
+    nodes = [node for group in groups if isinstance(group, list) for node in group]
     found = []
     for node in nodes:
         address = node.get("address") if isinstance(node, dict) else None

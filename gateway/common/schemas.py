@@ -149,8 +149,12 @@ def status_schema() -> Schema:
                              ("time",), time=_described(_FLOAT, "UNIX time of the report",
                                                         "s"),
                              version={"type": "string"}),
-            "link": _part("object", "the base station's serial link: port, state, "
+            "link": _part("object", "the (first) base station's serial link: port, state, "
                           "counts of what was read and discarded"),
+            "stations": {"type": "array", "items": _part(
+                "object", "one base station: its name, its link's fields (as link) and "
+                "its nodes' addresses", ("name", "nodes"), name={"type": "string"}),
+                "description": "every base station, in the configuration's order"},
             "nodes": {"type": "array", "items": node, "description": "one map a node: "
                       "state, rates, losses, clock, health"},
             "recording": _part(["object", "null"], "the recorder; null without record:"),

@@ -160,7 +160,7 @@ def endpoints(args: argparse.Namespace) -> Endpoints:
     keys = client_keys(client_key, server_key, args.config if secured else None)
     return Endpoints(config.control.endpoint, config.publish.endpoint, keys,
                      secured and config.curve.publish, config.publish.heartbeat_s,
-                     tuple(n.address for n in config.nodes))
+                     tuple(n.address for n in config.all_nodes))
 
 
 def client_keys(client_key: str | None, server_key: str | None,

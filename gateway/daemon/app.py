@@ -1,12 +1,18 @@
-"""The gateway: the parts wired together, and their life from start to shutdown.
+"""The gateway: its base stations wired to what it has once, and their life from start
+to shutdown.
 
-One asyncio loop owns the serial port, the PUB and ROUTER sockets and every timer, so
-no socket is ever touched by two threads. Data flows one way:
+One asyncio loop owns every serial port, the PUB and ROUTER sockets and every timer, so
+no socket is ever touched by two threads. Each base station is a
+:class:`~gateway.daemon.station.Station` of its own (link, reader, scheduler,
+supervisor, nodes); the gateway has one publisher, one control endpoint, one recorder,
+one metrics endpoint and one health. Data flows one way: a station's
 :mod:`~gateway.daemon.link` (bytes in) -> :mod:`~gateway.daemon.reader` (decoded,
-tallied by :mod:`~gateway.daemon.nodes`) -> :mod:`~gateway.daemon.publisher`. Control
-requests go :mod:`~gateway.daemon.control` -> :mod:`~gateway.daemon.operations` ->
-:mod:`~gateway.daemon.scheduler` -> serial writes, their replies coming back through
-the reader; :mod:`~gateway.daemon.supervisor` keeps each node doing what it should.
+tallied by :mod:`~gateway.daemon.nodes`) -> :mod:`~gateway.daemon.publisher` (and the
+recorder). Control requests go :mod:`~gateway.daemon.control` ->
+:mod:`~gateway.daemon.operations` -> the node's station's
+:mod:`~gateway.daemon.scheduler` -> its serial writes, their replies coming back
+through its reader; its :mod:`~gateway.daemon.supervisor` keeps each node doing what it
+should.
 """
 
 from __future__ import annotations
@@ -23,7 +29,6 @@ import zmq
 import zmq.asyncio
 from zmq.auth.asyncio import AsyncioAuthenticator
 
-from aspp.timing import BITS_PER_BYTE, byte_time
 from gateway.common.curve import AllowList, KeyPair
 from gateway.common.version import VERSION
 from gateway.recording.files import PARTIAL
@@ -32,17 +37,12 @@ from . import status
 from .config import GatewayConfig
 from .control import ControlServer
 from .health import SAMPLE_PERIOD, Health
-from .link import SerialLink
-from .nodes import Node
 from .operations import Operations
-from .ports import Port
 from .publisher import Publisher
-from .reader import Reader
 from .recorder import Recorder
 from .replay import ReplayLink
-from .scheduler import Scheduler
 from .sd_notify import Notifier
-from .supervisor import Supervisor
+from .station import Station
 
 if TYPE_CHECKING:
     from .metrics import MetricsServer
@@ -66,12 +66,6 @@ class Gateway:
     def __init__(self, config: GatewayConfig) -> None:
         self.config = config
         self.started = time.time()
-        station = config.base_station
-        self.nodes = {n.address: Node(n, byte_time=byte_time(station.baudrate),
-                                      latency=station.latency_ms / 1000)
-                      for n in config.nodes}
-        self.health = Health(self.nodes.values(), config.health,
-                             station.baudrate / BITS_PER_BYTE)
         self.systemd = Notifier()
         self._ready = False
         self._context = zmq.asyncio.Context()
@@ -84,22 +78,23 @@ class Gateway:
             self._auth = AsyncioAuthenticator(self._context)
             self._auth.start()
             self._auth.configure_curve_callback("*", self.allow_list)
-        # checked by the configuration already: this cannot fail, and opens nothing
-        replay = Port.replay_of(station.port)
-        self.replaying = replay is not None
-        self.scheduler = Scheduler(self._write)
-        self.supervisor = Supervisor(self.scheduler, self.nodes, passive=self.replaying)
-        self.ops = Operations(self.scheduler, self.supervisor, self.status,
-                              allow_eeprom_write=config.control.allow_eeprom_write,
-                              allow_any_eeprom_address=config.control.allow_any_eeprom_address,
-                              replaying=self.replaying,
-                              publish_mark=lambda mark: self.publisher.mark(mark))
         endpoint = config.publish.endpoint
         try:
             self.publisher = Publisher(self._context, endpoint, config.publish.high_water_mark,
                                        server if config.curve and config.curve.publish
                                        else None)
             endpoint = config.control.endpoint
+            self.stations = [Station(station, self.publisher, only=len(config.stations) == 1,
+                                     first=index == 0, on_link_state=self._on_link_state,
+                                     on_replay_end=self._replay_ended)
+                             for index, station in enumerate(config.stations)]
+            self.nodes = {address: node for station in self.stations
+                          for address, node in station.nodes.items()}
+            self.replaying = any(station.replaying for station in self.stations)
+            self.ops = Operations(self.stations, self.status,
+                                  allow_eeprom_write=config.control.allow_eeprom_write,
+                                  allow_any_eeprom_address=config.control.allow_any_eeprom_address,
+                                  publish_mark=lambda mark: self.publisher.mark(mark))
             self.control = ControlServer(self._context, endpoint, self.ops, server)
             self.metrics: MetricsServer | None = None
             if config.metrics is not None:
@@ -112,25 +107,17 @@ class Gateway:
             self._stop_auth()
             self._context.destroy(linger=0)
             raise StartupError(f"cannot bind {endpoint}: {error.strerror or error}") from None
-        self.reader = Reader(self.nodes, self.publisher, self.supervisor, self.scheduler,
-                             config.base_station.idle_ms / 1000, idle_timer=not replay,
-                             byte_time=byte_time(station.baudrate))
+        self.health = Health(self.nodes.values(), config.health)
+        self.health.lines = [(None if len(self.stations) == 1 else station.name, station.line)
+                             for station in self.stations]
         self.recorder: Recorder | None = None
-        on_data = self.reader.on_data
         if config.record is not None:
             self.recorder = Recorder(config.record, self._recording_metadata())
             self.health.recorder = self.recorder
             self.publisher.record = self.recorder.published
-            on_data = self._read_and_record
         # only once nothing above can fail: the embedded simulator makes a directory
-        self.port = Port(config.base_station.port, list(self.nodes))
-        self.link: SerialLink | ReplayLink
-        if replay is not None:
-            self.link = ReplayLink(replay, on_data, self._on_link_state, self._replay_ended,
-                                   self.publisher.replayed)
-        else:
-            self.link = SerialLink(self.port.path, config.base_station.baudrate, on_data,
-                                   self._on_link_state)
+        for station in self.stations:
+            station.open(self.recorder)
         self._stop: asyncio.Event | None = None
         self.exit_status = 0
         """The process's, once run returns: PARTIAL after a replay (exit=true) that
@@ -138,24 +125,29 @@ class Gateway:
         self._reported = 0.0
         """time.monotonic() of the last status report."""
 
+    @property
+    def station(self) -> Station:
+        """The first base station (the only one, in the one-station form)."""
+        return self.stations[0]
+
     # -- running --------------------------------------------------------------------------
 
     async def run(self, stop: asyncio.Event) -> None:
         self._stop = stop
         if self.recorder is not None:
             self.recorder.start()
-        self.port.start()
-        self.link.start()
-        if self.link.up:
-            log.info("base station %s open", self.config.base_station.port)
+        for station in self.stations:
+            station.start()
         loop = asyncio.get_running_loop()
         tasks = [loop.create_task(self.control.serve()), loop.create_task(self._heartbeat()),
                  loop.create_task(self._sample()),
-                 loop.create_task(self.supervisor.watch_streams())]
+                 *(loop.create_task(station.supervisor.watch_streams())
+                   for station in self.stations)]
         if self.systemd.watchdog_interval:
             tasks.append(loop.create_task(self._watchdog(self.systemd.watchdog_interval)))
-        log.info("publishing on %s, control on %s, %d nodes", self.config.publish.endpoint,
-                 self.config.control.endpoint, len(self.nodes))
+        log.info("publishing on %s, control on %s, %d nodes on %d base station%s",
+                 self.config.publish.endpoint, self.config.control.endpoint, len(self.nodes),
+                 len(self.stations), "" if len(self.stations) == 1 else "s")
         # everything still alive now lives as long as the process: out of the
         # collector's sight, a full collection no longer walks it (here ~20 ms of
         # stalled records each time, for some 35,000 objects of modules, configuration
@@ -181,20 +173,21 @@ class Gateway:
         # answered at once ("shutting down") and cancelled: its client hears why now,
         # not at its own timeout, and what a cancelled quiet command would have
         # started again afterwards is not (issue 19)
-        self.supervisor.close()
+        for station in self.stations:
+            station.supervisor.close()
         self.control.close()
         self.ops.close()
-        if self.config.shutdown.stop_streams and self.link.up and not self.replaying:
+        if self.config.shutdown.stop_streams:
+            # every station's streams at once: the budget is the gateway's, not each one's
+            stopping = [station.supervisor.stop_all_streams() for station in self.stations
+                        if station.link.up and not station.replaying]  # type: ignore[union-attr]
             with contextlib.suppress(Exception):
-                await asyncio.wait_for(self.supervisor.stop_all_streams(), EXIT_BUDGET)
-        self.link.close()
-        # what a cancelled request still sends on its way out (a self-test switching
-        # BIT off) fails as with the base station gone, not as a write to a closed port
-        self.scheduler.on_link_down()
+                await asyncio.wait_for(asyncio.gather(*stopping), EXIT_BUDGET)
+        for station in self.stations:
+            station.close()
         self.publisher.close()
         self._stop_auth()
         self._context.destroy(linger=0)  # (the answers above: up to CLOSE_LINGER_MS)
-        self.port.close()
         if self.recorder is not None:
             # off the loop, which has nothing left to do: the last second, and the index,
             # in what is left of the promise (the recorder says what the file holds if
@@ -210,44 +203,42 @@ class Gateway:
             self._auth.stop()
             self._auth = None
 
-    def _write(self, data: bytes) -> None:
-        self.link.write(data)
-        if self.recorder is not None:
-            self.recorder.sent(data, time.time(), time.monotonic())
-
-    def _read_and_record(self, data: bytes, host_time: float, monotonic: float) -> None:
-        self.recorder.serial(data, host_time, monotonic)  # type: ignore[union-attr]
-        self.reader.on_data(data, host_time, monotonic)
-
     def _recording_metadata(self) -> dict[str, str]:
         """What a recording says about the gateway that made it."""
-        config = self.config
-        return {"version": VERSION, "port": config.base_station.port,
-                "baudrate": str(config.base_station.baudrate),
-                "latency_ms": f"{config.base_station.latency_ms:g}",
-                "nodes": json.dumps([{"address": n.address, "name": n.name,
-                                      "stream": n.stream} for n in config.nodes])}
+        config, first = self.config, self.config.stations[0]
+        metadata = {"version": VERSION, "port": first.port, "baudrate": str(first.baudrate),
+                    "latency_ms": f"{first.latency_ms:g}",
+                    "nodes": json.dumps([{"address": n.address, "name": n.name,
+                                          "stream": n.stream} for n in config.all_nodes])}
+        if len(config.stations) > 1:
+            metadata["stations"] = json.dumps([
+                {"name": s.name, "port": s.port, "baudrate": s.baudrate,
+                 "latency_ms": s.latency_ms, "nodes": [n.address for n in s.nodes]}
+                for s in config.stations])
+        return metadata
 
-    def _replay_ended(self) -> None:
-        self.reader.end_of_input()
+    def _replay_ended(self, station: Station) -> None:
         self.publisher.status(self.status())
-        if self.port.replay is not None and self.port.replay.exit and self._stop is not None:
+        replays = [s.link for s in self.stations if isinstance(s.link, ReplayLink)]
+        if not all(link.finished for link in replays):
+            return  # (the others' recordings are still playing)
+        if station.replay is not None and station.replay.exit and self._stop is not None:
             log.info("the recording is done: exiting (exit=true)")
-            if isinstance(self.link, ReplayLink) and self.link.partial:
+            if any(link.partial for link in replays):
                 self.exit_status = PARTIAL
             self._stop.set()
 
-    def _on_link_state(self, up: bool) -> None:
-        self.scheduler.link_up = up
+    def _on_link_state(self, station: Station, up: bool) -> None:
         if up and not self._ready:
-            # READY only now: the sockets were bound before the port could open
+            # READY only now: the sockets were bound before a port could open
             self._ready = True
-            self.systemd.ready(f"{len(self.nodes)} nodes on {self.config.base_station.port}")
-        self.systemd.status("base station " + ("connected" if up else "disconnected, "
-                                               "reconnecting"))
-        if not up:
-            self.scheduler.on_link_down()
-        self.supervisor.link_changed(up)
+            self.systemd.ready(f"{len(self.nodes)} nodes on "
+                               f"{', '.join(s.config.port for s in self.stations)}")
+        down = [s.name for s in self.stations if s.link is not None and not s.link.up]
+        self.systemd.status("base station" + ("s" if len(self.stations) > 1 else "") +
+                            (" connected" if not down else
+                             f" disconnected, reconnecting: {', '.join(down)}"
+                             if len(self.stations) > 1 else " disconnected, reconnecting"))
         self.publisher.status(self.status())
 
     # -- status ---------------------------------------------------------------------------
@@ -256,7 +247,7 @@ class Gateway:
         """WATCHDOG=1 while the loop runs and the link is up or being reopened: a stuck
         loop, or a reopen loop that died, stops the pings and systemd restarts us."""
         while True:
-            if self.link.up or self.link.reopening:
+            if all(s.link.up or s.link.reopening for s in self.stations):  # type: ignore[union-attr]
                 self.systemd.watchdog()
             await asyncio.sleep(interval)
 
@@ -270,7 +261,9 @@ class Gateway:
         for the metrics endpoint if none was made in that second (the heartbeat's)."""
         while True:
             now = time.monotonic()
-            self.health.sample(now, self.link.bytes_read)
+            for station in self.stations:
+                station.sample(now)
+            self.health.sample(now)
             if self.metrics is not None and now - self._reported >= SAMPLE_PERIOD:
                 self.status()
             await asyncio.sleep(SAMPLE_PERIOD)

@@ -37,10 +37,10 @@ QUANTITY = {"accel": 1, "gyro": 2}
 async def bias_capture(gw: Operations, request: Any) -> Result:
     node = gw.node(request.node)
     seconds = request.ms / 1000
-    async with gw.supervisor.quiet(node) as held:
+    async with gw.supervisor(node).quiet(node) as held:
         # the reply comes only after the sampling time, and a capture is never sent
         # twice: the node would start sampling again
-        answer = await gw.scheduler.send(node, commands.capture_gyro_bias(request.ms),
+        answer = await gw.scheduler(node).send(node, commands.capture_gyro_bias(request.ms),
                                          takes=seconds, resend_unanswered=False,
                                          what=f"capture gyro bias ({seconds:g} s)")
     bias = answer.reply.record["gyro_bias"]
@@ -56,7 +56,7 @@ async def bias_set(gw: Operations, request: Any) -> Result:
     command = (commands.write_accel_bias(vector) if request.sensor == "accel"
                else commands.write_gyro_bias(vector))
     field = command.spec.arguments[0].name
-    echoed = tuple((await gw.scheduler.ask(node, command)).record[field])  # type: ignore[arg-type]
+    echoed = tuple((await gw.scheduler(node).ask(node, command)).record[field])  # type: ignore[arg-type]
     sent = tuple(command.arguments[field])  # type: ignore[arg-type]
     if echoed != sent:  # (as float32, the precision the node keeps)
         raise NodeError(f"node {node.address}: sent {request.sensor} bias {list(sent)}, "
@@ -69,7 +69,7 @@ async def store(gw: Operations, request: Any) -> Result:
     node = gw.node(request.node)
     gw.check_writes_allowed(f"storing the {request.sensor} bias in non-volatile memory")
     quantity = QUANTITY[request.sensor]
-    stored = (await gw.scheduler.ask(node, commands.store_nonvolatile(quantity))
+    stored = (await gw.scheduler(node).ask(node, commands.store_nonvolatile(quantity))
               ).record["quantity"]
     if stored != quantity:
         what = "nothing (it answered 0xFFFF)" if stored == 0xFFFF else f"quantity {stored}"
@@ -79,7 +79,7 @@ async def store(gw: Operations, request: Any) -> Result:
 
 
 async def read_temperatures(gw: Operations, node: Node) -> Result:
-    codes = (await gw.scheduler.ask(node, commands.poll(0xD1))).record["temperature"]
+    codes = (await gw.scheduler(node).ask(node, commands.poll(0xD1))).record["temperature"]
     gyro = node.config.gyro
     return {"node": node.address, "codes": list(codes),  # type: ignore[arg-type]
             "accel_c": round(accel_celsius(codes[0]), 2),  # type: ignore[index]
@@ -99,7 +99,7 @@ async def _samples(gw: Operations, node: Node) -> list[Sample]:
     last change of BIT, discarded)."""
     readings = []
     for _ in range(SAMPLES + 1):
-        record = (await gw.scheduler.ask(node, commands.poll(0xC2))).record
+        record = (await gw.scheduler(node).ask(node, commands.poll(0xC2))).record
         readings.append(Sample(record["accel"], record["ang_rate"]))  # type: ignore[arg-type]
     return readings[1:]
 
@@ -107,7 +107,7 @@ async def _samples(gw: Operations, node: Node) -> list[Sample]:
 async def _set_bit(gw: Operations, node: Node, config: int,
                    priority: Priority = Priority.OPERATOR) -> int:
     """0xFB with ``config``; the TestConfig echoed (NodeError unless it is ``config``)."""
-    echoed = (await gw.scheduler.ask(node, commands.built_in_test(config), priority=priority,
+    echoed = (await gw.scheduler(node).ask(node, commands.built_in_test(config), priority=priority,
                                      what=f"built-in test 0x{config:02X}")
               ).record["test_config"]
     if echoed != config:
@@ -147,7 +147,7 @@ async def _bit_off_until_confirmed(gw: Operations, node: Node,
 @handles("selftest")
 async def selftest(gw: Operations, request: Any) -> Result:
     node = gw.node(request.node)
-    async with gw.supervisor.quiet(node) as held:
+    async with gw.supervisor(node).quiet(node) as held:
         off = await _samples(gw, node)
         temperatures = await read_temperatures(gw, node)
         try:

@@ -52,15 +52,14 @@ def main(argv: list[str] | None = None) -> int:
         fail(parser.prog, str(error), 2)
     # a recording with nothing the gateway can play is refused as the configuration is:
     # at --check, and at start rather than as a replay that ends at once having done nothing
-    from .ports import nothing_to_play
-    problem = nothing_to_play(config.base_station.port)
-    if problem:
-        fail(parser.prog, f"{args.config}: base_station.port: {problem}", 2)
+    from .ports import never_serial, nothing_to_play
+    checks = (nothing_to_play, never_serial) if args.check else (nothing_to_play,)
+    for where, station in config.placed_stations():
+        for check in checks:
+            problem = check(station.port)
+            if problem:
+                fail(parser.prog, f"{args.config}: {where}.port: {problem}", 2)
     if args.check:
-        from .ports import never_serial
-        problem = never_serial(config.base_station.port)
-        if problem:
-            fail(parser.prog, f"{args.config}: base_station.port: {problem}", 2)
         # the unit runs --check as its user, in its sandbox, before the gateway: a
         # directory it cannot write fails there, not as a recorder that keeps nothing
         record = config.record
@@ -68,8 +67,9 @@ def main(argv: list[str] | None = None) -> int:
         if problem:
             fail(parser.prog, f"{args.config}: record.directory: {record.directory}: "
                  f"{problem}", 2)
-        count = len(config.nodes)
-        print(f"{args.config}: valid ({count} node{'s' if count != 1 else ''})")
+        count, stations = len(config.all_nodes), len(config.stations)
+        print(f"{args.config}: valid ({count} node{'s' if count != 1 else ''}"
+              + (f" on {stations} base stations)" if stations > 1 else ")"))
         return 0
     under_systemd = "INVOCATION_ID" in os.environ or "JOURNAL_STREAM" in os.environ
     logging.basicConfig(

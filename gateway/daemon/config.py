@@ -13,7 +13,7 @@ import tempfile
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import AfterValidator, Field, field_validator, model_validator
+from pydantic import AfterValidator, Field, PrivateAttr, field_validator, model_validator
 
 from aspp.frame import MAX_NODE, MIN_NODE
 from aspp.records import checked
@@ -235,8 +235,29 @@ class NodeEntry(Strict):
         return f"{self.address} ({self.name})" if self.name else str(self.address)
 
 
+STATION_NAME = r"^[A-Za-z0-9][A-Za-z0-9_-]{0,31}$"
+"""A station's name: in topics, channel names and metric labels as it is."""
+
+
+def default_station_name(index: int) -> str:
+    """The name of the station at ``index`` (from 0) that was given none."""
+    return f"station{index + 1}"
+
+
+class StationConfig(BaseStationConfig):
+    """Added: one of several base stations (``base_stations:``), with its own nodes."""
+
+    name: Annotated[str, Field(pattern=STATION_NAME)] | None = None
+    """How status, top, metrics and recordings name it; station1, station2... if not
+    given (by its place in the list)."""
+    nodes: Annotated[list[NodeEntry], Field(min_length=1)]
+
+
 class GatewayConfig(Strict):
-    base_station: BaseStationConfig
+    base_station: BaseStationConfig | None = None
+    base_stations: Annotated[list[StationConfig], Field(min_length=1)] | None = None
+    """Added: several base stations, each with its own nodes, instead of
+    ``base_station:`` and ``nodes:`` (which are a list of one)."""
     publish: PublishConfig = PublishConfig()
     control: ControlConfig = ControlConfig()
     shutdown: ShutdownConfig = ShutdownConfig()
@@ -244,7 +265,45 @@ class GatewayConfig(Strict):
     record: RecordConfig | None = None
     metrics: MetricsConfig | None = None
     health: HealthConfig = HealthConfig()
-    nodes: Annotated[list[NodeEntry], Field(min_length=1)]
+    nodes: Annotated[list[NodeEntry], Field(min_length=1)] | None = None
+    """The one station's nodes (with ``base_station:``); :attr:`all_nodes` is every
+    node of every station."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _one_form(cls, data: Any) -> Any:
+        # one form or the other, said before either is checked key by key
+        if isinstance(data, dict):
+            if "base_stations" in data and ("base_station" in data or "nodes" in data):
+                raise ValueError("base_stations: give either base_stations (each with its "
+                                 "nodes) or base_station and nodes, not both")
+            if "base_stations" not in data:
+                for key in ("base_station", "nodes"):
+                    if key not in data:
+                        raise ValueError(f"{key}: required (or base_stations)")
+        return data
+
+    _stations: list[StationConfig] = PrivateAttr(default_factory=list)
+
+    @property
+    def stations(self) -> list[StationConfig]:
+        """Every base station, named: the one form is a list of one."""
+        return self._stations
+
+    @property
+    def all_nodes(self) -> list[NodeEntry]:
+        """Every node of every station."""
+        return [node for station in self._stations for node in station.nodes]
+
+    def _name_stations(self) -> None:
+        if self.base_stations is None:
+            assert self.base_station is not None and self.nodes is not None
+            stations = [StationConfig(**self.base_station.model_dump(), nodes=self.nodes)]
+        else:
+            stations = self.base_stations
+        self._stations = [station.model_copy(update={"name": station.name or
+                                                     default_station_name(index)})
+                          for index, station in enumerate(stations)]
 
     @field_validator("record", mode="before")
     @classmethod
@@ -255,8 +314,10 @@ class GatewayConfig(Strict):
 
     @model_validator(mode="after")
     def _distinct(self) -> GatewayConfig:
+        self._name_stations()
+        self._distinct_stations()
         seen: set[int] = set()
-        for index, node in enumerate(self.nodes):
+        for index, node in enumerate(self.nodes or ()):
             if node.address in seen:
                 raise ValueError(f"nodes[{index}].address: {node.address} is already "
                                  "configured")
@@ -268,11 +329,45 @@ class GatewayConfig(Strict):
                              "from other hosts, and control can write EEPROM and stop "
                              "streams: bind it to 127.0.0.1 or an ipc:// path, or "
                              "configure curve (see README)")
-        try:
-            ports.check_url(self.base_station.port, [n.address for n in self.nodes])
-        except ValueError as error:
-            raise ValueError(f"base_station.port: {error}") from None
+        for where, station in self.placed_stations():
+            try:
+                ports.check_url(station.port, [n.address for n in station.nodes])
+            except ValueError as error:
+                raise ValueError(f"{where}.port: {error}") from None
         return self
+
+    def placed_stations(self) -> list[tuple[str, StationConfig]]:
+        """Each station with where it is in the file (for messages)."""
+        if self.base_stations is None:
+            return [("base_station", self.stations[0])]
+        return [(f"base_stations[{i}]", s) for i, s in enumerate(self.stations)]
+
+    def _distinct_stations(self) -> None:
+        """A node address, a name and a port belong to one station each: a node is named
+        by its address alone (topics, gx2ctl), a station by its name."""
+        if self.base_stations is None:
+            return
+        names: dict[str, str] = {}
+        serial_ports: dict[str, str] = {}
+        owners: dict[int, str] = {}
+        for where, station in self.placed_stations():
+            label = f"{where} ({station.name})"
+            if station.name in names:
+                raise ValueError(f"{where}.name: {station.name!r} is also "
+                                 f"{names[station.name]}'s name")
+            names[station.name or ""] = where
+            # sim:// and replay:// open nothing shared: each station its own
+            if not station.port.startswith((ports.SIM_SCHEME, "replay://")):
+                if station.port in serial_ports:
+                    raise ValueError(f"{where}.port: {station.port} is also "
+                                     f"{serial_ports[station.port]}'s port")
+                serial_ports[station.port] = label
+            for index, node in enumerate(station.nodes):
+                if node.address in owners:
+                    raise ValueError(f"{where}.nodes[{index}].address: node {node.address} "
+                                     f"is also on {owners[node.address]}: an address is "
+                                     "one node across the gateway")
+                owners[node.address] = label
 
 
 def load_config(path: str | Path) -> GatewayConfig:

@@ -210,28 +210,22 @@ class Health:
     """Every node's window and verdict, the gateway's own, and the link's recent
     throughput."""
 
-    def __init__(self, nodes: Iterable[Node], limits: HealthConfig,
-                 line_bytes_per_s: float = 11520.0) -> None:
+    def __init__(self, nodes: Iterable[Node], limits: HealthConfig) -> None:
         self.limits = limits
         self.nodes = list(nodes)
         self._windows = {node.address: Window(limits.window_s) for node in self.nodes}
         self._verdicts: dict[int, Verdict] = {}
-        self.line = LineLoad(line_bytes_per_s)
+        self.lines: list[tuple[str | None, LineLoad]] = []
+        """Each base station's serial line, with its name (None for a gateway's only
+        one): a line over capacity is a WARN of the gateway's."""
         self.recorder: Recording | None = None
         """The gateway's recorder, if it records: what its own health is judged by."""
         self._overflows: deque[tuple[float, int]] = deque()
         self._gateway = Verdict(Level.OK, ())
 
-    def sample(self, now: float, bytes_read: int) -> None:
+    def sample(self, now: float) -> None:
         """Once a second: sample every counter, and log each node whose health changed
         (and the gateway, if its own did)."""
-        if self.line.sample(now, bytes_read):
-            # every node's clock is held while the line is over capacity (aspp.clock)
-            for node in self.nodes:
-                if self.line.over:
-                    node.clock.hold()
-                else:
-                    node.clock.release()
         if self.recorder is not None:
             if not self._overflows:  # (what overflowed before the first sample counts)
                 self._overflows.append((now, 0))
@@ -267,9 +261,11 @@ class Health:
                 at, before = self._overflows[0]
                 overflowed, seconds = recorder.overflowed - before, now - at
             verdict = judge_gateway(recorder.failure, overflowed, seconds)
-        if self.line.over:
+        full = [line.reason() if name is None else f"base station {name}: {line.reason()}"
+                for name, line in self.lines if line.over]
+        if full:
             verdict = Verdict(max(verdict.level, Level.WARN, key=LEVELS.index),
-                              (*verdict.reasons, self.line.reason()))
+                              (*verdict.reasons, *full))
         return verdict
 
     def gateway_status(self, now: float) -> dict[str, Any]:
@@ -279,10 +275,6 @@ class Health:
 
     def verdict(self, node: Node, now: float) -> Verdict:
         return judge(node, self.recent(node, now), now, self.limits)
-
-    def bytes_per_s(self, now: float, bytes_read: int) -> float:
-        """Bytes read per second over the last few seconds."""
-        return self.line.bytes_per_s(now, bytes_read)
 
     def status(self, node: Node, now: float) -> dict[str, Any]:
         """What status adds to a node's map."""

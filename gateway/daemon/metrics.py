@@ -118,21 +118,32 @@ def families(report: Mapping[str, Any]) -> Iterator[Metric]:
         yield GAUGE("gx2_gateway_health", "The gateway's own health: 0 OK, 1 WARN (its "
                     "recorder's queue overflowed), 2 ERROR (its recorder cannot write); "
                     "status gives the reasons", value=HEALTH_VALUES[gateway["health"]])
-    yield GAUGE("gx2_link_up", "1 while the base station's port is open", value=float(
-        link.get("state") == "up"))
-    yield from _table(LINK, [], [([], link)])
+    # a gateway of one base station: its link's series without labels, as ever; of
+    # several, each station's series labelled with its name
+    stations = [s for s in report.get("stations") or () if isinstance(s, Mapping)]
+    if len(stations) > 1:
+        labels, links = ["station"], [([str(s.get("name"))], s) for s in stations]
+    else:
+        labels, links = [], [([], link)]
+    up = GAUGE("gx2_link_up", "1 while the base station's port is open", labels=labels)
+    for values, source in links:
+        up.add_metric(values, float(source.get("state") == "up"))
+    yield up
+    yield from _table(LINK, labels, links)
     discarded = COUNTER("gx2_link_discarded_bytes_total", "Bytes the decoder discarded, "
-                        "by reason", labels=["reason"])
-    for reason, count in as_map(link.get("discarded")).items():
-        if (value := number(count)) is not None:
-            discarded.add_metric([str(reason)], value)
+                        "by reason", labels=[*labels, "reason"])
+    for values, source in links:
+        for reason, count in as_map(source.get("discarded")).items():
+            if (value := number(count)) is not None:
+                discarded.add_metric([*values, str(reason)], value)
     yield discarded
 
     nodes = [n for n in report.get("nodes") or () if isinstance(n, Mapping)
              and number(n.get("node")) is not None]
     entries = [([str(n["node"])], n) for n in nodes]
     yield from _table(NODE, ["node"], entries)
-    names = GAUGE("gx2_node_info", "A node's name", labels=["node", "name"])
+    names = GAUGE("gx2_node_info", "A node's name and its base station's",
+                  labels=["node", "name", "station"])
     states = GAUGE("gx2_node_state", "1 for the state the node is in, 0 for the others",
                    labels=["node", "state"])
     health = GAUGE("gx2_node_health", "0 OK, 1 WARN, 2 ERROR (status gives the reasons)",
@@ -144,7 +155,8 @@ def families(report: Mapping[str, Any]) -> Iterator[Metric]:
     published = COUNTER("gx2_records_published_total", "Records published, by node and record",
                         labels=["node", "record"])
     for (node,), entry in entries:
-        names.add_metric([node, str(entry.get("name") or "")], 1)
+        names.add_metric([node, str(entry.get("name") or ""), str(entry.get("station") or "")],
+                         1)
         for state in State:
             states.add_metric([node, str(state)], float(entry.get("state") == state))
         if entry.get("health") in HEALTH_VALUES:

@@ -29,7 +29,7 @@ from aspp.timing import (
     valid_divider,
 )
 
-from .config import NodeEntry
+from .config import NodeEntry, default_station_name
 
 RATE_WINDOW = 2.0
 """Seconds over which the record rate is measured."""
@@ -85,8 +85,10 @@ class Node:
     """One configured node."""
 
     def __init__(self, config: NodeEntry, *, byte_time: float = BITS_PER_BYTE / 115200,
-                 latency: float = 0.0) -> None:
+                 latency: float = 0.0, station: str | None = None) -> None:
         self.config = config
+        self.station = station or default_station_name(0)
+        """The name of the base station it is configured on (each record carries it)."""
         self.clock = NodeClock()
         """Where its timer falls on the host's clock (see :mod:`aspp.clock`)."""
         self._byte_time = byte_time
@@ -193,7 +195,7 @@ class Node:
         # 2.3% of the instructions a record takes (bench/instructions.py)
         payload = dict(zip(spec.field_names, record.values),  # noqa: B905
                        node=self.address, record=name, command=spec.code, seq=seq,
-                       host_time=host_time, lqi=lqi, rssi=rssi)
+                       host_time=host_time, lqi=lqi, rssi=rssi, station=self.station)
         is_stream = name == self.record
         timer = payload.get("timer")
         if timer is not None:
@@ -403,7 +405,8 @@ class Node:
     def status(self, now: float) -> dict[str, Any]:
         if self.last_seen is not None and now - self.last_seen > 2 * RATE_WINDOW:
             self.rate_hz = 0.0
-        return {"node": self.address, "name": self.name, "state": str(self._state),
+        return {"node": self.address, "name": self.name, "station": self.station,
+                "state": str(self._state),
                 "record": self.record, "configured": self.config.stream,
                 "desired": self.desired, "rate_hz": round(self.rate_hz, 2),
                 "divider": self.divider, "packets": self.packets, "published": self.seq,

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Awaitable, Callable, Coroutine
-from typing import Any
+from collections.abc import Awaitable, Callable, Coroutine, Sequence
+from typing import Any, Protocol
 
 from aspp import commands
 from aspp.commands import DOCUMENTED_EEPROM, EEPROM_DIVIDER
@@ -24,6 +24,15 @@ from .nodes import Node
 from .requests import RequestBase
 from .scheduler import Scheduler
 from .supervisor import Supervisor
+
+
+class StationParts(Protocol):
+    """What the ops need of a base station (:class:`~.station.Station`)."""
+
+    nodes: dict[int, Node]
+    scheduler: Scheduler
+    supervisor: Supervisor
+    replaying: bool
 
 Result = dict[str, Any]
 Handler = Callable[["Operations", Any], Awaitable[Result]]
@@ -45,17 +54,18 @@ class Operations:
     """What the handlers run against: the nodes, the scheduler, the supervisor and the
     gateway's policy."""
 
-    def __init__(self, scheduler: Scheduler, supervisor: Supervisor,
-                 status: Callable[[], Result], *, allow_eeprom_write: bool,
-                 allow_any_eeprom_address: bool = False, replaying: bool = False,
+    def __init__(self, stations: Sequence[StationParts], status: Callable[[], Result], *,
+                 allow_eeprom_write: bool, allow_any_eeprom_address: bool = False,
                  publish_mark: Callable[[Result], bool] | None = None) -> None:
-        self.scheduler = scheduler
-        self.supervisor = supervisor
-        self.nodes = supervisor.nodes
+        self.stations = list(stations)
+        self.nodes = {address: node for station in self.stations
+                      for address, node in station.nodes.items()}
+        self.station_of = {address: station for station in self.stations
+                            for address in station.nodes}
         self.status = status
         self.allow_eeprom_write = allow_eeprom_write
         self.allow_any_eeprom_address = allow_any_eeprom_address
-        self.replaying = replaying
+        self.replaying = any(station.replaying for station in self.stations)
         """Playing a recording: nothing may be sent to a node."""
         self.publish_mark = publish_mark
         """Publishes a mark (and so records it); False if it could not be published."""
@@ -67,6 +77,14 @@ class Operations:
             raise Refused(f"{op}: this gateway is replaying a recording and sends "
                           "nothing to any node")
         return await HANDLERS[op](self, request)
+
+    def scheduler(self, node: Node) -> Scheduler:
+        """The scheduler of the base station ``node`` is on."""
+        return self.station_of[node.address].scheduler
+
+    def supervisor(self, node: Node) -> Supervisor:
+        """The supervisor of the base station ``node`` is on."""
+        return self.station_of[node.address].supervisor
 
     def node(self, address: int) -> Node:
         state = self.nodes.get(address)
@@ -101,8 +119,12 @@ async def status(gw: Operations, request: Any) -> Result:
 @handles("ping")
 async def ping(gw: Operations, request: Any) -> Result:
     addresses = request.nodes
-    results = await asyncio.gather(*(gw.scheduler.ping(a, encode_ping(a))
-                                     for a in addresses), return_exceptions=True)
+    # a configured node is pinged through its own base station, any other address
+    # through the first (one wireless ping reaches only its station's channel)
+    stations = [gw.station_of.get(a, gw.stations[0]) for a in addresses]
+    results = await asyncio.gather(*(station.scheduler.ping(a, encode_ping(a))
+                                     for station, a in zip(stations, addresses, strict=True)),
+                                   return_exceptions=True)
     for result in results:  # a lost base station fails the request; a ping that got
         if isinstance(result, BaseException) and not isinstance(result, NodeError):
             raise result    # no answer byte at all is a node that did not answer
@@ -112,24 +134,26 @@ async def ping(gw: Operations, request: Any) -> Result:
 
 @handles("start")
 async def start(gw: Operations, request: Any) -> Result:
-    return await gw.supervisor.start(gw.node(request.node), request.record)
+    node = gw.node(request.node)
+    return await gw.supervisor(node).start(node, request.record)
 
 
 @handles("stop")
 async def stop(gw: Operations, request: Any) -> Result:
-    return await gw.supervisor.stop(gw.node(request.node))
+    node = gw.node(request.node)
+    return await gw.supervisor(node).stop(node)
 
 
 @handles("poll")
 async def poll(gw: Operations, request: Any) -> Result:
     node = gw.node(request.node)
-    return (await gw.scheduler.ask(node, commands.poll(request.record))).payload
+    return (await gw.scheduler(node).ask(node, commands.poll(request.record))).payload
 
 
 @handles("eeprom_read")
 async def eeprom_read(gw: Operations, request: Any) -> Result:
     node = gw.node(request.node)
-    value = (await gw.scheduler.ask(node, commands.read_eeprom(request.address))
+    value = (await gw.scheduler(node).ask(node, commands.read_eeprom(request.address))
              ).record["value"]
     return {"node": node.address, "address": request.address, "value": value}
 
@@ -151,14 +175,14 @@ async def write_word(gw: Operations, node: Node, word: int, value: int) -> Resul
     attempts = 0
     while True:
         attempts += 1
-        stored = (await gw.scheduler.ask(node, commands.write_eeprom(word, value))
+        stored = (await gw.scheduler(node).ask(node, commands.write_eeprom(word, value))
                   ).record["value"]
         if stored == value:
             break
         if attempts == 2:
             raise NodeError(f"node {node.address}: EEPROM 0x{word:04X} still holds "
                             f"{stored} after 2 writes of {value}")
-    readback = (await gw.scheduler.ask(node, commands.read_eeprom(word))).record["value"]
+    readback = (await gw.scheduler(node).ask(node, commands.read_eeprom(word))).record["value"]
     if readback != value:
         raise NodeError(f"node {node.address}: EEPROM 0x{word:04X} reads back "
                         f"{readback}, not {value}")
@@ -178,10 +202,10 @@ async def rate(gw: Operations, request: Any) -> Result:
 @handles("info")
 async def info(gw: Operations, request: Any) -> Result:
     node = gw.node(request.node)
-    version = (await gw.scheduler.ask(node, commands.firmware_version())).record["version"]
+    version = (await gw.scheduler(node).ask(node, commands.firmware_version())).record["version"]
     texts = []
     for selector in range(4):
-        record = (await gw.scheduler.ask(node, commands.device_id(selector))).record
+        record = (await gw.scheduler(node).ask(node, commands.device_id(selector))).record
         if record["selector"] != selector:  # a late answer to an earlier request
             raise NodeError(f"node {node.address}: asked for identifier {selector}, "
                             f"got {record['selector']}")

@@ -49,6 +49,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any, NamedTuple
 
+from gateway.recording.files import SERIAL as SERIAL_READS
 from gateway.recording.files import SUFFIX, WRITTEN, file_name
 from gateway.recording.writer import RecordingWriter
 
@@ -147,17 +148,21 @@ class Recorder:
 
     # -- the loop's side: never blocks, never grows past the bound -------------------------
 
-    def serial(self, data: bytes, host_time: float, monotonic: float) -> None:
+    def serial(self, data: bytes, host_time: float, monotonic: float,
+               channel: str = SERIAL_READS) -> None:
+        """A read from a base station, kept on ``channel`` (its station's)."""
         queue = self._queue
         if len(queue) < self.capacity:
-            queue.append((SERIAL, data, host_time, monotonic))
+            queue.append((SERIAL, data, host_time, monotonic, channel))
         else:
             self.overflowed += 1
 
-    def sent(self, data: bytes, host_time: float, monotonic: float) -> None:
+    def sent(self, data: bytes, host_time: float, monotonic: float,
+             channel: str = WRITTEN) -> None:
+        """A write to a base station, kept on ``channel`` (its station's)."""
         queue = self._queue
         if len(queue) < self.capacity:
-            queue.append((SENT, bytes(data), host_time, monotonic))
+            queue.append((SENT, bytes(data), host_time, monotonic, channel))
         else:
             self.overflowed += 1
 
@@ -249,10 +254,8 @@ class Recorder:
         kind = item[0]
         if kind == PUBLISHED:
             writer.message(item[1].decode(), item[2])
-        elif kind == SERIAL:
-            writer.serial(item[1], item[2], item[3])
         else:
-            writer.serial(item[1], item[2], item[3], topic=WRITTEN)
+            writer.serial(item[1], item[2], item[3], topic=item[4])
         self._unflushed += 1
 
     def _flush(self) -> None:

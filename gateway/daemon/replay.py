@@ -38,7 +38,7 @@ from typing import Any
 from urllib.parse import parse_qs
 
 from gateway.common.topics import parse
-from gateway.recording.files import MARK, SERIAL, RecordingError, usable_files
+from gateway.recording.files import MARK, SERIAL, RecordingError, is_serial_reads, usable_files
 from gateway.recording.reader import Entry, read
 from gateway.recording.reports import FileReport, Reading
 
@@ -102,7 +102,7 @@ class Replay:
 
 
 def _playable(topic: str) -> bool:
-    return topic in (SERIAL, MARK) or parse(topic) is not None
+    return is_serial_reads(topic) or topic == MARK or parse(topic) is not None
 
 
 def _number(url: str, options: dict[str, list[str]], name: str, default: float,
@@ -126,8 +126,14 @@ class ReplayLink:
 
     def __init__(self, replay: Replay, on_data: Callable[[bytes, float, float], None],
                  on_state: Callable[[bool], None], on_end: Callable[[], None],
-                 on_message: Callable[[str, dict[str, Any]], object]) -> None:
+                 on_message: Callable[[str, dict[str, Any]], object], *,
+                 channel: str = SERIAL, marks: bool = True) -> None:
         self.replay = replay
+        self.channel = channel
+        """The serial channel this base station plays: ``serial``, or with several
+        stations its own (``serial/<station>``)."""
+        self.marks = marks
+        """Whether it publishes the recording's marks again (one station of several)."""
         self.port = f"{SCHEME}{replay.files[0]}"
         self._on_data = on_data
         self._on_state = on_state
@@ -176,11 +182,13 @@ class ReplayLink:
                 if speed == 0 and seen % YIELD_EVERY == 0:
                     await asyncio.sleep(0)
                 topic = entry.topic
-                record = topic != SERIAL and parse(topic) is not None
-                if kind is None and (topic == SERIAL or record):
-                    kind = SERIAL if topic == SERIAL else PUBLISHED
-                played = (topic == MARK or (topic == SERIAL and kind == SERIAL)
-                          or (record and kind == PUBLISHED))
+                serial = topic == self.channel
+                record = not serial and parse(topic) is not None
+                if kind is None and (record or is_serial_reads(topic)):
+                    # (a gateway's recording of several stations: any station's reads)
+                    kind = SERIAL if is_serial_reads(topic) else PUBLISHED
+                played = ((topic == MARK and self.marks) or (serial and kind == SERIAL)
+                          or (record and kind == PUBLISHED and self.marks))
                 if not played:
                     continue
                 if speed > 0:
@@ -203,7 +211,7 @@ class ReplayLink:
         self._on_end()
 
     def _play_one(self, entry: Entry) -> None:
-        if entry.topic == SERIAL:
+        if entry.topic == self.channel:
             self.reads += 1
             self.bytes_read += len(entry.data)
             self._on_data(entry.data, entry.log_time / 1e9,

@@ -13,14 +13,14 @@ from .replay import ReplayLink
 
 if TYPE_CHECKING:
     from .app import Gateway
+    from .station import Station
 
 
 def report(gateway: Gateway) -> dict[str, Any]:
     now, monotonic = time.time(), time.monotonic()
     config = gateway.config
-    link, reader, scheduler = gateway.link, gateway.reader, gateway.scheduler
-    stats = reader.decoder.stats
     health, published = gateway.health, gateway.publisher.published()
+    stations = [station_link(station, monotonic) for station in gateway.stations]
     return {
         "gateway": {"version": VERSION, "uptime": round(now - gateway.started, 3),
                     "time": now, "publish_endpoint": config.publish.endpoint,
@@ -35,24 +35,44 @@ def report(gateway: Gateway) -> dict[str, Any]:
                     "curve_denied": gateway.allow_list.denied if gateway.allow_list else 0,
                     "publish_curve": bool(config.curve and config.curve.publish),
                     **health.gateway_status(monotonic)},
-        "link": {"port": config.base_station.port,
-                 "state": "up" if link.up else "down", "since": link.since,
-                 "reconnects": link.reconnects, "bytes_read": link.bytes_read,
-                 "bytes_per_s": round(health.bytes_per_s(monotonic, link.bytes_read), 1),
-                 "line_bytes_per_s": config.base_station.baudrate / BITS_PER_BYTE,
-                 "over_capacity": health.line.over,
-                 "error": link.last_error,
-                 "discarded_bytes": stats.bytes_discarded,
-                 "discarded": {str(k): v for k, v in stats.discarded_bytes.items()},
-                 "unknown_node_packets": reader.unknown_node_packets,
-                 "bad_records": reader.bad_records,
-                 "retries": scheduler.stats.retries,
-                 "failures": scheduler.stats.failures,
-                 "unexpected_answers": scheduler.stats.unexpected},
+        # (the first station's link: what a client of one base station reads)
+        "link": {key: value for key, value in stations[0].items()
+                 if key not in ("name", "nodes")},
+        "stations": stations,
         "nodes": [{**node.status(now), **health.status(node, monotonic),
                    "by_record": published.get(node.address, {})}
                   for node in gateway.nodes.values()],
         "recording": gateway.recorder.status() if gateway.recorder is not None else None,
-        "replay": ({"files": len(link.replay.files), "reads": link.reads,
-                    "finished": link.finished} if isinstance(link, ReplayLink) else None),
+        "replay": replay_status([s.link for s in gateway.stations]),
     }
+
+
+def station_link(station: Station, monotonic: float) -> dict[str, Any]:
+    """One base station's serial link, as status shows it."""
+    link, reader, scheduler = station.link, station.reader, station.scheduler
+    assert link is not None
+    stats = reader.decoder.stats
+    return {"name": station.name, "port": station.config.port,
+            "state": "up" if link.up else "down", "since": link.since,
+            "reconnects": link.reconnects, "bytes_read": link.bytes_read,
+            "bytes_per_s": round(station.line.bytes_per_s(monotonic, link.bytes_read), 1),
+            "line_bytes_per_s": station.config.baudrate / BITS_PER_BYTE,
+            "over_capacity": station.line.over,
+            "error": link.last_error,
+            "discarded_bytes": stats.bytes_discarded,
+            "discarded": {str(k): v for k, v in stats.discarded_bytes.items()},
+            "unknown_node_packets": reader.unknown_node_packets,
+            "bad_records": reader.bad_records,
+            "retries": scheduler.stats.retries,
+            "failures": scheduler.stats.failures,
+            "unexpected_answers": scheduler.stats.unexpected,
+            "nodes": list(station.nodes)}
+
+
+def replay_status(links: list[Any]) -> dict[str, Any] | None:
+    """What is being replayed (None when nothing is): the files, and how far."""
+    replays = [link for link in links if isinstance(link, ReplayLink)]
+    if not replays:
+        return None
+    return {"files": len(replays[0].replay.files), "reads": sum(r.reads for r in replays),
+            "finished": all(r.finished for r in replays)}

@@ -30,6 +30,21 @@ from gateway.common.topics import MARK_TOPIC
 
 SERIAL = "serial"
 WRITTEN = "serial/written"
+
+
+def serial_channels(station: str | None) -> tuple[str, str]:
+    """A station's two serial channels, (reads, writes): ``serial`` and ``serial/written``
+    for a gateway of one base station (``station`` None), ``serial/<station>`` and
+    ``serial/<station>/written`` for each of several."""
+    if station is None:
+        return SERIAL, WRITTEN
+    return f"{SERIAL}/{station}", f"{SERIAL}/{station}/written"
+
+
+def is_serial_reads(topic: str) -> bool:
+    """Whether ``topic`` is a channel of serial reads (one station's or the only one's)."""
+    return topic == SERIAL or (topic.startswith(SERIAL + "/") and topic != WRITTEN
+                               and not topic.endswith("/written"))
 RAW_ENCODING = "octets"
 """The serial channels' message encoding: the bytes themselves, no schema."""
 JSON_ENCODING = "json"

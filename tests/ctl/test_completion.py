@@ -198,6 +198,15 @@ def test_complete_nodes_prints_nothing_for_a_bad_file(tmp_path: Path, text: str)
     assert (run.returncode, run.stdout, run.stderr) == (0, "", "")
 
 
+def test_complete_nodes_lists_every_stations_nodes(tmp_path: Path) -> None:
+    (tmp_path / "stations.yaml").write_text(
+        "base_stations:\n  - {port: sim://, nodes: [{address: 76}, {address: 77}]}\n"
+        "  - {port: sim://, nodes: [{address: 95}]}\n  - garbage\n")
+    run = spawn_run([script("gx2ctl"), NODES_OPTION, str(tmp_path / "stations.yaml")],
+                    capture_output=True, text=True, timeout=60)
+    assert (run.returncode, run.stdout.split(), run.stderr) == (0, ["76", "77", "95"], "")
+
+
 @pytest.mark.parametrize("path", ["missing.yaml", "."])
 def test_complete_nodes_prints_nothing_for_no_file(tmp_path: Path, path: str) -> None:
     run = spawn_run([script("gx2ctl"), NODES_OPTION, path], capture_output=True,

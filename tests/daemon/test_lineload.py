@@ -43,3 +43,11 @@ def test_over_capacity_has_room_again_only_below_room() -> None:
     assert all(run(line, [between] * 10, 6.0, read))  # no flapping between the two
     read += int(10 * between * CAPACITY)
     assert not run(line, [0.5] * 6, 16.0, read)[-1]
+
+
+def test_the_bytes_per_second_are_over_the_last_span() -> None:
+    line = LineLoad(CAPACITY)
+    assert line.bytes_per_s(0.0, 0) == 0.0
+    for second in range(10):
+        line.sample(float(second), second * 1000)
+    assert line.bytes_per_s(10.0, 10_000) == 1000.0

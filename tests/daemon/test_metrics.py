@@ -43,12 +43,14 @@ def report(**changes: Any) -> dict[str, Any]:
                  "line_bytes_per_s": 11520.0, "discarded": {"garbage": 40, "truncated": 2},
                  "unknown_node_packets": 3, "bad_records": 0, "retries": 4, "failures": 1},
         "nodes": [
-            {"node": 76, "name": "left-wing", "state": "streaming", "packets": 4990,
+            {"node": 76, "name": "left-wing", "station": "station1", "state": "streaming",
+             "packets": 4990,
              "lost_radio": 10, "lost_gateway": 0, "reboots": 1, "silences": 0, "rssi": -44,
              "lqi": 201, "rate_hz": 99.5, "expected_hz": 100.0, "last_seen": 1_800_000_099.9,
              "clock": {"drift_ppm": -12.5, "locked": True}, "health": "WARN",
              "by_record": {"accel_angrate": 4980, "eeprom_read": 10}},
-            {"node": 95, "name": None, "state": "unreachable", "packets": 0, "lost_radio": 0,
+            {"node": 95, "name": None, "station": "station1", "state": "unreachable",
+             "packets": 0, "lost_radio": 0,
              "lost_gateway": 0, "reboots": 0, "silences": 0, "rssi": None, "lqi": None,
              "rate_hz": 0.0, "expected_hz": None, "last_seen": None, "clock": None,
              "health": "ERROR", "by_record": {}},
@@ -110,8 +112,9 @@ def test_the_values_are_the_reports(server) -> None:
     assert got["gx2_node_health"] == {(("node", "76"),): 1.0, (("node", "95"),): 2.0}
     assert got["gx2_node_state"][(("node", "95"), ("state", "unreachable"))] == 1.0
     assert sum(got["gx2_node_state"].values()) == 2.0  # one state a node
-    assert got["gx2_node_info"] == {(("name", "left-wing"), ("node", "76")): 1.0,
-                                    (("name", ""), ("node", "95")): 1.0}
+    assert got["gx2_node_info"] == {
+        (("name", "left-wing"), ("node", "76"), ("station", "station1")): 1.0,
+        (("name", ""), ("node", "95"), ("station", "station1")): 1.0}
     assert got["gx2_gateway_start_time_seconds"] == {(): 1_800_000_000.0}
     assert "process_cpu_seconds" in got  # the gateway's own CPU and memory
 
@@ -176,3 +179,20 @@ def test_the_endpoint_is_host_and_port_on_the_loopback_unless_said(text: str,
 def test_anything_else_is_refused_with_an_example(text: str) -> None:
     with pytest.raises(ValueError, match=r"HOST:PORT|brackets"):
         host_port(text)
+
+
+def test_with_several_stations_each_links_series_carry_its_name(server) -> None:
+    links = [{**report()["link"], "name": name, "state": state, "discarded": {"garbage": n}}
+             for name, state, n in (("north", "down", 5), ("south", "up", 7))]
+    server.update(report(stations=links))
+    got = {name: {tuple(sorted(s.labels.items())): s.value for s in family.samples}
+           for name, family in scrape(server).items()}
+    assert got["gx2_link_up"] == {(("station", "north"),): 0.0, (("station", "south"),): 1.0}
+    assert got["gx2_link_discarded_bytes"] == {
+        (("reason", "garbage"), ("station", "north")): 5.0,
+        (("reason", "garbage"), ("station", "south")): 7.0}
+    # a gateway of one base station: its link's series as ever, without a label
+    server.update(report(stations=links[:1]))
+    got = {name: {tuple(sorted(s.labels.items())): s.value for s in family.samples}
+           for name, family in scrape(server).items()}
+    assert got["gx2_link_up"] == {(): 1.0}

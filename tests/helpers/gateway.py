@@ -172,13 +172,18 @@ class RunningGateway:
         self._log.close()
 
 
-def gateway_config(port: str, nodes: list[dict[str, Any]], **sections: Any) -> dict[str, Any]:
+def gateway_config(port: str | None, nodes: list[dict[str, Any]],
+                   **sections: Any) -> dict[str, Any]:
+    """One base station on ``port`` with ``nodes``; or, with ``port`` None and
+    ``base_stations=[...]``, those."""
     config: dict[str, Any] = {
-        "base_station": {"port": port},
         "publish": {"endpoint": endpoint()},
         "control": {"endpoint": endpoint()},
-        "nodes": nodes,
     }
+    if port is None:
+        config["base_stations"] = sections.pop("base_stations")
+    else:
+        config.update(base_station={"port": port}, nodes=nodes)
     for key, value in sections.items():
         config.setdefault(key, {}).update(value)
     # a metrics section without its endpoint would take the default, 127.0.0.1:9105:

@@ -59,7 +59,8 @@ class Wired:
         self.publisher = RecordingPublisher()
         self.reader = Reader(self.nodes, self.publisher, self.supervisor,  # type: ignore[arg-type]
                              self.scheduler, idle_seconds=0.03)
-        self.ops = Operations(self.scheduler, self.supervisor, lambda: {"status": "ok"},
+        self.replaying = False
+        self.ops = Operations([self], lambda: {"status": "ok"},
                               allow_eeprom_write=allow_eeprom_write)
         self._pump: asyncio.Task[None] | None = None
 

@@ -1,0 +1,130 @@
+"""One base station: everything of the gateway that belongs to one serial port.
+
+Its port and link, the reader of its bytes, the scheduler of its commands, the
+supervisor of its nodes, their states and clocks, and how full its line is. Nothing
+here is shared with another station, so one unplugged, stalled, flooded with garbage or
+replaying slowly never delays another's records or commands: each link's reads arrive
+on the loop as its own callbacks, each scheduler has its own one command in flight.
+What the gateway has once (publisher, control, recorder, metrics, health) is handed in,
+and a record's way stays one-way: link -> reader -> node -> publisher.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from aspp.timing import BITS_PER_BYTE, byte_time
+from gateway.recording.files import serial_channels
+
+from .config import StationConfig
+from .lineload import LineLoad
+from .link import SerialLink
+from .nodes import Node
+from .ports import Port
+from .publisher import Publisher
+from .reader import Reader
+from .replay import ReplayLink
+from .scheduler import Scheduler
+from .supervisor import Supervisor
+
+if TYPE_CHECKING:
+    from .recorder import Recorder
+
+log = logging.getLogger("gx2.gateway")
+
+
+class Station:
+    """One base station's parts; :meth:`open` once the gateway's sockets are bound."""
+
+    def __init__(self, config: StationConfig, publisher: Publisher, *, only: bool,
+                 first: bool, on_link_state: Callable[[Station, bool], None],
+                 on_replay_end: Callable[[Station], None]) -> None:
+        """``only``: the gateway's one station (its recording keeps the one-station
+        channel names); ``first``: the one that publishes a recording's marks again."""
+        self.config = config
+        self.name = config.name or ""
+        self._on_link_state = on_link_state
+        self._on_replay_end = on_replay_end
+        line_byte = byte_time(config.baudrate)
+        self.nodes = {n.address: Node(n, byte_time=line_byte, latency=config.latency_ms / 1000,
+                                      station=self.name)
+                      for n in config.nodes}
+        self.line = LineLoad(config.baudrate / BITS_PER_BYTE)
+        self.replay = Port.replay_of(config.port)
+        self.replaying = self.replay is not None
+        self.scheduler = Scheduler(self._write)
+        self.supervisor = Supervisor(self.scheduler, self.nodes, passive=self.replaying)
+        self.reader = Reader(self.nodes, publisher, self.supervisor, self.scheduler,
+                             config.idle_ms / 1000, idle_timer=not self.replaying,
+                             byte_time=line_byte)
+        self.channels = serial_channels(None if only else self.name)
+        """Its serial channels in a recording: (reads, writes)."""
+        self._publisher = publisher
+        self._first = first
+        self.recorder: Recorder | None = None
+        self.port: Port | None = None
+        self.link: SerialLink | ReplayLink | None = None
+
+    def open(self, recorder: Recorder | None) -> None:
+        """Make its port (an embedded simulator makes a directory: only once nothing of
+        the gateway can fail any more) and its link."""
+        self.recorder = recorder
+        on_data = self.reader.on_data if recorder is None else self._read_and_record
+        self.port = Port(self.config.port, list(self.nodes))
+        if self.replay is not None:
+            self.link = ReplayLink(self.replay, on_data, self._link_state, self._replay_ended,
+                                   self._publisher.replayed, channel=self.channels[0],
+                                   marks=self._first)
+        else:
+            self.link = SerialLink(self.port.path, self.config.baudrate, on_data,
+                                   self._link_state)
+
+    def start(self) -> None:
+        self.port.start()  # type: ignore[union-attr]
+        self.link.start()  # type: ignore[union-attr]
+        if self.link.up:  # type: ignore[union-attr]
+            log.info("base station %s open on %s", self.name, self.config.port)
+
+    def sample(self, now: float) -> None:
+        """Once a second: how full its line is; while it is over capacity, its nodes'
+        clocks learn nothing from the backlog (:meth:`aspp.clock.NodeClock.hold`)."""
+        if self.line.sample(now, self.link.bytes_read):  # type: ignore[union-attr]
+            log.warning("base station %s: %s", self.name, self.line.reason()
+                        if self.line.over else "line has room again")
+            for node in self.nodes.values():
+                if self.line.over:
+                    node.clock.hold()
+                else:
+                    node.clock.release()
+
+    def close(self) -> None:
+        """Close its link (a request still running fails as with the base station gone,
+        not as a write to a closed port), then its port."""
+        if self.link is not None:
+            self.link.close()
+        self.scheduler.on_link_down()
+        if self.port is not None:
+            self.port.close()
+
+    def _write(self, data: bytes) -> None:
+        self.link.write(data)  # type: ignore[union-attr]
+        if self.recorder is not None:
+            self.recorder.sent(data, time.time(), time.monotonic(), self.channels[1])
+
+    def _read_and_record(self, data: bytes, host_time: float, monotonic: float) -> None:
+        self.recorder.serial(data, host_time, monotonic, self.channels[0])  # type: ignore[union-attr]
+        self.reader.on_data(data, host_time, monotonic)
+
+    def _link_state(self, up: bool) -> None:
+        self.scheduler.link_up = up
+        if not up:
+            self.scheduler.on_link_down()
+        self.supervisor.link_changed(up)
+        self._on_link_state(self, up)
+
+    def _replay_ended(self) -> None:
+        self.reader.end_of_input()
+        self._on_replay_end(self)

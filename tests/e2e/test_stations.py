@@ -1,0 +1,164 @@
+"""Several base stations in one gateway (issue 22), through real ptys: two gx2-sim base
+stations, each with its own nodes, one gateway publishing, commanding, recording and
+replaying both; one unplugged while the other streams."""
+
+from __future__ import annotations
+
+import json
+import math
+import statistics
+import subprocess
+from itertools import pairwise
+from pathlib import Path
+
+import pytest
+
+from gateway.common.jsontext import strict
+from gateway.sim.base_station import RADIO_LATENCY
+from gateway.sim.node import NodeSettings
+from tests.e2e.test_recording import payloads, recorded
+from tests.e2e.test_sample_time import errors
+from tests.helpers.processes import script
+from tests.helpers.waiting import wait_for
+
+DIVIDER = 512
+"""100 Hz."""
+LATENCY_MS = RADIO_LATENCY * 1000
+
+
+def two_stations(simulator, gateway, **sections):
+    north = simulator(NodeSettings(76, divider=DIVIDER, stream="accel_angrate", ppm=25.0),
+                      NodeSettings(77, divider=DIVIDER, stream="euler"), name="north")
+    south = simulator(NodeSettings(78, divider=DIVIDER, stream="accel_angrate", ppm=-30.0),
+                      name="south")
+    gw = gateway(None, [], base_stations=[
+        {"name": "north", "port": north.path, "latency_ms": LATENCY_MS,
+         "nodes": [{"address": 76}, {"address": 77}]},
+        {"name": "south", "port": south.path, "latency_ms": LATENCY_MS,
+         "nodes": [{"address": 78}]}], **sections)
+    gw.wait_streaming(76, 77, 78)
+    return north, south, gw
+
+
+def test_each_station_shows_everywhere_and_one_unplugged_never_delays_another(
+        simulator, gateway):
+    north, _, gw = two_stations(simulator, gateway)
+    status = gw.status()
+    assert [(s["name"], s["nodes"], s["state"]) for s in status["stations"]] == [
+        ("north", [76, 77], "up"), ("south", [78], "up")]
+    assert {n["node"]: n["station"] for n in status["nodes"]} == {
+        76: "north", 77: "north", 78: "south"}
+    assert status["link"]["port"] == north.path  # (the first station's, as one had it)
+
+    sub = gw.subscribe("gx2/")
+    sub.drain(2.0)
+    stations = {(p["node"], p["station"]) for t, p in sub.messages if t[4].isdigit()}
+    assert stations == {(76, "north"), (77, "north"), (78, "south")}
+    # a command goes through the node's own base station
+    assert gw.control.result("poll", node=78, record="euler")["station"] == "south"
+    assert gw.control.result("poll", node=76, record="euler")["station"] == "north"
+
+    before = [p for t, p in sub.messages if t == "gx2/78/accel_angrate"]
+    north.unplug()
+    wait_for(lambda: gw.status()["stations"][0]["state"] == "down", 5, "north's link down")
+    sub.messages.clear()
+    sub.drain(3.0)
+    after = [p for t, p in sub.messages if t == "gx2/78/accel_angrate"]
+    # south's records keep their rate and their latency, and its commands go through
+    span = after[-1]["device_time"] - after[0]["device_time"]
+    assert len(after) >= 0.95 * span * 100, (len(after), span)
+    gaps = [b["host_time"] - a["host_time"] for a, b in pairwise(after)]
+    assert max(gaps) < 0.1, max(gaps)
+
+    def latency_p99(records: list[dict]) -> float:
+        delays = sorted(r["host_time"] - r["time"] for r in records)
+        return delays[int(0.99 * (len(delays) - 1))]
+    assert latency_p99(after) <= latency_p99(before) + 0.01, (
+        latency_p99(before), latency_p99(after))
+    assert gw.control.result("poll", node=78, record="euler")["station"] == "south"
+    nodes = {n["node"]: n for n in gw.status()["nodes"]}
+    assert nodes[76]["state"] == "link down" and nodes[78]["state"] == "streaming"
+
+
+def test_nodes_on_different_stations_share_one_clock(simulator, gateway):
+    north, south, gw = two_stations(simulator, gateway)
+    sub = gw.subscribe("gx2/76/accel_angrate", "gx2/78/accel_angrate")
+    sub.drain(6.0)
+    bias = {}
+    for node, sim in ((76, north), (78, south)):
+        records = [p for t, p in sub.messages if t == f"gx2/{node}/accel_angrate"]
+        first = records[0]["device_time"]
+        settled = [r for r in records if r["device_time"] - first > 3.0]
+        assert len(settled) > 200
+        bias[node] = statistics.median(errors(sim, node, settled, "time"))
+    # as well as two nodes of one station agree (tests/e2e/test_sample_time.py)
+    assert abs(bias[76] - bias[78]) <= 1.5e-3, bias
+
+
+def test_a_recording_of_two_stations_keeps_each_ones_bytes_and_replays_identically(
+        simulator, gateway, tmp_path):
+    directory = tmp_path / "recordings"
+    _, _, gw = two_stations(simulator, gateway, record={"directory": str(directory)})
+    for node in (76, 78):  # (something written to each base station)
+        gw.control.result("poll", node=node, record="euler")
+    gw.subscribe("gx2/").drain(2.0)
+    assert gw.terminate()[0] == 0, gw.log()
+    entries = recorded(directory)
+    topics = {topic for topic, _, _ in entries}
+    assert {"serial/north", "serial/south", "serial/north/written",
+            "serial/south/written"} <= topics
+    assert "serial" not in topics
+    live = {key: payload for key, (_, payload) in payloads(entries).items()}
+    assert {node for node, _ in live} == {76, 77, 78}
+
+    replay = gateway(None, [], base_stations=[
+        {"name": name, "port": f"replay://{directory}?speed=0&exit=true&delay=2",
+         "nodes": nodes} for name, nodes in (("north", [{"address": 76}, {"address": 77}]),
+                                             ("south", [{"address": 78}]))])
+    sub = replay.subscribe("gx2/")
+    wait_for(lambda: replay.proc.poll() is not None, 30, "the replay to end (exit=true)")
+    assert replay.proc.returncode == 0, replay.log()
+    sub.drain(0.5)
+    played = {(p["node"], p["seq"]): strict(p) for t, p in sub.messages if t[4].isdigit()}
+    missing = sorted(live.keys() - played.keys())
+    assert not missing, (len(missing), len(live), missing[:5])
+    for key, payload in live.items():
+        for name, value in payload.items():
+            if name in ("host_time", "time"):
+                assert math.isclose(played[key][name], value, abs_tol=1e-6), (key, name)
+            else:
+                assert played[key][name] == value, (key, name)
+
+
+@pytest.mark.parametrize(("stations", "words"), [
+    ([{"port": "/dev/ttyUSB0", "nodes": [{"address": 76}]},
+      {"port": "/dev/ttyUSB1", "nodes": [{"address": 76}]}],
+     ["base_stations[1].nodes[0].address", "node 76", "base_stations[0] (station1)"]),
+    ([{"port": "/dev/ttyUSB0", "nodes": [{"address": 76}]},
+      {"port": "/dev/ttyUSB0", "nodes": [{"address": 77}]}],
+     ["base_stations[1].port", "/dev/ttyUSB0", "base_stations[0] (station1)"]),
+    ([{"name": "a", "port": "sim://", "nodes": [{"address": 76}]},
+      {"name": "a", "port": "sim://", "nodes": [{"address": 77}]}],
+     ["base_stations[1].name", "'a'"]),
+    ([{"name": "north pole", "port": "sim://", "nodes": [{"address": 76}]}],
+     ["base_stations[0].name"]),
+])
+def test_a_configuration_of_stations_that_cannot_work_is_refused_naming_both(
+        tmp_path: Path, stations, words):
+    path = tmp_path / "nodes.yaml"
+    path.write_text(json.dumps({"base_stations": stations}))
+    run = subprocess.run([script("gx2-gateway"), "--config", str(path), "--check"],
+                         capture_output=True, text=True, timeout=30)
+    assert run.returncode == 2 and len(run.stderr.splitlines()) == 1, run
+    assert "Traceback" not in run.stderr
+    for word in words:
+        assert word in run.stderr, (word, run.stderr)
+
+
+def test_both_forms_at_once_are_refused(tmp_path: Path):
+    path = tmp_path / "nodes.yaml"
+    path.write_text(json.dumps({"base_station": {"port": "sim://"}, "nodes": [76],
+                                "base_stations": [{"port": "sim://", "nodes": [77]}]}))
+    run = subprocess.run([script("gx2-gateway"), "--config", str(path), "--check"],
+                         capture_output=True, text=True, timeout=30)
+    assert run.returncode == 2 and "either base_stations" in run.stderr, run
