@@ -218,7 +218,7 @@ def pipeline_round(chunks: list[bytes], packets: int) -> tuple[float, float]:
         until_subscribed(lambda: gateway.publisher.status({}), ready)
         start, cpu = time.perf_counter(), time.process_time()
         for chunk in chunks:
-            gateway.reader.on_data(chunk, time.time(), time.monotonic())
+            gateway.stations[0].reader.on_data(chunk, time.time(), time.monotonic())
         gateway.publisher.close()
         gateway._context.destroy(linger=5000)  # returns once every message is out
         return start, time.process_time() - cpu
@@ -262,20 +262,26 @@ class Written:
                 self.at[(reply.node, decode(reply.payload)["timer"])] = now
         tap_writes(sim, seen)
 
+    def latencies(self, received: dict[Key, float]) -> list[float]:
+        """Seconds from each record's write to its receipt (``received``: subscribe's)."""
+        written = dict(self.at)
+        return [at - written[key] for key, at in received.items() if key in written]
 
-def subscribe(endpoint: str, subscribers: int, settle: float, seconds: float,
+
+def subscribe(endpoints: list[str], subscribers: int, settle: float, seconds: float,
               measuring, result) -> None:
     """In a process of its own, so that the simulator's thread never holds its GIL:
-    ``subscribers`` SUB sockets; after ``settle`` s, count every message for ``seconds``
-    and time each 0xC2 record the first one gets (time.monotonic(), one clock for every
-    process on the machine)."""
+    ``subscribers`` SUB sockets, each connected to every one of ``endpoints``; after
+    ``settle`` s, count every message for ``seconds`` and time each 0xC2 record the first
+    one gets (time.monotonic(), one clock for every process on the machine)."""
     context = zmq.Context()
     subs = []
     for _ in range(subscribers):
         sub = context.socket(zmq.SUB)
         sub.setsockopt(zmq.RCVHWM, 0)
         sub.setsockopt(zmq.SUBSCRIBE, b"gx2/")
-        sub.connect(endpoint)
+        for endpoint in endpoints:
+            sub.connect(endpoint)
         subs.append(sub)
     poller = zmq.Poller()
     for sub in subs:
@@ -303,6 +309,11 @@ def subscribe(endpoint: str, subscribers: int, settle: float, seconds: float,
                     received[(message["node"], message["timer"])] = now
     result.put((got, received))
     context.destroy(linger=0)
+
+
+def relay_command(port: Path, endpoint: str) -> list[str]:
+    """The floor, bench/relay.py, reading ``port`` and publishing on ``endpoint``."""
+    return [sys.executable, str(Path(__file__).with_name("relay.py")), str(port), endpoint]
 
 
 @dataclass
@@ -333,8 +344,7 @@ class Bench:
             "nodes": [{"address": a, **({"stream": "accel_angrate"} if a in streaming else {})}
                       for a in configured or sorted(n.address for n in nodes)]}))
         if relay:
-            command = [sys.executable, str(Path(__file__).with_name("relay.py")),
-                       str(self.work / "gx2"), self.publish]
+            command = relay_command(self.work / "gx2", self.publish)
         else:
             script = shutil.which("gx2-gateway", path=str(Path(sys.executable).parent))
             command = [script or "gx2-gateway", "--config", str(self.work / "nodes.yaml"),
@@ -346,7 +356,7 @@ class Bench:
         """Settle (started, armed, subscribers joined), then measure for ``seconds``."""
         measuring, result = multiprocessing.Event(), multiprocessing.Queue()
         process = multiprocessing.Process(target=subscribe, args=(
-            self.publish, subscribers, settle, seconds, measuring, result))
+            [self.publish], subscribers, settle, seconds, measuring, result))
         process.start()
         if not measuring.wait(settle + 30):
             raise RuntimeError("the subscribers never started measuring")
@@ -356,8 +366,7 @@ class Bench:
         elapsed = time.monotonic() - t0
         cpu, rss1 = (self.cpu_seconds() - cpu0) / elapsed, self.rss_mib()
         process.join(10)
-        written = dict(self.written.at)
-        latencies = [at - written[key] for key, at in received.items() if key in written]
+        latencies = self.written.latencies(received)
         return Measured(got / seconds / subscribers, latencies, cpu, (rss0, rss1))
 
     def cpu_seconds(self) -> float:
@@ -384,13 +393,18 @@ def measure(nodes: list[NodeSettings], seconds: float, *, subscribers: int = 1,
         bench.close()
 
 
+def quantile(values: list[float], q: float) -> float:
+    """The ``q`` quantile of ``values`` (sorted), nearest rank."""
+    return values[min(len(values) - 1, int(q * len(values)))]
+
+
 def percentiles(values: list[float]) -> str:
     values = sorted(values)
     if not values:
         return "no samples"
 
     def at(q: float) -> float:
-        return values[min(len(values) - 1, int(q * len(values)))] * 1000
+        return quantile(values, q) * 1000
     return (f"p50 {at(0.5):.2f} / p99 {at(0.99):.2f} / max {values[-1] * 1000:.2f} ms "
             f"({len(values):,} records)")
 

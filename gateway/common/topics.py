@@ -32,3 +32,13 @@ def parse(name: str) -> tuple[int, str] | None:
     if len(parts) == 3 and parts[0] == "gx2" and parts[1].isdecimal() and parts[2]:
         return int(parts[1]), parts[2]
     return None
+
+
+STATION_NAME = r"^[A-Za-z0-9][A-Za-z0-9_-]{0,31}$"
+"""A base station's name: in recording channels (``serial/<name>``), status and metric
+labels as it is, so it is kept to what each of them takes."""
+
+
+def default_station_name(index: int) -> str:
+    """The name of the station at ``index`` (from 0) that was given none."""
+    return f"station{index + 1}"

@@ -28,6 +28,7 @@ from gateway.common.endpoints import (
     is_loopback,
 )
 from gateway.common.strict import Strict, load_model
+from gateway.common.topics import STATION_NAME, default_station_name
 from gateway.common.yamlfile import ConfigError
 
 from . import ports
@@ -233,15 +234,6 @@ class NodeEntry(Strict):
     @property
     def label(self) -> str:
         return f"{self.address} ({self.name})" if self.name else str(self.address)
-
-
-STATION_NAME = r"^[A-Za-z0-9][A-Za-z0-9_-]{0,31}$"
-"""A station's name: in topics, channel names and metric labels as it is."""
-
-
-def default_station_name(index: int) -> str:
-    """The name of the station at ``index`` (from 0) that was given none."""
-    return f"station{index + 1}"
 
 
 class StationConfig(BaseStationConfig):

@@ -28,8 +28,9 @@ from aspp.timing import (
     sample_period,
     valid_divider,
 )
+from gateway.common.topics import default_station_name
 
-from .config import NodeEntry, default_station_name
+from .config import NodeEntry
 
 RATE_WINDOW = 2.0
 """Seconds over which the record rate is measured."""

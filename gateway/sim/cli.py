@@ -6,7 +6,7 @@ import logging
 import signal
 import sys
 import threading
-from typing import Any
+from typing import Any, NamedTuple, TypeVar
 
 from pydantic import ValidationError
 
@@ -19,10 +19,10 @@ from gateway.common.args import (
     probability,
     streamable_record,
 )
-from gateway.common.strict import describe, load_model
+from gateway.common.strict import describe
 from gateway.common.yamlfile import ConfigError
 
-from .config import SimConfig
+from .config import SimConfig, SimNodeEntry, SimStationsConfig, load_sim_config
 from .node import GX2, INERTIA_LINK
 from .server import LinkInUse, Simulator
 
@@ -33,14 +33,18 @@ UNPLUG_SECONDS = 2.0
 def build_parser() -> ArgumentParser:
     parser = ArgumentParser(
         prog=PROG, description="A virtual 3DM-GX2 wireless base station with nodes, behind "
-        "a pseudo-terminal. Prints the port to open and serves until interrupted. "
-        f"While it runs, SIGUSR1 reboots every node and SIGUSR2 unplugs the base station "
-        f"for {UNPLUG_SECONDS:g} s.")
+        "a pseudo-terminal (or several, each behind its own: base_stations: in --config). "
+        "Prints the port to open (several: NAME: PORT a line) and serves until "
+        "interrupted. While it runs, SIGUSR1 reboots every node and SIGUSR2 unplugs every "
+        f"base station for {UNPLUG_SECONDS:g} s.")
     parser.add_argument("--nodes", type=node_list, default=[], metavar="76,77,95",
-                        help="node addresses to simulate (added to those in --config)")
+                        help="node addresses to simulate (added to those in --config; "
+                        "not with base_stations:)")
     parser.add_argument("--link", metavar="PATH",
-                        help="make PATH a symlink to the pty (stable across unplugs)")
-    parser.add_argument("--config", metavar="FILE", help="YAML file of nodes and faults")
+                        help="make PATH a symlink to the pty (stable across unplugs; "
+                        "with base_stations:, each station's link: instead)")
+    parser.add_argument("--config", metavar="FILE",
+                        help="YAML file of nodes and faults, or of base_stations:")
     parser.add_argument("--check", action="store_true",
                         help="validate --config and the options and exit (0: valid, 2: not)")
     nodes = parser.add_argument_group("settings of the --nodes nodes")
@@ -53,7 +57,7 @@ def build_parser() -> ArgumentParser:
     nodes.add_argument("--timer-start", type=bounded(float, 0.0, 1e9), default=0.0,
                        metavar="SECONDS",
                        help="timer value at power-up (215 starts 3.45 s before the wrap)")
-    faults = parser.add_argument_group("faults (applied to every node)")
+    faults = parser.add_argument_group("faults (applied to every node of every station)")
     for name, what in (("command-loss", "commands lost over the radio"),
                        ("data-loss", "packets from nodes lost over the radio"),
                        ("stop-loss", "0xFA stops lost (on top of command loss)")):
@@ -76,9 +80,8 @@ def build_parser() -> ArgumentParser:
     return parser
 
 
-def merged_config(args: Any) -> SimConfig:
-    """The config file with the command line's nodes and overrides applied."""
-    base = load_model(args.config, SimConfig) if args.config else SimConfig()
+def merged_config(args: Any, base: SimConfig) -> SimConfig:
+    """The one-station file (or none) with the command line's nodes and overrides."""
     data = base.model_dump()
     known = {n["address"] for n in data["nodes"]}
     for address in args.nodes:
@@ -86,6 +89,31 @@ def merged_config(args: Any) -> SimConfig:
             raise ConfigError(f"node {address} is both in --config and in --nodes")
         data["nodes"].append({"address": address, "model": args.model, "stream": args.stream,
                               "divider": args.divider, "timer_start": args.timer_start})
+    _override(data, args)
+    config = _validated(SimConfig, data, args.config or "command line")
+    if not config.nodes:
+        raise ConfigError("no nodes: give --nodes 76,77 or a --config with nodes")
+    _check_out_of_range(args, config.nodes)
+    return config
+
+
+def merged_stations(args: Any, stations: SimStationsConfig) -> SimStationsConfig:
+    """A ``base_stations:`` file with the command line's faults applied to every station.
+    --nodes and --link are the one station's: which station they would be is a guess."""
+    for option in ("nodes", "link"):
+        if getattr(args, option):
+            raise ConfigError(f"--{option}: {args.config} has base_stations: give each "
+                              f"station its {option} there (--{option} is the one-station form's)")
+    data = stations.model_dump()
+    for station in data["base_stations"]:
+        _override(station, args)
+    merged = _validated(SimStationsConfig, data, args.config)
+    _check_out_of_range(args, [n for s in merged.base_stations for n in s.nodes])
+    return merged
+
+
+def _override(data: dict[str, Any], args: Any) -> None:
+    """The command line's faults and settings over one station's (dumped) config."""
     for node in data["nodes"]:
         radio = node.setdefault("radio", {})
         for key in ("command_loss", "data_loss", "stop_loss"):
@@ -101,16 +129,39 @@ def merged_config(args: Any) -> SimConfig:
     for key in ("baudrate", "seed", "first_write_failure"):
         if getattr(args, key) is not None:
             data[key] = getattr(args, key)
+
+
+M = TypeVar("M", SimConfig, SimStationsConfig)
+
+
+def _validated(model: type[M], data: dict[str, Any], source: str) -> M:
     try:
-        config = SimConfig.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as error:
-        raise ConfigError(describe(error, args.config or "command line")) from None
-    if not config.nodes:
-        raise ConfigError("no nodes: give --nodes 76,77 or a --config with nodes")
-    missing = set(args.out_of_range) - {n.address for n in config.nodes}
+        raise ConfigError(describe(error, source)) from None
+
+
+def _check_out_of_range(args: Any, nodes: list[SimNodeEntry]) -> None:
+    missing = set(args.out_of_range) - {n.address for n in nodes}
     if missing:
         raise ConfigError(f"--out-of-range names node {min(missing)}, which is not simulated")
-    return config
+
+
+class Station(NamedTuple):
+    """A base station to serve: ``name`` is None for the one-station form."""
+
+    name: str | None
+    config: SimConfig
+    link: str | None
+
+
+def configured_stations(args: Any) -> list[Station]:
+    """Every base station the file and the command line ask for; ConfigError."""
+    loaded = load_sim_config(args.config) if args.config else SimConfig()
+    if isinstance(loaded, SimStationsConfig):
+        return [Station(s.name, s, s.link)
+                for s in merged_stations(args, loaded).base_stations]
+    return [Station(None, merged_config(args, loaded), args.link)]
 
 
 def simulator_from(config: SimConfig, link: str | None = None) -> Simulator:
@@ -125,34 +176,78 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     try:
-        config = merged_config(args)
+        stations = configured_stations(args)
     except ConfigError as error:
         fail(PROG, str(error), 2)
     if args.check:
-        count = len(config.nodes)
-        print(f"{args.config or 'command line'}: valid ({count} node{'s' if count != 1 else ''})")
+        print(f"{args.config or 'command line'}: valid ({_counted(stations)})")
         return 0
     done = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: done.set())
-    try:
-        sim = simulator_from(config, args.link).start()
-    except LinkInUse as error:
-        fail(PROG, f"--link {error}", 2)
-    except OSError as error:
-        fail(PROG, f"cannot create the port: {error}", 1)
-    signal.signal(signal.SIGUSR1, lambda *_: [sim.reboot(n.address) for n in config.nodes])
-    signal.signal(signal.SIGUSR2, lambda *_: sim.unplug(duration=UNPLUG_SECONDS))
-    nodes = ", ".join(f"{n.address}" + (f" ({n.stream})" if n.stream else "")
-                      for n in config.nodes)
-    print(f"{PROG}: base station on {sim.port.path}"
-          + (f" (link {args.link})" if args.link else "") + f"; nodes {nodes}", flush=True)
-    print(sim.path, flush=True)
+    sims = start_all(stations)
+    signal.signal(signal.SIGUSR1, lambda *_: [sim.reboot(n.address) for sim, station
+                                              in zip(sims, stations, strict=True)
+                                              for n in station.config.nodes])
+    signal.signal(signal.SIGUSR2, lambda *_: [sim.unplug(duration=UNPLUG_SECONDS)
+                                              for sim in sims])
+    announce(stations, sims)
     while not done.wait(0.5):
-        if sim.error is not None:
+        if any(sim.error is not None for sim in sims):
             break
-    sim.stop()
-    return 1 if sim.error is not None else 0
+    for sim in sims:
+        sim.stop()
+    return 1 if any(sim.error is not None for sim in sims) else 0
+
+
+def _counted(stations: list[Station]) -> str:
+    """What --check found, said as gx2-gateway --check says it."""
+    def counted(count: int, noun: str) -> str:
+        return f"{count} {noun}{'s' if count != 1 else ''}"
+
+    nodes = counted(sum(len(station.config.nodes) for station in stations), "node")
+    if stations[0].name is None:
+        return nodes
+    return f"{nodes} on {counted(len(stations), 'base station')}"
+
+
+def start_all(stations: list[Station]) -> list[Simulator]:
+    """Each station's simulator, started; on a failure, the ones started are stopped
+    (their links removed) before the one-line error."""
+    sims: list[Simulator] = []
+    for station in stations:
+        # the one-station form's link is --link; a station's is its link: key
+        where = "--link" if station.name is None else f"{station.name}: link"
+        try:
+            sims.append(simulator_from(station.config, station.link).start())
+        except (LinkInUse, OSError) as error:
+            for sim in sims:
+                sim.stop()
+            if isinstance(error, LinkInUse):
+                fail(PROG, f"{where} {error}", 2)
+            fail(PROG, f"{station.name + ': ' if station.name else ''}cannot create the "
+                 f"port: {error}", 1)
+    return sims
+
+
+def announce(stations: list[Station], sims: list[Simulator]) -> None:
+    """Where to connect, once every station serves. The one-station form: a banner,
+    then the path alone; several: a banner for each, then ``name: path`` for each (the
+    last line: every station serves)."""
+    def described(station: Station, sim: Simulator) -> str:
+        nodes = ", ".join(f"{n.address}" + (f" ({n.stream})" if n.stream else "")
+                          for n in station.config.nodes)
+        return (f"on {sim.port.path}" + (f" (link {station.link})" if station.link else "")
+                + f"; nodes {nodes}")
+
+    if stations[0].name is None:
+        print(f"{PROG}: base station {described(stations[0], sims[0])}", flush=True)
+        print(sims[0].path, flush=True)
+        return
+    for station, sim in zip(stations, sims, strict=True):
+        print(f"{PROG}: base station {station.name} {described(station, sim)}", flush=True)
+    for station, sim in zip(stations, sims, strict=True):
+        print(f"{station.name}: {sim.path}", flush=True)
 
 
 if __name__ == "__main__":

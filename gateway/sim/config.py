@@ -19,10 +19,26 @@ nodes:
     radio: {in_range: true, command_loss: 0.0, data_loss: 0.0, stop_loss: 0.0,
             lqi: 200, rssi: -45}
 ```
+
+Or several base stations, each behind its own pty with its own nodes and faults (the
+keys above, per station), instead of those keys at the top level:
+
+```yaml
+base_stations:
+  - name: north               # required: [A-Za-z0-9][A-Za-z0-9_-]{0,31}, as the gateway's
+    link: /tmp/gx2-north      # optional: a stable symlink to this station's pty
+    line: {garbage: 0.01}
+    nodes: [{address: 76, stream: accel_angrate}]
+  - name: south
+    nodes: [{address: 78}]
+```
 """
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+from typing import Any
 from urllib.parse import parse_qsl, urlsplit
 
 from pydantic import Field, ValidationError, field_validator, model_validator
@@ -31,6 +47,8 @@ from aspp.records import checked
 from aspp.temperature import DEFAULT_GYRO, gyro_model
 from aspp.timing import DEFAULT_DIVIDER, MAX_DIVIDER, MIN_DIVIDER
 from gateway.common.strict import Strict, describe
+from gateway.common.topics import STATION_NAME
+from gateway.common.yamlfile import ConfigError, read_mapping
 
 from .base_station import LineFaults, RadioLink
 from .node import GX2, INERTIA_LINK, NodeSettings
@@ -126,6 +144,73 @@ class SimConfig(Strict):
                 raise ValueError(f"node address {node.address} appears twice")
             seen.add(node.address)
         return self
+
+
+class SimStationConfig(SimConfig):
+    """One of several base stations (``base_stations:``): its own pty, nodes and faults."""
+
+    name: str = Field(pattern=STATION_NAME)
+    link: str | None = Field(default=None, min_length=1)
+    """A stable symlink to this station's pty (relative: to the working directory)."""
+    nodes: list[SimNodeEntry] = Field(min_length=1)
+
+
+class SimStationsConfig(Strict):
+    """Several base stations served by one gx2-sim, each from its own thread."""
+
+    base_stations: list[SimStationConfig] = Field(min_length=1)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _one_form(cls, data: Any) -> Any:
+        # said before the keys are checked one by one: "unknown key" would not say why
+        if isinstance(data, dict):
+            single = [key for key in SimConfig.model_fields if key in data]
+            if single:
+                raise ValueError(f"{single[0]}: give either base_stations (each with its "
+                                 "own nodes, line faults, seed...) or the one base station's "
+                                 f"keys ({', '.join(SimConfig.model_fields)}), not both")
+        return data
+
+    @model_validator(mode="after")
+    def _distinct(self) -> SimStationsConfig:
+        # as the gateway's base_stations: a node is named by its address alone (topics,
+        # gx2ctl), so one address is one node across every station; a name and a link
+        # belong to one station each
+        names: dict[str, str] = {}
+        links: dict[str, str] = {}
+        owners: dict[int, str] = {}
+        for index, station in enumerate(self.base_stations):
+            where = f"base_stations[{index}]"
+            label = f"{where} ({station.name})"
+            if station.name in names:
+                raise ValueError(f"{where}.name: {station.name!r} is also "
+                                 f"{names[station.name]}'s name")
+            names[station.name] = where
+            if station.link is not None:
+                link = os.path.abspath(station.link)
+                if link in links:
+                    raise ValueError(f"{where}.link: {station.link} is also "
+                                     f"{links[link]}'s link")
+                links[link] = label
+            for number, node in enumerate(station.nodes):
+                if node.address in owners:
+                    raise ValueError(f"{where}.nodes[{number}].address: node {node.address} "
+                                     f"is also on {owners[node.address]}: an address is "
+                                     "one node across the base stations")
+                owners[node.address] = label
+        return self
+
+
+def load_sim_config(path: str | Path) -> SimConfig | SimStationsConfig:
+    """The file's one base station, or its ``base_stations:``; ConfigError (one line)."""
+    data = read_mapping(path)
+    model: type[SimConfig | SimStationsConfig] = (
+        SimStationsConfig if "base_stations" in data else SimConfig)
+    try:
+        return model.model_validate(data)
+    except ValidationError as error:
+        raise ConfigError(describe(error, str(path))) from None
 
 
 _URL_KEYS = {"line": {"garbage", "bad_checksum", "false_header", "glue_ack", "nack"},

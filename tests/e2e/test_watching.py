@@ -65,7 +65,7 @@ def test_metrics_count_as_records_flow_and_the_link_falls_when_unplugged(simulat
     got = scrape()
     assert got["gx2_link_up"] == {(): 1.0}
     assert -128 <= got["gx2_node_rssi_dbm"][(("node", "76"),)] < 0
-    assert got["gx2_node_info"][(("name", "left"), ("node", "76"))] == 1.0
+    assert got["gx2_node_info"][(("name", "left"), ("node", "76"), ("station", "station1"))] == 1.0
     assert got["gx2_node_state"][(("node", "77"), ("state", "streaming"))] == 1.0
     status = gw.status()  # the same counts as status, give or take the records since
     assert status["link"]["state"] == "up"
