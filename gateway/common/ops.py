@@ -132,8 +132,10 @@ OPS: tuple[Op, ...] = (
        (Param("nodes", NODE, "node addresses", many=MAX_PING_NODES),)),
     Op("status", ("status",), "the gateway, the link and every node, with its health",
        talks_to_node=False,
-       switches=(Switch("check", "exit 1 unless the link is up and every node is OK (for "
-                        "cron, a load balancer or a monitoring check)"),)),
+       switches=(Switch("check", "exit 1 unless every base station's link is up and every "
+                        "node is OK (for cron, a load balancer or a monitoring check)"),
+                 Switch("wide", "every column whole, however wide the terminal (without "
+                        "it the table fits the terminal's width, dropping columns)"))),
     Op("start", ("start",), "continuous mode with RECORD (a name or 0xNN); the node keeps "
        "it through reboots until the next start or stop",
        (_NODE, Param("record", STREAMABLE_RECORD, "the record to stream"))),

@@ -7,7 +7,6 @@ rather than failing, so a newer or older gateway never makes gx2ctl crash.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -15,10 +14,10 @@ from typing import Any
 
 from gateway.common.jsontext import json_line
 from gateway.common.ops import BY_NAME
-from gateway.common.protocol import HealthLevel
-from gateway.common.reading import as_map, number
+from gateway.common.reading import number
 
-MISSING = "-"
+from .cells import MISSING, cell
+from .statusview import status_lines, terminal_width, unhealthy
 
 
 @dataclass(frozen=True)
@@ -55,166 +54,10 @@ def show(op: str, fields: Mapping[str, Any], result: Mapping[str, Any],
     return shown
 
 
-def cell(value: Any) -> str:
-    """One table cell or inline value, readable whatever its type."""
-    if value is None:
-        return MISSING
-    if isinstance(value, bool):
-        return "yes" if value else "no"
-    if isinstance(value, float):
-        return f"{value:g}" if math.isfinite(value) else MISSING
-    text = str(value)
-    return " ".join(text.split()) or MISSING
-
-
-def duration(seconds: Any) -> str:
-    """``12.3 s``, ``4 min 05 s``, ``2 h 03 min``, ``3 d 04 h``."""
-    value = number(seconds)
-    if value is None:
-        return MISSING
-    if value < 60:
-        return f"{max(value, 0.0):.1f} s"
-    whole = int(value)
-    days, rest = divmod(whole, 86400)
-    hours, rest = divmod(rest, 3600)
-    minutes, secs = divmod(rest, 60)
-    if days:
-        return f"{days} d {hours:02d} h"
-    if hours:
-        return f"{hours} h {minutes:02d} min"
-    return f"{minutes} min {secs:02d} s"
-
-
-def ago(timestamp: Any, now: float) -> str:
-    """How long before ``now`` a UNIX time was; ``never`` for None."""
-    if timestamp is None:
-        return "never"
-    value = number(timestamp)
-    return MISSING if value is None else f"{duration(now - value)} ago"
-
-
 def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
     widths = [max(len(row[i]) for row in (header, *rows)) for i in range(len(header))]
     return ["  ".join(text.ljust(width) for text, width in zip(row, widths, strict=True))
             .rstrip() for row in (header, *rows)]
-
-
-def _count(value: Any, unit: str) -> str:
-    text = cell(value)
-    return f"{text} {unit}" if text != MISSING else MISSING
-
-
-NODE_COLUMNS = ("node", "name", "state", "record", "configured", "desired", "rate Hz",
-                "packets", "published", "lost radio", "lost gateway", "reboots",
-                "silences", "LQI", "RSSI", "last seen", "clock", "health")
-
-
-def clock_cell(clock: Any) -> str:
-    """A node's clock estimate in a few characters: its drift and whether it is locked
-    ("+40.1 ppm" locked, "~+40.1 ppm" still settling, "-" before a timed record)."""
-    if not isinstance(clock, Mapping):
-        return "-"
-    drift = number(clock.get("drift_ppm"))
-    shown = "?" if drift is None else f"{drift:+.1f} ppm"
-    return shown if clock.get("locked") is True else f"~{shown}"
-
-
-def status_lines(result: Mapping[str, Any], now: float) -> list[str]:
-    """The gateway line, the link line and a table of nodes."""
-    gateway = as_map(result.get("gateway"))
-    link = as_map(result.get("link"))
-    health = gateway.get("health")
-    why = reasons(gateway)
-    lines = [f"gateway  version {cell(gateway.get('version'))}, "
-             f"up {duration(gateway.get('uptime'))}, "
-             f"publish {cell(gateway.get('publish_endpoint'))}, "
-             f"control {cell(gateway.get('control_endpoint'))}"
-             + (f", health {cell(health)}" if health is not None else "")
-             + (f" ({why})" if why else "")]
-    since = number(link.get("since"))
-    for_how_long = f" for {duration(now - since)}" if since is not None else ""
-    error = link.get("error")
-    why = (f" ({cell(error)})" if link.get("state") != "up" and isinstance(error, str)
-           and error else "")
-    lines.append(f"link     {cell(link.get('port'))} {cell(link.get('state'))}{for_how_long}"
-                 f"{why}, reconnects {cell(link.get('reconnects'))}, "
-                 f"read {_count(link.get('bytes_read'), 'bytes')}, "
-                 f"discarded {_count(link.get('discarded_bytes'), 'bytes')}")
-    recording = result.get("recording")
-    if isinstance(recording, Mapping):
-        error = recording.get("error")
-        lines.append(f"record   {cell(recording.get('file') or recording.get('directory'))}, "
-                     f"written {cell(recording.get('written'))}, "
-                     f"dropped {cell(recording.get('dropped'))}"
-                     + (f" (last error: {cell(error)})" if isinstance(error, str) and error
-                        else "") + _kept(recording))
-    replay = result.get("replay")
-    if isinstance(replay, Mapping):
-        lines.append(f"replay   {cell(replay.get('reads'))} reads played"
-                     f"{', finished' if replay.get('finished') is True else ''}")
-    rows = [[cell(node.get("node")), cell(node.get("name")), cell(node.get("state")),
-             cell(node.get("record")), cell(node.get("configured")),
-             cell(node.get("desired")), cell(node.get("rate_hz")), cell(node.get("packets")),
-             cell(node.get("published")), cell(node.get("lost_radio")),
-             cell(node.get("lost_gateway")), cell(node.get("reboots")),
-             cell(node.get("silences")), cell(node.get("lqi")), cell(node.get("rssi")),
-             ago(node.get("last_seen"), now), clock_cell(node.get("clock")),
-             cell(node.get("health"))] for node in node_maps(result)]
-    if rows:
-        lines.append("")
-        lines.extend(table(NODE_COLUMNS, rows))
-        lines.extend(f"{cell(node.get('node'))} {cell(node.get('health'))}: {why}"
-                     for node in node_maps(result) if (why := reasons(node)))
-    else:
-        lines.append("no nodes")
-    return lines
-
-
-def _kept(recording: Mapping[str, Any]) -> str:
-    """What the recordings of the directory take, and the oldest kept ("" from a
-    gateway that does not say)."""
-    size, oldest = number(recording.get("bytes")), recording.get("oldest")
-    if size is None:
-        return ""
-    name = oldest.rsplit("/", 1)[-1] if isinstance(oldest, str) and oldest else ""
-    return f", {size / 1e6:.1f} MB kept" + (f" since {name}" if name else "")
-
-
-def node_maps(result: Mapping[str, Any]) -> list[Mapping[str, Any]]:
-    nodes = result.get("nodes")
-    return [node for node in (nodes if isinstance(nodes, list) else [])
-            if isinstance(node, Mapping)]
-
-
-def reasons(node: Mapping[str, Any]) -> str:
-    """Why a node (or the gateway itself) is not OK, in one line ("" if it is, or if
-    the gateway gave none)."""
-    given = node.get("reasons")
-    return "; ".join(cell(r) for r in given) if isinstance(given, list) else ""
-
-
-def unhealthy(result: Mapping[str, Any]) -> str | None:
-    """Why a status is not all well (the link down, the gateway itself not OK, a node
-    not OK), or None. A gateway that reports no health of its own (an older one) is
-    judged by its link and nodes."""
-    problems = []
-    link = as_map(result.get("link"))
-    if link.get("state") != "up":
-        problems.append(f"the link is {cell(link.get('state'))}")
-    gateway = as_map(result.get("gateway"))
-    health = gateway.get("health")
-    if health is not None and health != HealthLevel.OK:
-        why = reasons(gateway)
-        problems.append(f"the gateway is {cell(health)}" + (f": {why}" if why else ""))
-    if link.get("state") == "up":
-        nodes = node_maps(result)
-        bad = [f"{cell(n.get('node'))} {cell(n.get('health'))}" for n in nodes
-               if n.get("health") != HealthLevel.OK]
-        if not nodes:
-            problems.append("the gateway reported no nodes")
-        elif bad:
-            problems.append(f"{len(bad)} of {len(nodes)} nodes not OK: {', '.join(bad)}")
-    return "; ".join(problems) or None
 
 
 def answered(result: Mapping[str, Any]) -> dict[Any, bool]:
@@ -227,7 +70,7 @@ def answered(result: Mapping[str, Any]) -> dict[Any, bool]:
 
 @prints("status")
 def _status(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
-    return Shown(status_lines(result, time.time()),
+    return Shown(status_lines(result, time.time(), terminal_width(bool(fields.get("wide")))),
                  unhealthy(result) if fields.get("check") else None)
 
 

@@ -24,7 +24,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from rich.cells import cell_len, set_cell_size
+from rich.cells import cell_len
 from rich.console import Console, Group
 from rich.live import Live
 from rich.text import Text
@@ -34,7 +34,9 @@ from gateway.common.jsontext import json_line
 from gateway.common.protocol import Exit, HealthLevel
 from gateway.common.reading import as_map, number
 
-from .output import MISSING, cell, clock_cell, duration, node_maps, reasons
+from .cells import MISSING, cell, clock_cell, duration, node_maps, reasons
+from .columns import GAP, Column, fit, sized
+from .statusview import station_maps
 from .tail import Stop, subscribe
 
 if TYPE_CHECKING:
@@ -44,8 +46,6 @@ TICK = 0.2
 """Seconds between looks at the keyboard (and at the clock, for the ages shown)."""
 REDRAW = 1.0
 """A frame is drawn on each heartbeat, and at least this often (ages move on)."""
-GAP = 1
-"""Spaces between columns."""
 HEALTH_STYLE = {HealthLevel.OK: "green", HealthLevel.WARN: "bold yellow",
                 HealthLevel.ERROR: "bold red"}
 QUIT = "q quits"
@@ -97,14 +97,6 @@ def _key(key: str) -> Callable[[Mapping[str, Any], float], str]:
     return lambda node, now: cell(node.get(key))
 
 
-@dataclass(frozen=True)
-class Column:
-    header: str
-    cell: Callable[[Mapping[str, Any], float], str]
-    """The cell of a node's map, at ``now`` (UNIX time)."""
-    right: bool = False
-
-
 COLUMNS = (
     Column("node", _name),
     Column("state", _key("state")),
@@ -128,48 +120,6 @@ GIVE_WAY: tuple[tuple[str, int], ...] = (
 so many cells (with an ellipsis), or dropped (0). The node and its health stay."""
 
 
-def fit(columns: Sequence[Column], rows: Sequence[Sequence[str]],
-        width: int) -> list[tuple[int, int]]:
-    """The columns shown within ``width`` cells, as (index, cells): each as wide as its
-    widest cell, then the steps of GIVE_WAY taken in turn until the table fits. The
-    room left after the last step brings back what was dropped, last dropped first,
-    where it fits whole; what remains goes back to the columns that were cut."""
-    wanted = [max([cell_len(c.header), *(cell_len(row[i]) for row in rows)])
-              for i, c in enumerate(columns)]
-    widths = dict(enumerate(wanted))
-    index = {column.header: i for i, column in enumerate(columns)}
-    dropped: list[int] = []
-
-    def room() -> int:
-        return width - sum(widths.values()) - GAP * (len(widths) - 1)
-
-    for header, cells in GIVE_WAY:
-        if room() >= 0:
-            break
-        i = index[header]
-        if i in widths:
-            if cells:
-                widths[i] = min(widths[i], cells)
-            else:
-                del widths[i]
-                dropped.append(i)
-    for i in reversed(dropped):
-        if wanted[i] + GAP <= room():
-            widths[i] = wanted[i]
-    for i in sorted(widths):
-        widths[i] += min(wanted[i] - widths[i], max(0, room()))
-    return sorted(widths.items())
-
-
-def sized(text: str, width: int, right: bool = False, ellipsis: str = "…") -> str:
-    """``text`` in exactly ``width`` terminal cells: padded, or cut with an ellipsis."""
-    if cell_len(text) > width:
-        text = (set_cell_size(text, width - 1).rstrip() + ellipsis if width > 1
-                else set_cell_size(text, width))
-    pad = " " * (width - cell_len(text))
-    return pad + text if right else text + pad
-
-
 def cut(line: Text, width: int, ellipsis: str = "…") -> Text:
     """``line`` cut to ``width`` cells, its last one an ellipsis if anything was cut."""
     if cell_len(line.plain) > width:
@@ -182,7 +132,7 @@ def table(nodes: Sequence[Mapping[str, Any]], now: float, width: int,
           ellipsis: str = "…") -> list[Text]:
     """The header and a row per node, each line at most ``width`` cells."""
     cells = [[column.cell(node, now) for column in COLUMNS] for node in nodes]
-    shown = fit(COLUMNS, cells, width)
+    shown = fit(COLUMNS, cells, width, GIVE_WAY)
     header = Text(" " * GAP).join(Text(sized(COLUMNS[i].header, w, COLUMNS[i].right))
                                   for i, w in shown)
     header.stylize("bold")
@@ -250,6 +200,30 @@ def _clock_text(now: float) -> str:
         return "--:--:--"
 
 
+def link_text(label: str, link: Mapping[str, Any], now: float) -> Text:
+    """A base station's line: its state and for how long, what its serial line carries
+    (the share of the baud rate: yellow when busy, red when full), reconnects, port."""
+    state = cell(link.get("state"))
+    text = Text(f"{label} ")
+    text.append(state, "green" if state == "up" else "bold red")
+    since = number(link.get("since"))
+    if since is not None:
+        text.append(f" {duration(now - since)}")
+    rate, line = number(link.get("bytes_per_s")), number(link.get("line_bytes_per_s"))
+    if rate is not None:
+        text.append(f"  {_bytes(rate)}")
+        if line:
+            share = 100 * rate / line
+            text.append(f" = {share:.0f}% of {_bytes(line)}",
+                        "bold red" if share >= FULL_LINE else
+                        "yellow" if share >= BUSY_LINE else "")
+    text.append(f"  reconnects {cell(link.get('reconnects'))}  {cell(link.get('port'))}")
+    error = link.get("error")
+    if state != "up" and isinstance(error, str) and error:
+        text.append(f" ({error})", "red")
+    return text
+
+
 def header(watch: Watch, now: float, silent_for: float) -> list[Text]:
     status = watch.status or {}
     gateway, link = as_map(status.get("gateway")), as_map(status.get("link"))
@@ -263,30 +237,25 @@ def header(watch: Watch, now: float, silent_for: float) -> list[Text]:
         first.append(" ")
     first.append(f" {_clock_text(now)}", "dim")
 
-    state = cell(link.get("state"))
-    second = Text("link ")
-    second.append(state, "green" if state == "up" else "bold red")
-    since = number(link.get("since"))
-    if since is not None:
-        second.append(f" {duration(now - since)}")
-    rate, line = number(link.get("bytes_per_s")), number(link.get("line_bytes_per_s"))
-    if rate is not None:
-        second.append(f"  {_bytes(rate)}")
-        if line:
-            share = 100 * rate / line
-            second.append(f" = {share:.0f}% of {_bytes(line)}",
-                          "bold red" if share >= FULL_LINE else
-                          "yellow" if share >= BUSY_LINE else "")
-    second.append(f"  reconnects {cell(link.get('reconnects'))}  {cell(link.get('port'))}")
-    error = link.get("error")
-    if state != "up" and isinstance(error, str) and error:
-        second.append(f" ({error})", "red")
-
-    discarded = {str(k): v for k, v in as_map(link.get("discarded")).items()
-                 if number(v)}
-    third = Text(f"discarded {cell(link.get('discarded_bytes'))} B" + (
-        ": " + ", ".join(f"{k} {cell(v)}" for k, v in discarded.items()) if discarded
-        else ""))
+    stations = station_maps(status)
+    if len(stations) == 1:
+        second = link_text("link", link, now)
+    else:
+        up = sum(1 for s in stations if s.get("state") == "up")
+        second = Text(f"base stations {len(stations)}: ")
+        second.append(f"{up} up", "green" if up == len(stations) else "")
+        if up < len(stations):
+            second.append(f", {len(stations) - up} not up", "bold red")
+    discarded: dict[str, float] = {}
+    for station in stations:
+        for kind, value in as_map(station.get("discarded")).items():
+            if (amount := number(value)):
+                discarded[str(kind)] = discarded.get(str(kind), 0) + amount
+    counted = [n for s in stations if (n := number(s.get("discarded_bytes"))) is not None]
+    third = Text(f"discarded {sum(counted):.0f} B" if counted else f"discarded {MISSING} B")
+    third.append(
+        ": " + ", ".join(f"{k} {v:.0f}" for k, v in discarded.items()) if discarded
+        else "")
     lines = [first, second, third]
     if watch.status is None:
         lines.append(Text(f"waiting for the gateway's heartbeat on {watch.endpoint} "
@@ -313,7 +282,8 @@ def frame(watch: Watch, now: float, silent_for: float, width: int,
     if watch.status is not None and silent_for > watch.silence:
         for row in rows[1:]:
             row.stylize("dim")
-    head, body = [*header(watch, now, silent_for), *rows[:1]], rows[1:]
+    head, body = [*header(watch, now, silent_for), *rows[:1]], grouped(
+        watch.status or {}, nodes, rows[1:], now)
     notes: list[Text] = []
     gateway = as_map((watch.status or {}).get("gateway"))
     health = gateway.get("health")
@@ -328,6 +298,25 @@ def frame(watch: Watch, now: float, silent_for: float, width: int,
     if height is not None:
         body, notes = _within(height - 1 - len(head), body, notes)
     return [cut(line, width, ellipsis) for line in (*head, *body, *notes)]
+
+
+def grouped(status: Mapping[str, Any], nodes: Sequence[Mapping[str, Any]],
+            rows: list[Text], now: float) -> list[Text]:
+    """The node rows; with several base stations, under a line for each station (its
+    link and its serial line's share), in the status's order of stations."""
+    stations = station_maps(status)
+    if len(stations) == 1:
+        return rows
+    body: list[Text] = []
+    names = [cell(s.get("name")) for s in stations]
+    for name, station in zip(names, stations, strict=True):
+        heading = link_text(f"{name}:", station, now)
+        heading.stylize("bold", 0, len(name) + 1)
+        body.append(heading)
+        body += [row for node, row in zip(nodes, rows, strict=True)
+                 if cell(node.get("station")) == name]
+    return body + [row for node, row in zip(nodes, rows, strict=True)
+                   if cell(node.get("station")) not in names]
 
 
 def _within(room: int, body: list[Text], notes: list[Text]) -> tuple[list[Text], list[Text]]:

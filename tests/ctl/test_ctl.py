@@ -8,6 +8,7 @@ asserted run alone, first."""
 from __future__ import annotations
 
 import json
+import os
 import queue
 import re
 import shutil
@@ -228,10 +229,16 @@ class Run:
                 f"stdout: {self.stdout!r}\nstderr: {self.stderr!r}")
 
 
-def run(*args: str, limit: float = 30.0) -> Run:
+def run(*args: str, limit: float = 30.0, columns: int | None = None) -> Run:
+    """gx2ctl with ``args``, its output a pipe: ``columns`` is the width it is told
+    (COLUMNS), as a terminal's; None, no width (something under pytest exports
+    COLUMNS=80 to children, past os.environ: the environment is given in full)."""
+    env = {key: value for key, value in os.environ.items() if key != "COLUMNS"}
+    if columns is not None:
+        env["COLUMNS"] = str(columns)
     start = time.monotonic()
     done = spawn_run([gx2ctl(), *args], stdin=subprocess.DEVNULL, capture_output=True,
-                     text=True, timeout=limit, check=False)
+                     text=True, timeout=limit, check=False, env=env)
     ended = time.monotonic()
     return Run(args, done.returncode, done.stdout, done.stderr, ended - start, ended)
 
@@ -470,7 +477,7 @@ def test_status_check_exits_1_naming_the_nodes_not_ok(
 
 
 def test_check_passes_only_with_the_link_up_and_every_node_ok() -> None:
-    from gateway.ctl.output import unhealthy
+    from gateway.ctl.statusview import unhealthy
     up = {"state": "up"}
     good = {"link": up, "nodes": [{"node": 76, "health": "OK"}, {"node": 77, "health": "OK"}]}
     assert unhealthy(good) is None
@@ -712,14 +719,14 @@ def test_tail_on_a_dead_gateway_exits_3(tmp_path: Path) -> None:
 
 
 def test_status_shows_each_nodes_clock_drift_and_whether_it_is_locked():
-    from gateway.ctl.output import clock_cell
+    from gateway.ctl.cells import clock_cell
     assert clock_cell({"drift_ppm": 40.06, "locked": True}) == "+40.1 ppm"
     assert clock_cell({"drift_ppm": -3.0, "locked": False}) == "~-3.0 ppm"
     assert clock_cell(None) == "-" and clock_cell({"locked": True}) == "?"
 
 
 def test_status_shows_recording_and_replay_only_when_there_are_any():
-    from gateway.ctl.output import status_lines
+    from gateway.ctl.statusview import status_lines
     plain = status_lines({"gateway": {}, "link": {}, "nodes": [], "recording": None,
                           "replay": None}, 0.0)
     assert not any(line.startswith(("record", "replay")) for line in plain)

@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 from rich.cells import cell_len
 
 from gateway.client import Status
-from gateway.ctl.top import COLUMNS, Watch, fit, frame, sized, table
+from gateway.ctl.columns import fit, sized
+from gateway.ctl.top import COLUMNS, GIVE_WAY, Watch, frame, table
 
 NOW = 1_800_000_000.0
 
@@ -63,10 +64,10 @@ def test_80_columns_cut_the_record_and_drop_lqi_and_losses_in_the_gateway_first(
 def test_what_gives_way_keeps_the_node_and_its_health() -> None:
     rows = [[c.cell(node(), NOW) for c in COLUMNS]]
     for width in (10, 25, 40, 60, 79, 80, 100):
-        kept = [COLUMNS[i].header for i, _ in fit(COLUMNS, rows, width)]
+        kept = [COLUMNS[i].header for i, _ in fit(COLUMNS, rows, width, GIVE_WAY)]
         assert kept[0] == "node" and kept[-1] == "health", (width, kept)
     # the room left once the record and the rate are gone takes back RSSI, whole
-    assert fit(COLUMNS, rows, 30) == [(0, 8), (1, 9), (8, 4), (11, 6)]
+    assert fit(COLUMNS, rows, 30, GIVE_WAY) == [(0, 8), (1, 9), (8, 4), (11, 6)]
 
 
 def test_a_table_without_nodes_is_its_header() -> None:

@@ -1,0 +1,115 @@
+"""gx2ctl status read by a person: it fits the terminal's width (columns give way in
+the stated order, lines above the table break between items), groups nodes by base
+station with each line's share, and --check fails if any base station is down."""
+
+from __future__ import annotations
+
+import pytest
+
+from gateway.ctl.statusview import GIVE_WAY, NODE_COLUMNS, status_lines, unhealthy
+
+NOW = 1_800_000_000.0
+
+
+def node(address: int, station: str, health: str = "OK", **more) -> dict:
+    return {"node": address, "name": f"wing-{address}-long-name", "station": station,
+            "state": "streaming", "record": "accel_angrate_orientation",
+            "configured": "accel_angrate", "desired": "accel_angrate_orientation",
+            "rate_hz": 99.8, "packets": 123456, "published": 123450, "lost_radio": 12,
+            "lost_gateway": 0, "reboots": 1, "silences": 0, "lqi": 255, "rssi": -44,
+            "last_seen": NOW - 0.2, "clock": {"drift_ppm": 12.3, "locked": True},
+            "health": health, "reasons": [] if health == "OK" else ["radio loss 6.0%"],
+            **more}
+
+
+def link(name: str, state: str = "up", share: float = 0.87) -> dict:
+    return {"name": name, "port": f"/dev/gx2-base-{name}", "state": state,
+            "since": NOW - 65, "reconnects": 0, "bytes_read": 1234567,
+            "discarded_bytes": 7, "bytes_per_s": share * 11520, "line_bytes_per_s": 11520,
+            "over_capacity": share >= 0.95}
+
+
+def status(*stations: dict, nodes: list[dict]) -> dict:
+    return {"gateway": {"version": "9.9.9", "uptime": 3725,
+                        "publish_endpoint": "tcp://127.0.0.1:5555",
+                        "control_endpoint": "tcp://127.0.0.1:5556", "health": "OK",
+                        "reasons": []},
+            "link": stations[0], "stations": list(stations), "nodes": nodes,
+            "recording": {"directory": "/var/lib/gx2-gateway/recordings", "written": 10,
+                          "dropped": 0, "bytes": 12e6, "oldest": "/r/gx2-1.mcap"}}
+
+
+TWO = status(link("north"), link("south", share=0.97),
+             nodes=[node(76, "north"), node(78, "south", "WARN"), node(77, "north")])
+
+
+def headers(lines: list[str]) -> list[str]:
+    """The column headers of the table (the line after the blank one)."""
+    row = lines[lines.index("") + 1]
+    return [c.header for c in NODE_COLUMNS if f" {c.header} " in f" {row} "
+            or row.startswith(c.header + " ") or row.endswith(" " + c.header)]
+
+
+@pytest.mark.parametrize("width", [40, 60, 80, 100, 120, 160])
+def test_no_line_is_wider_than_the_terminal(width: int) -> None:
+    lines = status_lines(TWO, NOW, width)
+    assert max(len(line) for line in lines) <= width, "\n".join(lines)
+    # node and health stay at any width: which node, and whether it is well
+    assert {"node", "health"} <= set(headers(lines))
+
+
+def test_columns_give_way_in_the_stated_order() -> None:
+    at_80, at_120 = headers(status_lines(TWO, NOW, 80)), headers(status_lines(TWO, NOW, 120))
+    assert at_80 == ["node", "name", "state", "record", "rate Hz", "lost radio", "LQI",
+                     "RSSI", "health"], at_80
+    assert set(at_80) < set(at_120)
+    # what is shown at 120 is what survives GIVE_WAY's first steps: the configured and
+    # desired records and the silences counter go first
+    assert not {"configured", "desired", "silences"} & set(at_120), at_120
+    assert {"lost gateway", "reboots", "clock"} <= set(at_120), at_120
+    wide = headers(status_lines(TWO, NOW, None))
+    assert wide == [c.header for c in NODE_COLUMNS]
+    assert {header for header, _ in GIVE_WAY} <= set(wide)
+
+
+def test_lines_above_the_table_break_between_items_never_inside_one() -> None:
+    lines = status_lines(TWO, NOW, 60)
+    first = lines[:lines.index("")]
+    assert first[0].startswith("gateway  version 9.9.9, up 1 h 02 min,")
+    assert any(line.strip() == "control tcp://127.0.0.1:5556," or
+               line.strip().startswith("control tcp://127.0.0.1:5556") for line in first)
+    for line in first[1:]:
+        assert not line.startswith(" ") or line.startswith(" " * 9), line
+    joined = " ".join(line.strip() for line in first)
+    assert "/dev/gx2-base-north up for 1 min 05 s, line 87% of 11,520 B/s" in joined
+
+
+def test_nodes_are_grouped_by_base_station_with_its_line_share() -> None:
+    lines = status_lines(TWO, NOW, None)
+    table = lines[lines.index("") + 1:]
+    north = table.index("-- north (up, line 87% of 11,520 B/s)")
+    south = table.index("-- south (up, line 97% of 11,520 B/s OVER CAPACITY)")
+    assert [row.split()[0] for row in table[north + 1:south]] == ["76", "77"]
+    assert table[south + 1].split()[0] == "78"
+    assert "78 WARN: radio loss 6.0%" in table
+    # each station's line above the table, named
+    assert any(line.startswith("north    /dev/gx2-base-north up") for line in lines)
+    assert any(line.startswith("south    /dev/gx2-base-south up") for line in lines)
+
+
+def test_one_station_is_shown_as_ever() -> None:
+    one = status(link("station1"), nodes=[node(76, "station1")])
+    one.pop("stations")
+    lines = status_lines(one, NOW, None)
+    assert lines[1].startswith("link     /dev/gx2-base-station1 up for 1 min 05 s, "
+                               "line 87% of 11,520 B/s, reconnects 0")
+    assert not any(line.startswith("--") for line in lines)
+
+
+def test_check_fails_if_any_base_station_is_down() -> None:
+    nodes = [node(76, "north"), node(78, "south")]
+    assert unhealthy(status(link("north"), link("south"), nodes=nodes)) is None
+    down = status(link("north"), link("south", "down"), nodes=nodes)
+    assert unhealthy(down) == "1 of 2 base stations not up: south down"
+    # the first station (the old link) up is not enough
+    assert down["link"]["state"] == "up"
