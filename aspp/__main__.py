@@ -1,4 +1,4 @@
-"""``python -m aspp``: print the record table (README's copy is generated from it)."""
+"""``python -m aspp``: print the record table (docs/interface.md's copy is generated from it)."""
 
 from .records import markdown_table
 

@@ -397,7 +397,7 @@ def encode(record: str | int, **fields: object) -> bytes:
 
 
 def markdown_table() -> str:
-    """The record table as README shows it, generated so the two cannot disagree."""
+    """The record table as docs/interface.md shows it, generated so the two cannot disagree."""
     lines = ["| cmd | record | request after the command byte | reply fields after the echo "
              "| reply bytes |", "|---|---|---|---|---|"]
     for spec in _SPECS:

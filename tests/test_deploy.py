@@ -62,9 +62,9 @@ def state_directory(settings: dict[str, list[str]]) -> str:
 
 
 def deployment_steps() -> str:
-    """The shell block of README's "Deploying" section."""
-    readme = (REPO / "README.md").read_text()
-    section = readme.split("\n## Deploying", 1)[1].split("\n## ", 1)[0]
+    """The shell block of the "Deploying" section of docs/operating.md."""
+    page = (REPO / "docs" / "operating.md").read_text()
+    section = page.split("\n## Deploying", 1)[1].split("\n## ", 1)[0]
     return section.split("```sh\n", 1)[1].split("```", 1)[0]
 
 

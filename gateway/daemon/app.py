@@ -49,7 +49,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("gx2.gateway")
 EXIT_PROMISE = 2.0
-"""Seconds from SIGTERM or SIGINT to the process's exit (README)."""
+"""Seconds from SIGTERM or SIGINT to the process's exit (docs/gateway.md)."""
 AFTER_LOOP = 0.2
 """Of those, what the process may take once the loop has stopped (the interpreter's
 exit): the loop's shutdown ends this long before them. The whole shutdown, loop and

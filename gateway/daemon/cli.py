@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--files", action=PrintFiles,
                         help="print the directory of the files shipped with gx2-gateway "
                         "(deploy/: systemd unit, udev rule, alerting rules; config/: "
-                        "example configurations; README.md) and exit")
+                        "example configurations; README.md; docs/) and exit")
     parser.add_argument("--check", action="store_true",
                         help="validate the configuration and exit (0: valid, 2: not)")
     parser.add_argument("--log-level", default="INFO",

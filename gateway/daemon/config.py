@@ -1,6 +1,6 @@
 """The gateway's configuration: ``gx2-gateway --config nodes.yaml``.
 
-The keys of the interface (README, "Configuration"), plus a few marked "added" below.
+The keys of the interface (docs/interface.md, section 3), plus a few marked "added" below.
 Strict: an unknown key is an error, so a typo never passes silently.
 """
 
@@ -48,8 +48,8 @@ class BaseStationConfig(Strict):
     """Added: milliseconds from a sample to its packet leaving the base station when
     nothing waits: the radio's part of a packet's delay, which the host cannot see.
     3 ms: a 0xC2 reply is about 57 bytes on the air with 802.15.4's framing, 1.8 ms at
-    250 kbit/s, plus the node's and the base station's handling (README says how to
-    measure it)."""
+    250 kbit/s, plus the node's and the base station's handling (docs/gateway.md,
+    "Sample time", says how to measure it)."""
 
 
 class PublishConfig(Strict):
@@ -126,7 +126,7 @@ def default_record_directory() -> str:
 
 
 class RecordConfig(Strict):
-    """Recording to MCAP files (README, "Recording and replay")."""
+    """Recording to MCAP files (docs/recording.md)."""
 
     directory: Annotated[str, Field(min_length=1, default_factory=default_record_directory)]
     """Created if missing. Added: a default, the unit's state directory's
@@ -320,7 +320,7 @@ class GatewayConfig(Strict):
             raise ValueError(f"control.endpoint: {self.control.endpoint} may be reachable "
                              "from other hosts, and control can write EEPROM and stop "
                              "streams: bind it to 127.0.0.1 or an ipc:// path, or "
-                             "configure curve (see README)")
+                             "configure curve (see docs/operating.md, Security)")
         for where, station in self.placed_stations():
             try:
                 ports.check_url(station.port, [n.address for n in station.nodes])

@@ -1,8 +1,9 @@
 """``gx2-gateway --files``: where the files shipped with the gateway are.
 
-The wheel carries what README's deployment steps install besides the code: ``deploy/``
-(the systemd unit, the udev rule, the alerting rules), ``config/`` (the example
-configurations) and ``README.md`` (the unit's ``Documentation=``), in one directory laid
+The wheel carries what the deployment steps (docs/operating.md) install besides the
+code: ``deploy/`` (the systemd unit, the udev rule, the alerting rules), ``config/`` (the
+example configurations), ``README.md`` (the unit's ``Documentation=``) and ``docs/`` (the
+documentation, readable offline), in one directory laid
 out as the repository is. In the repository that directory, ``gateway/share/``, holds
 symbolic links to them, so each file exists once; the build follows the links.
 """
@@ -15,7 +16,7 @@ from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
-SHIPPED = ("README.md", "config", "deploy")
+SHIPPED = ("README.md", "config", "deploy", "docs")
 """What the directory holds (for the build: the package data in pyproject.toml)."""
 
 

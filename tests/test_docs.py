@@ -1,0 +1,101 @@
+"""The documentation a newcomer follows: README is a front page, every link in it and in
+docs/ reaches its page and heading, every page is on the site, and the map of the tree
+in docs/development.md names every module there is and nothing that is gone. (CI also
+builds the site with ``mkdocs build --strict``, which checks the pages' links again.)"""
+
+from __future__ import annotations
+
+import re
+import unicodedata
+from pathlib import Path
+
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+DOCS = REPO / "docs"
+PAGES = sorted(DOCS.glob("*.md"))
+LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
+FENCE = re.compile(r"^```.*?^```", re.MULTILINE | re.DOTALL)
+
+
+def slug(heading: str) -> str:
+    """A heading's anchor as Python-Markdown's toc makes it (MkDocs' default): code
+    marks and punctuation dropped, lower case, spaces to hyphens."""
+    text = unicodedata.normalize("NFKD", heading).encode("ascii", "ignore").decode()
+    text = re.sub(r"[^\w\s-]", "", text).strip().lower()
+    return re.sub(r"[-\s]+", "-", text)
+
+
+def anchors(page: Path) -> set[str]:
+    text = FENCE.sub("", page.read_text())
+    return {slug(m.group(1)) for m in re.finditer(r"^#{1,6} (.+)$", text, re.MULTILINE)}
+
+
+def links(page: Path) -> list[str]:
+    return LINK.findall(FENCE.sub("", page.read_text()))
+
+
+def test_readme_is_a_front_page_with_the_two_set_up_commands() -> None:
+    readme = (REPO / "README.md").read_text()
+    assert len(readme.splitlines()) <= 200
+    blocks = re.findall(r"```sh\n(.*?)```", readme, re.DOTALL)
+    assert blocks[0].strip().endswith(".venv/bin/gx2-gateway --config config/demo.yaml")
+    assert blocks[1].strip() == ".venv/bin/python -m pytest"
+    assert "\n.venv/bin/python -m pytest\n" in readme  # CI's check, .ci/run
+
+
+@pytest.mark.parametrize("page", [REPO / "README.md", *PAGES], ids=lambda p: p.name)
+def test_every_link_reaches_its_page_and_heading(page: Path) -> None:
+    for target in links(page):
+        if re.match(r"[a-z]+://|mailto:", target):
+            continue
+        path, _, anchor = target.partition("#")
+        linked = (page.parent / path).resolve() if path else page
+        assert linked.is_file(), f"{page.name}: {target}: no such file"
+        assert linked.suffix != ".md" or linked.parent in (DOCS, REPO), target
+        if anchor:
+            assert anchor in anchors(linked), f"{page.name}: {target}: no such heading"
+
+
+def test_every_page_is_on_the_site_and_the_readme_maps_them() -> None:
+    config = yaml.safe_load((REPO / "mkdocs.yml").read_text())
+    on_site = {next(iter(item.values())) for item in config["nav"]}
+    assert on_site == {page.name for page in PAGES}
+    readme_links = {t.partition("#")[0] for t in links(REPO / "README.md")}
+    assert {f"docs/{page.name}" for page in PAGES if page.name != "index.md"} \
+        <= readme_links
+
+
+def named_in_the_map() -> dict[str, set[str]]:
+    """Directory (from the repository's root) -> the files the map names in it."""
+    page = (DOCS / "development.md").read_text()
+    block = page.split("## Where things are", 1)[1].split("```\n", 1)[1].split("```", 1)[0]
+    named: dict[str, set[str]] = {}
+    stack: list[tuple[int, str]] = []  # (indentation, directory)
+    for line in block.splitlines():
+        indent = len(line) - len(line.lstrip())
+        first = line.split()[0] if line.strip() else ""
+        if first.endswith("/") and indent < 20:
+            while stack and stack[-1][0] >= indent:
+                stack.pop()
+            parent = stack[-1][1] if stack else ""
+            stack.append((indent, parent + first))
+            directory = parent + first
+        else:
+            while stack and stack[-1][0] >= indent and indent < 20:
+                stack.pop()
+            directory = stack[-1][1] if stack else ""
+        for name in re.findall(r"\b[\w]+\.py\b", line):
+            named.setdefault(directory, set()).add(name)
+    return named
+
+
+@pytest.mark.parametrize("directory", ["aspp/", "gateway/", "gateway/common/",
+                                       "gateway/daemon/", "gateway/ctl/",
+                                       "gateway/recording/", "gateway/sim/", "bench/"])
+def test_the_map_of_the_tree_names_every_module_and_nothing_gone(directory: str) -> None:
+    named = named_in_the_map().get(directory, set())
+    there = {p.name for p in (REPO / directory).glob("*.py") if p.name != "__init__.py"}
+    assert not there - named, f"{directory}: not in the map: {sorted(there - named)}"
+    assert not named - there, f"{directory}: in the map but gone: {sorted(named - there)}"
