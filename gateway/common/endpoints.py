@@ -8,6 +8,8 @@ import ipaddress
 DEFAULT_PUBLISH = "tcp://127.0.0.1:5555"
 DEFAULT_CONTROL = "tcp://127.0.0.1:5556"
 DEFAULT_METRICS = "127.0.0.1:9105"
+DEFAULT_LIVE = "127.0.0.1:8765"
+"""The live view's (Foxglove's own default port)."""
 WILDCARD_HOSTS = ("*", "0.0.0.0", "::", "[::]", "[*]")
 
 

@@ -160,6 +160,8 @@ def status_schema() -> Schema:
             "recording": _part(["object", "null"], "the recorder; null without record:"),
             "replay": _part(["object", "null"], "the replay; null unless the port is "
                             "replay://"),
+            "live": _part(["object", "null"], "the live view (Foxglove WebSocket): its "
+                          "endpoint, viewers and channels; null without live:"),
         },
         "required": ["gateway", "link", "nodes", "recording", "replay"],
         "additionalProperties": False,

@@ -38,13 +38,14 @@ from .config import GatewayConfig
 from .control import ControlServer
 from .health import SAMPLE_PERIOD, Health
 from .operations import Operations
-from .publisher import Publisher
+from .publisher import Publisher, Sink
 from .recorder import Recorder
 from .replay import ReplayLink
 from .sd_notify import Notifier
 from .station import Station
 
 if TYPE_CHECKING:
+    from .live import LiveServer
     from .metrics import MetricsServer
 
 log = logging.getLogger("gx2.gateway")
@@ -56,6 +57,18 @@ exit): the loop's shutdown ends this long before them. The whole shutdown, loop 
 all, took 16 ms here (tests/e2e/test_shutdown.py, recording): room for a loaded host."""
 EXIT_BUDGET = 1.5
 """Seconds a shutdown may spend stopping streams, within the promised 2 s."""
+
+
+def fan_out(sinks: list[Sink]) -> Sink | None:
+    """One callable giving each published message to every sink (the recorder, the
+    live view): none, the one itself (no extra call on the per-record path), or both."""
+    if len(sinks) <= 1:
+        return sinks[0] if sinks else None
+
+    def every(topic: bytes, payload: dict[str, Any]) -> None:
+        for sink in sinks:
+            sink(topic, payload)
+    return every
 
 
 class StartupError(Exception):
@@ -103,6 +116,12 @@ class Gateway:
                 from .metrics import MetricsServer
                 endpoint = config.metrics.endpoint
                 self.metrics = MetricsServer(endpoint)
+            self.live: LiveServer | None = None
+            if config.live is not None:
+                # imported only when configured, as metrics are: foxglove-sdk's server
+                from .live import LiveServer
+                endpoint = config.live.endpoint
+                self.live = LiveServer(config.live)
         except (zmq.ZMQError, OSError) as error:
             self._stop_auth()
             self._context.destroy(linger=0)
@@ -114,7 +133,9 @@ class Gateway:
         if config.record is not None:
             self.recorder = Recorder(config.record, self._recording_metadata())
             self.health.recorder = self.recorder
-            self.publisher.record = self.recorder.published
+        self.publisher.record = fan_out([
+            *([self.recorder.published] if self.recorder is not None else []),
+            *([self.live.published] if self.live is not None else [])])
         # only once nothing above can fail: the embedded simulator makes a directory
         for station in self.stations:
             station.open(self.recorder)
@@ -169,6 +190,8 @@ class Gateway:
         loop = asyncio.get_running_loop()
         metrics = (loop.run_in_executor(None, self.metrics.close)  # (up to 0.5 s: meanwhile)
                    if self.metrics is not None else None)
+        live = (loop.run_in_executor(None, self.live.close)  # (its viewers told, meanwhile)
+                if self.live is not None else None)
         # nothing more is started for any node; then every request still running is
         # answered at once ("shutting down") and cancelled: its client hears why now,
         # not at its own timeout, and what a cancelled quiet command would have
@@ -194,8 +217,9 @@ class Gateway:
             # the disk is slower)
             await loop.run_in_executor(None, self.recorder.close,
                                        max(0.0, done_by - time.monotonic()))
-        if metrics is not None:
-            await metrics
+        for closing in (metrics, live):
+            if closing is not None:
+                await closing
         log.info("stopped")
 
     def _stop_auth(self) -> None:

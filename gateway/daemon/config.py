@@ -21,10 +21,12 @@ from aspp.temperature import DEFAULT_GYRO, gyro_model
 from gateway.common import curve
 from gateway.common.endpoints import (
     DEFAULT_CONTROL,
+    DEFAULT_LIVE,
     DEFAULT_METRICS,
     DEFAULT_PUBLISH,
     check_endpoint,
     check_host_port,
+    host_port,
     is_loopback,
 )
 from gateway.common.strict import Strict, load_model
@@ -194,6 +196,30 @@ class MetricsConfig(Strict):
     127.0.0.1; [::1]:PORT for IPv6). Read-only: any address a scraper reaches will do."""
 
 
+class LiveConfig(Strict):
+    """Added: the live view, a Foxglove WebSocket server (docs/live.md)."""
+
+    endpoint: Annotated[str, AfterValidator(check_host_port)] = DEFAULT_LIVE
+    """HOST:PORT it listens on (as metrics.endpoint). Read-only, and unauthenticated:
+    another host than the loopback is allowed, and logged once."""
+    backlog: Annotated[int, Field(ge=16, le=1_000_000)] = 1024
+    """Messages queued for each viewer; a viewer that reads slower loses the oldest."""
+    tls_cert: Annotated[str, Field(min_length=1)] | None = None
+    """A PEM certificate: the server then takes wss:// only (with tls_key)."""
+    tls_key: Annotated[str, Field(min_length=1)] | None = None
+    """The PEM (PKCS#8) private key of tls_cert."""
+
+    @model_validator(mode="after")
+    def _both_or_neither(self) -> LiveConfig:
+        if (self.tls_cert is None) != (self.tls_key is None):
+            raise ValueError("tls_cert and tls_key: give both, or neither")
+        for key in ("tls_cert", "tls_key"):
+            path = getattr(self, key)
+            if path is not None and not os.access(path, os.R_OK):
+                raise ValueError(f"{key}: cannot read {path}")
+        return self
+
+
 class HealthConfig(Strict):
     """Added: when a node is OK, WARN or ERROR (docs/interface.md, section 8)."""
 
@@ -256,6 +282,7 @@ class GatewayConfig(Strict):
     curve: CurveConfig | None = None
     record: RecordConfig | None = None
     metrics: MetricsConfig | None = None
+    live: LiveConfig | None = None
     health: HealthConfig = HealthConfig()
     nodes: Annotated[list[NodeEntry], Field(min_length=1)] | None = None
     """The one station's nodes (with ``base_station:``); :attr:`all_nodes` is every
@@ -316,6 +343,9 @@ class GatewayConfig(Strict):
             seen.add(node.address)
         if self.publish.endpoint == self.control.endpoint:
             raise ValueError("publish.endpoint and control.endpoint must differ")
+        if (self.live is not None and self.metrics is not None
+                and host_port(self.live.endpoint) == host_port(self.metrics.endpoint)):
+            raise ValueError("live.endpoint and metrics.endpoint must differ")
         if self.curve is None and not is_loopback(self.control.endpoint):
             raise ValueError(f"control.endpoint: {self.control.endpoint} may be reachable "
                              "from other hosts, and control can write EEPROM and stop "

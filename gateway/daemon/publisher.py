@@ -18,6 +18,8 @@ from gateway.common import curve
 from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC, parse, topic
 
 log = logging.getLogger("gx2.publish")
+Sink = Callable[[bytes, dict[str, Any]], None]
+"""What is given every message published: its topic and its payload."""
 _MORE, _LAST = int(zmq.SNDMORE | zmq.NOBLOCK), int(zmq.NOBLOCK)
 
 
@@ -52,8 +54,9 @@ class Publisher:
         self._socket_send = compiled_send(self.socket)
         self.sent = 0
         self.failed = 0
-        self.record: Callable[[bytes, dict[str, Any]], None] | None = None
-        """Given every message published, when the gateway records."""
+        self.record: Sink | None = None
+        """Given every message published, when the gateway records or serves the live
+        view (app.py's fan_out)."""
 
     def publish(self, node: int, record: str, payload: dict[str, Any]) -> bool:
         """Publish one record; False if ZeroMQ refused it (counted, never raised). A

@@ -44,6 +44,7 @@ def report(gateway: Gateway) -> dict[str, Any]:
                   for node in gateway.nodes.values()],
         "recording": gateway.recorder.status() if gateway.recorder is not None else None,
         "replay": replay_status([s.link for s in gateway.stations]),
+        "live": gateway.live.status() if gateway.live is not None else None,
     }
 
 

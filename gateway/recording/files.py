@@ -19,10 +19,12 @@ also works on a file whose writer was killed before it finished) gives them in o
 
 from __future__ import annotations
 
+import math
 import struct
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
+from typing import Any
 
 from mcap.opcode import Opcode
 
@@ -67,6 +69,23 @@ def file_name(now: float | None = None) -> str:
 
 def ns(seconds: float) -> int:
     return round(seconds * 1e9)
+
+
+def message_times(payload: Mapping[str, Any]) -> tuple[float, float]:
+    """A published message's (logged, sampled) UNIX times: when it was read (a record's
+    ``host_time``; a status's ``gateway.time``; now, for a message with neither), and
+    when its sample was taken (``time``; else when it was read). The recording's
+    log_time and publish_time, and the live view's message time."""
+    logged = payload.get("host_time")
+    if logged is None:
+        gateway = payload.get("gateway")
+        logged = gateway.get("time") if isinstance(gateway, Mapping) else None
+    if not isinstance(logged, (int, float)) or not math.isfinite(logged):
+        logged = time.time()
+    sampled = payload.get("time")
+    if not isinstance(sampled, (int, float)) or not math.isfinite(sampled):
+        sampled = logged
+    return logged, sampled
 
 
 MAGIC = b"\x89MCAP0\r\n"

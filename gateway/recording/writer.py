@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import io
-import math
 import os
-import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import IO, Any
@@ -19,7 +17,16 @@ from gateway.common.schemas import ENCODING as SCHEMA_ENCODING
 from gateway.common.schemas import schema_for_topic
 from gateway.common.version import VERSION
 
-from .files import CHUNK_BYTES, END, JSON_ENCODING, PROFILE, RAW_ENCODING, SERIAL, ns
+from .files import (
+    CHUNK_BYTES,
+    END,
+    JSON_ENCODING,
+    PROFILE,
+    RAW_ENCODING,
+    SERIAL,
+    message_times,
+    ns,
+)
 
 
 class RecordingWriter:
@@ -71,15 +78,7 @@ class RecordingWriter:
 
     def message(self, topic: str, payload: Mapping[str, Any]) -> None:
         """A published message: a node's record, or the gateway's status."""
-        logged = payload.get("host_time")
-        if logged is None:
-            gateway = payload.get("gateway")
-            logged = gateway.get("time") if isinstance(gateway, Mapping) else None
-        if not isinstance(logged, (int, float)) or not math.isfinite(logged):
-            logged = time.time()
-        sampled = payload.get("time")
-        if not isinstance(sampled, (int, float)) or not math.isfinite(sampled):
-            sampled = logged
+        logged, sampled = message_times(payload)
         self.messages += 1
         self._writer.add_message(self._channel(topic, JSON_ENCODING), ns(logged),
                                  compact(payload).encode(), ns(sampled), self.messages)

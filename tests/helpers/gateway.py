@@ -188,9 +188,10 @@ def gateway_config(port: str | None, nodes: list[dict[str, Any]],
         config.setdefault(key, {}).update(value)
     # a metrics section without its endpoint would take the default, 127.0.0.1:9105:
     # the demo's, which a user may be running beside the suite (issue 24)
-    metrics = config.get("metrics")
-    if isinstance(metrics, dict) and "endpoint" not in metrics:
-        metrics["endpoint"] = f"127.0.0.1:{free_port()}"
+    for section in ("metrics", "live"):  # (the live view's default: the demo's 8765)
+        given = config.get(section)
+        if isinstance(given, dict) and "endpoint" not in given:
+            given["endpoint"] = f"127.0.0.1:{free_port()}"
     return config
 
 

@@ -1,0 +1,122 @@
+"""The live view: a Foxglove WebSocket server (``live:``), so that Foxglove shows the
+signals as they come.
+
+It is foxglove-sdk's server (a Rust core, in threads of its own), given every message
+the gateway publishes: a channel per topic as it first appears (a node's records, the
+status, the marks), JSON with the recording's schema (gateway.common.schemas), each
+message at its sample's instant (recording/files.py, ``message_times``). Nothing on
+the loop waits for a viewer: the SDK keeps a queue per viewer (``backlog`` messages)
+and drops the oldest for one that reads slowly, and a channel no viewer subscribes to
+costs one call into the SDK and no JSON. Read-only: the server advertises no
+capability (no client publishing, parameters or services), so nothing a viewer sends
+reaches a node.
+
+Imported only when ``live:`` is configured, as metrics.py is.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from pathlib import Path
+from typing import Any
+
+import foxglove
+from foxglove import Channel, Schema
+
+from gateway.common.endpoints import host_port, is_loopback
+from gateway.common.jsontext import compact
+from gateway.common.schemas import ENCODING as SCHEMA_ENCODING
+from gateway.common.schemas import schema_for_topic
+from gateway.recording.files import JSON_ENCODING, message_times, ns
+
+from .config import LiveConfig
+
+log = logging.getLogger("gx2.live")
+
+
+class Viewers(foxglove.ServerListener):
+    """Who is watching: the viewers subscribed to at least one channel, and their
+    subscriptions (called from the SDK's threads)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._subscribed: dict[int, set[int]] = {}
+        self.subscriptions = 0
+        """Subscriptions made since start, every viewer's."""
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        with self._lock:
+            self._subscribed.setdefault(client.id, set()).add(channel.id)
+            self.subscriptions += 1
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        with self._lock:
+            channels = self._subscribed.get(client.id, set())
+            channels.discard(channel.id)
+            if not channels:
+                self._subscribed.pop(client.id, None)
+
+    def status(self) -> dict[str, int]:
+        with self._lock:
+            return {"viewers": len(self._subscribed),
+                    "subscribed": sum(len(c) for c in self._subscribed.values()),
+                    "subscriptions": self.subscriptions}
+
+
+class LiveServer:
+    """The server and its channels. :meth:`published` is given every message the
+    gateway publishes, on the loop."""
+
+    def __init__(self, config: LiveConfig) -> None:
+        host, port = host_port(config.endpoint)
+        self.endpoint = config.endpoint
+        self.viewers = Viewers()
+        self._context = foxglove.Context()
+        tls = ({"tls_cert": Path(config.tls_cert).read_bytes(),
+                "tls_key": Path(config.tls_key).read_bytes()}
+               if config.tls_cert and config.tls_key else {})
+        try:
+            self._server = foxglove.start_server(
+                name="gx2-gateway", host=host.strip("[]"), port=port, capabilities=[],
+                server_listener=self.viewers, context=self._context,
+                message_backlog_size=config.backlog, **tls)
+        except RuntimeError as error:  # the SDK's: a port in use, an address not ours
+            raise OSError(str(error)) from None
+        self.url = f"{'wss' if tls else 'ws'}://{config.endpoint}"
+        self.messages = 0
+        """Messages given to a channel some viewer subscribed to."""
+        self._channels: dict[bytes, Channel | None] = {}
+        if not is_loopback(f"tcp://{host}:{port}"):
+            log.warning("live view on %s: any host that reaches it may watch (it is "
+                        "read-only and unauthenticated)", config.endpoint)
+
+    def published(self, topic: bytes, payload: dict[str, Any]) -> None:
+        """A published message, to the viewers of its topic (if any)."""
+        channel = self._channels.get(topic, False)
+        if channel is False:
+            channel = self._channels[topic] = self._open(topic)
+        if channel is None or not channel.has_sinks():
+            return
+        channel.log(compact(payload).encode(), log_time=ns(message_times(payload)[1]))
+        self.messages += 1
+
+    def _open(self, topic: bytes) -> Channel | None:
+        """The channel of a topic the gateway publishes, with its schema (None for one
+        without a schema: nothing the gateway publishes, but a replay may hold more)."""
+        name = topic.decode()
+        described = schema_for_topic(name)
+        if described is None:
+            return None
+        schema_name, schema = described
+        return Channel(name, schema=Schema(name=schema_name, encoding=SCHEMA_ENCODING,
+                                           data=compact(schema).encode()),
+                       message_encoding=JSON_ENCODING, context=self._context)
+
+    def status(self) -> dict[str, Any]:
+        return {"endpoint": self.endpoint, "url": self.url,
+                "channels": sum(1 for c in self._channels.values() if c is not None),
+                "messages": self.messages, **self.viewers.status()}
+
+    def close(self) -> None:
+        self._server.stop()
