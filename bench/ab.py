@@ -18,7 +18,8 @@ in a process of its own whose imports come from one tree or the other, in turn:
    doing: measured one after the other, rounds on this VM differed by 20% either way.
    With ``--record``, B runs with ``record:`` configured (a tree that records); with
    ``--metrics``, B serves metrics and is scraped once a second meanwhile, as a
-   Prometheus server would (ten times as often as its default interval).
+   Prometheus server would (ten times as often as its default interval); with
+   ``--live``, B serves the live view, with no viewer connected.
 
 The pipeline measures A then B (the order alternates each round, so neither side always
 goes first); the table gives each round's figures and the median of the rounds' B/A
@@ -128,7 +129,7 @@ def gateway_command(tree: Path, config: Path) -> list[str]:
 
 
 def saturated_cpu(trees: dict[str, Path], seconds: float, record: bool,
-                  metrics: bool = False) -> dict[str, float]:
+                  metrics: bool = False, live: bool = False) -> dict[str, float]:
     """Each tree's gateway on a simulator of its own (this tree's), all at once, so
     that they share whatever the machine is doing: % of one core over ``seconds``,
     from the kernel's nanosecond count of each process's threads."""
@@ -148,6 +149,8 @@ def saturated_cpu(trees: dict[str, Path], seconds: float, record: bool,
             if metrics and side == "B":
                 config["metrics"] = {"endpoint": f"127.0.0.1:{free_port()}"}
                 scrapes.append(f"http://{config['metrics']['endpoint']}/metrics")
+            if live and side == "B":  # (and no viewer: what serving it costs by itself)
+                config["live"] = {"endpoint": f"127.0.0.1:{free_port()}"}
             (work / "nodes.yaml").write_text(yaml.safe_dump(config))
             sim = Simulator(nodes, link=work / "gx2").start()
             started.append((side, sim, subprocess.Popen(
@@ -197,6 +200,8 @@ def main() -> int:
                         help="B runs with record: configured (A without)")
     parser.add_argument("--metrics", action="store_true",
                         help="B serves metrics, scraped once a second (A does not)")
+    parser.add_argument("--live", action="store_true",
+                        help="B serves the live view, no viewer connected (A does not)")
     parser.add_argument("--skip-pipeline", action="store_true")
     args = parser.parse_args()
     base_rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", args.base],
@@ -218,7 +223,8 @@ def main() -> int:
                 if not args.skip_pipeline:
                     got = {side: pipeline(trees[side], args.packets) for side in order}
                     rows["pipeline"].append((got["A"], got["B"]))
-                got = saturated_cpu(trees, args.seconds, args.record, args.metrics)
+                got = saturated_cpu(trees, args.seconds, args.record, args.metrics,
+                                    args.live)
                 rows["cpu"].append((got["A"], got["B"]))
                 print(f"round {round_ + 1}: " + ", ".join(
                     f"{name} A {a:,.1f} B {b:,.1f}" for name, values in rows.items()
@@ -229,7 +235,8 @@ def main() -> int:
                                 str(tree)], check=False)
     print(f"\nA = {base_rev}, B = {head_rev}{' (with uncommitted changes)' if dirty else ''}"
           f"{', B records' if args.record else ''}"
-          f"{', B serves metrics scraped every second' if args.metrics else ''}; "
+          f"{', B serves metrics scraped every second' if args.metrics else ''}"
+          f"{', B serves the live view (no viewer)' if args.live else ''}; "
           f"{args.rounds} interleaved rounds")
     print("| measure | A, each round | B, each round | B / A (median of rounds) |")
     print("|---|---|---|---|")

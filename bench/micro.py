@@ -104,7 +104,34 @@ def pairs() -> list[Pair]:
         ("send: pyzmq's compiled send vs Socket.send",
          loop(lambda: compiled(b"gx2/76/accel_angrate", flags)),
          loop(lambda: pub.send(b"gx2/76/accel_angrate", flags))),
+        writers(compact(common).encode()),
     ]
+
+
+def writers(message: bytes) -> Pair:
+    """The recorder's writer (issue 23): the mcap package's Python writer, which it
+    uses, against foxglove-sdk's MCAP writer (Rust), each adding one JSON message to a
+    file of its own; the JSON is made beforehand, as both would need it."""
+    import tempfile
+
+    import foxglove
+    from mcap.writer import CompressionType, Writer
+
+    directory = Path(tempfile.mkdtemp(prefix="gx2-micro-"))
+    output = (directory / "mcap.mcap").open("wb")
+    writer = Writer(output, compression=CompressionType.ZSTD)
+    writer.start()
+    channel_id = writer.register_channel("gx2/76/accel_angrate", "json", 0)
+    context = foxglove.Context()
+    sdk_file = foxglove.open_mcap(directory / "sdk.mcap", context=context)
+    channel = foxglove.Channel("gx2/76/accel_angrate", message_encoding="json",
+                               context=context)
+    stamp = time.time_ns()
+    assert channel.has_sinks(), "the SDK's file is not receiving"
+    return ("recording writer: mcap's Python Writer vs foxglove-sdk's MCAP writer",
+            loop(lambda: writer.add_message(channel_id, stamp, message, stamp)),
+            # (sdk_file, named in the lambda, stays open as long as the lambda lives)
+            loop(lambda: sdk_file and channel.log(message, log_time=stamp)))
 
 
 def main() -> int:

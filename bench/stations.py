@@ -2,6 +2,7 @@
 """Several saturated base stations in one gateway against as many bare relays (issue 22).
 
     .venv/bin/python bench/stations.py [--stations 1 2 4] [--rounds 2] [--seconds 20]
+    .venv/bin/python bench/stations.py --stations 1 --live --viewer   # the live view too
 
 For each number of stations N and each round, two sides on fresh lines, one after the
 other (the order alternating from one measurement to the next, and the N interleaved
@@ -10,7 +11,9 @@ within a round, so that a neighbour slowing the machine for a while slows both s
 A. N relays (bench/relay.py, the floor: read, cut, publish), one process per line;
 B. one gx2-gateway (started as bench/ab.py starts it) with N stations in
    ``base_stations:``, recording to a temporary directory and serving metrics, scraped
-   once a second by this process (as bench/ab.py does, ten times Prometheus' default).
+   once a second by this process (as bench/ab.py does, ten times Prometheus' default);
+   with ``--live``, serving the live view too, and with ``--viewer``, to a Foxglove
+   viewer (tests/helpers/viewer.py, a process of its own) subscribed to every channel.
 
 Each line is a gx2-sim Simulator in this process, its own pty, with perf.py's saturating
 load: 3 nodes of 0xC2 at 96 Hz (288 records/s fill 115200 baud), node addresses numbered
@@ -91,7 +94,11 @@ class Run:
 class Lines:
     """N simulated base stations and what reads them: N relays (A) or one gateway (B)."""
 
-    def __init__(self, stations: int, side: str) -> None:
+    def __init__(self, stations: int, side: str, live: bool = False,
+                 viewer: bool = False) -> None:
+        self.live = f"127.0.0.1:{free_port()}" if live and side == "B" else None
+        self.viewing = viewer and self.live is not None
+        self.stations = stations
         self.work = Path(tempfile.mkdtemp(prefix=f"gx2-stations-{side}-"))
         self.written = Written()
         self.sims: list[Simulator] = []
@@ -126,6 +133,8 @@ class Lines:
             "control": {"endpoint": f"tcp://127.0.0.1:{free_port()}"},
             "record": {"directory": str(self.work / "recordings")},
             "metrics": {"endpoint": metrics}}
+        if self.live is not None:
+            config["live"] = {"endpoint": self.live}
         path = self.work / "gateway.yaml"
         path.write_text(yaml.safe_dump(config))
         return path
@@ -135,6 +144,11 @@ class Lines:
         measuring, result = multiprocessing.Event(), multiprocessing.Queue()
         subscriber = multiprocessing.Process(target=subscribe, args=(
             self.endpoints, 1, settle, seconds, measuring, result))
+        viewer = (multiprocessing.Process(target=watch, args=(
+            f"ws://{self.live}", 3 * self.stations + 1, settle + seconds + 5), daemon=True)
+            if self.viewing else None)
+        if viewer is not None:
+            viewer.start()
         subscriber.start()
         if not measuring.wait(settle + 30):
             raise RuntimeError("the subscriber never started measuring")
@@ -152,6 +166,10 @@ class Lines:
             raise RuntimeError(f"only {scraped} scrapes of {self.scrapes} in {seconds:g} s")
         _, received = result.get(timeout=60)
         subscriber.join(10)
+        if viewer is not None:
+            if not viewer.is_alive():
+                raise RuntimeError("the viewer ended early (see its error above)")
+            viewer.terminate()
         latencies = self.written.latencies(received)
         if not latencies:
             raise RuntimeError(f"no record reached the subscriber from {self.endpoints}")
@@ -179,8 +197,23 @@ class Lines:
         shutil.rmtree(self.work, ignore_errors=True)
 
 
-def measure(stations: int, side: str, seconds: float, settle: float) -> Run:
-    lines = Lines(stations, side)
+def watch(url: str, channels: int, seconds: float) -> None:
+    """A viewer of the live view, in a process of its own: subscribed to every channel
+    once ``channels`` are advertised, reading everything for ``seconds``."""
+    sys.path.insert(0, str(REPO))
+    from tests.helpers.viewer import Viewer  # (the tests' independent Foxglove client)
+    viewer = Viewer(url)
+    viewer.until(lambda v: len(v.channels) >= channels, 30, f"{channels} channels")
+    viewer.subscribe(*viewer.channels)
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        viewer.read(1.0)
+        viewer.messages.clear()
+
+
+def measure(stations: int, side: str, seconds: float, settle: float, live: bool = False,
+            viewer: bool = False) -> Run:
+    lines = Lines(stations, side, live, viewer)
     try:
         return lines.measure(seconds, settle)
     finally:
@@ -257,6 +290,10 @@ def main() -> int:
                         metavar="ROUNDS", help="interleaved rounds (default: 2)")
     parser.add_argument("--seconds", type=float, default=20.0,
                         help="each measurement's window after settling (default: 20)")
+    parser.add_argument("--live", action="store_true",
+                        help="the gateway serves the live view too (no viewer)")
+    parser.add_argument("--viewer", action="store_true",
+                        help="with --live: a Foxglove viewer subscribed to every channel")
     parser.add_argument("--settle", type=float, default=8.0,
                         help="seconds from start to the window (default: 8)")
     args = parser.parse_args()
@@ -268,7 +305,8 @@ def main() -> int:
     for round_ in range(args.rounds):
         for n in args.stations:
             for side in ("A", "B") if turn % 2 == 0 else ("B", "A"):
-                runs[n][side].append(measure(n, side, args.seconds, args.settle))
+                runs[n][side].append(measure(n, side, args.seconds, args.settle,
+                                             args.live, args.viewer))
             turn += 1
             a, b = runs[n]["A"][-1], runs[n]["B"][-1]
             print(f"round {round_ + 1}, {n} station{'s' if n > 1 else ''}: relays "
@@ -280,7 +318,9 @@ def main() -> int:
           f"stolen by the hypervisor during the run: {cpu_steal(steal0):.0%}")
     print(f"`{command_line()}`: {args.rounds} interleaved rounds of {args.seconds:g} s after "
           f"{args.settle:g} s settling; each station 3 nodes of 0xC2 at 96 Hz (115200 baud, "
-          "saturated); gateway recording, metrics scraped every second; CPU in % of one "
+          "saturated); gateway recording, metrics scraped every second"
+          f"{', live view served' if args.live else ''}"
+          f"{' to a viewer of every channel' if args.viewer else ''}; CPU in % of one "
           "core (relays summed), medians of the rounds; bench = this process (the "
           "simulators)\n")
     print("\n".join(table(runs)))

@@ -3,6 +3,7 @@ gx2-gateway running on it (tests/helpers has the helpers behind them)."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,13 @@ from gateway.sim.server import Simulator
 from tests.helpers.gateway import RunningGateway, gateway_config
 from tests.helpers.processes import STARTUP
 from tests.helpers.waiting import wait_for
+
+# GNU readline, which pytest imports (for pdb), exports the size of the terminal pytest
+# runs in (80x24 without one) as COLUMNS and LINES to every child process, past
+# os.environ; gx2ctl would fit its tables to that. A child gets a width only where its
+# test gives one.
+os.unsetenv("COLUMNS")
+os.unsetenv("LINES")
 
 
 @pytest.fixture

@@ -121,7 +121,9 @@ def link_items(link: Mapping[str, Any], now: float) -> list[str]:
     why = (f" ({cell(error)})" if link.get("state") != "up" and isinstance(error, str)
            and error else "")
     share = line_share(link)
-    return [f"{cell(link.get('port'))} {cell(link.get('state'))}{for_how_long}{why}",
+    # the port and the state apart: a long port name (/dev/serial/by-id/...) cut to the
+    # width must not take the state and its reason with it
+    return [cell(link.get("port")), f"{cell(link.get('state'))}{for_how_long}{why}",
             *([share] if share else []),
             f"reconnects {cell(link.get('reconnects'))}",
             f"read {count(link.get('bytes_read'), 'bytes')}",

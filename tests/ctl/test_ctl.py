@@ -339,7 +339,7 @@ READABLE: dict[str, tuple[list[str], str]] = {
              r"serial number +2217-0122\nmodel name +3DM-GX2\noptions +Inertia-Link\n"),
     "status": (["status"], r"gateway  version 9\.9\.9, up 1 h 02 min, publish tcp://\*:\d+, "
                r"control tcp://127\.0\.0\.1:5556\n"
-               r"link     sim:// up for 1 min 3\d s, reconnects 2, read 123456 bytes, "
+               r"link     sim://, up for 1 min 3\d s, reconnects 2, read 123456 bytes, "
                r"discarded 7 bytes\n\n"
                r"node +name +state +record +configured +desired +rate Hz +packets +published +"
                r"lost radio +lost gateway +reboots +silences +LQI +RSSI +last seen +clock +"

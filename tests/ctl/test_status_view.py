@@ -81,7 +81,7 @@ def test_lines_above_the_table_break_between_items_never_inside_one() -> None:
     for line in first[1:]:
         assert not line.startswith(" ") or line.startswith(" " * 9), line
     joined = " ".join(line.strip() for line in first)
-    assert "/dev/gx2-base-north up for 1 min 05 s, line 87% of 11,520 B/s" in joined
+    assert "/dev/gx2-base-north, up for 1 min 05 s, line 87% of 11,520 B/s" in joined
 
 
 def test_nodes_are_grouped_by_base_station_with_its_line_share() -> None:
@@ -93,15 +93,15 @@ def test_nodes_are_grouped_by_base_station_with_its_line_share() -> None:
     assert table[south + 1].split()[0] == "78"
     assert "78 WARN: radio loss 6.0%" in table
     # each station's line above the table, named
-    assert any(line.startswith("north    /dev/gx2-base-north up") for line in lines)
-    assert any(line.startswith("south    /dev/gx2-base-south up") for line in lines)
+    assert any(line.startswith("north    /dev/gx2-base-north, up") for line in lines)
+    assert any(line.startswith("south    /dev/gx2-base-south, up") for line in lines)
 
 
 def test_one_station_is_shown_as_ever() -> None:
     one = status(link("station1"), nodes=[node(76, "station1")])
     one.pop("stations")
     lines = status_lines(one, NOW, None)
-    assert lines[1].startswith("link     /dev/gx2-base-station1 up for 1 min 05 s, "
+    assert lines[1].startswith("link     /dev/gx2-base-station1, up for 1 min 05 s, "
                                "line 87% of 11,520 B/s, reconnects 0")
     assert not any(line.startswith("--") for line in lines)
 
@@ -113,3 +113,13 @@ def test_check_fails_if_any_base_station_is_down() -> None:
     assert unhealthy(down) == "1 of 2 base stations not up: south down"
     # the first station (the old link) up is not enough
     assert down["link"]["state"] == "up"
+
+
+def test_a_long_port_cut_to_the_width_keeps_the_state_and_why() -> None:
+    port = "/dev/serial/by-id/usb-FTDI_FT232R_USB_UART_A1B2C3D4-if00-port0-" + "x" * 40
+    down = {**link("station1", "down"), "port": port, "error": "No such file or directory"}
+    lines = status_lines(status(down, nodes=[node(76, "station1")]), NOW, 80)
+    assert max(len(line) for line in lines) <= 80
+    at = next(i for i, line in enumerate(lines) if line.startswith("link "))
+    assert lines[at].startswith("link     /dev/serial/by-id/") and lines[at].endswith("…")
+    assert lines[at + 1].strip().startswith("down for 1 min 05 s (No such file or directory)")

@@ -111,12 +111,20 @@ def test_a_recording_of_two_stations_keeps_each_ones_bytes_and_replays_identical
     live = {key: payload for key, (_, payload) in payloads(entries).items()}
     assert {node for node, _ in live} == {76, 77, 78}
 
+    replays_identically(gateway, directory, live, [
+        {"name": name, "nodes": nodes} for name, nodes in (
+            ("north", [{"address": 76}, {"address": 77}]), ("south", [{"address": 78}]))])
+
+
+def replays_identically(gateway, directory: Path, live: dict, stations: list[dict]) -> None:
+    """``directory``'s recording, replayed through a ``replay://`` for each of
+    ``stations``, publishes every record of ``live`` ((node, seq) -> payload) again,
+    identical."""
     replay = gateway(None, [], base_stations=[
-        {"name": name, "port": f"replay://{directory}?speed=0&exit=true&delay=2",
-         "nodes": nodes} for name, nodes in (("north", [{"address": 76}, {"address": 77}]),
-                                             ("south", [{"address": 78}]))])
+        {**station, "port": f"replay://{directory}?speed=0&exit=true&delay=2"}
+        for station in stations])
     sub = replay.subscribe("gx2/")
-    wait_for(lambda: replay.proc.poll() is not None, 30, "the replay to end (exit=true)")
+    wait_for(lambda: replay.proc.poll() is not None, 60, "the replay to end (exit=true)")
     assert replay.proc.returncode == 0, replay.log()
     sub.drain(0.5)
     played = {(p["node"], p["seq"]): strict(p) for t, p in sub.messages if t[4].isdigit()}

@@ -6,7 +6,6 @@ identical."""
 
 from __future__ import annotations
 
-import math
 import os
 import urllib.request
 from pathlib import Path
@@ -14,10 +13,9 @@ from pathlib import Path
 import yaml
 from prometheus_client.parser import text_string_to_metric_families
 
-from gateway.common.jsontext import strict
 from tests.e2e.test_recording import payloads, recorded
+from tests.e2e.test_stations import replays_identically
 from tests.helpers.processes import STARTUP, Running
-from tests.helpers.waiting import wait_for
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -71,19 +69,5 @@ def test_four_stations_stream_command_record_replay_top_and_metrics(gateway, tmp
     live = {key: payload for key, (_, payload) in payloads(entries).items()}
     assert {node for node, _ in live} == set(where)
 
-    replay = gateway(None, [], base_stations=[
-        {"name": s["name"], "port": f"replay://{directory}?speed=0&exit=true&delay=2",
-         "nodes": s["nodes"]} for s in stations])
-    sub = replay.subscribe("gx2/")
-    wait_for(lambda: replay.proc.poll() is not None, 60, "the replay to end (exit=true)")
-    assert replay.proc.returncode == 0, replay.log()
-    sub.drain(0.5)
-    played = {(p["node"], p["seq"]): strict(p) for t, p in sub.messages if t[4].isdigit()}
-    missing = sorted(live.keys() - played.keys())
-    assert not missing, (len(missing), len(live), missing[:5])
-    for key, payload in live.items():
-        for name, value in payload.items():
-            if name in ("host_time", "time"):
-                assert math.isclose(played[key][name], value, abs_tol=1e-6), (key, name)
-            else:
-                assert played[key][name] == value, (key, name)
+    replays_identically(gateway, directory, live,
+                        [{"name": s["name"], "nodes": s["nodes"]} for s in stations])
