@@ -20,6 +20,15 @@ Spread is |error - its median| (p50/p99/max); bias is the median error (the conf
 ``latency_ms`` matches the simulator's radio floor, 3 ms). Lock time: from a stream's
 first record to the first record after which the error stays within 0.5 ms of the
 settled median. Cost: aspp.clock.NodeClock.update over the recorded pairs, per record.
+
+    python bench/timesync.py --model 6  # six seeds, about a minute
+
+runs the simulator's line model alone in simulated time (no pty, no gateway, no
+reboot): each packet reaches the host exactly when its last byte leaves the base
+station, and goes straight to NodeClock. What is left is the geometry: the nodes power
+up together, so their samples coincide and a node's packets queue behind another's for
+tens of seconds while their crystals drift apart; what the estimate does with that, at
+best, is this mode's figure.
 """
 
 from __future__ import annotations
@@ -27,6 +36,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import random
 import shutil
 import statistics
 import subprocess
@@ -41,10 +51,12 @@ import yaml
 import zmq
 from benchutil import free_port
 
+from aspp import Decoder, Reply, decode
 from aspp.clock import NodeClock
-from aspp.timing import TIMER_MODULUS
-from gateway.sim.base_station import RADIO_LATENCY, LineFaults
-from gateway.sim.node import NodeSettings
+from aspp.frame import HEADER_SIZE
+from aspp.timing import TICKS_PER_SECOND, TIMER_MODULUS
+from gateway.sim.base_station import RADIO_LATENCY, BaseStation, LineFaults
+from gateway.sim.node import NodeSettings, SimNode
 from gateway.sim.server import Simulator
 
 NODES = [NodeSettings(76, divider=592, stream="accel_angrate", ppm=40.0),
@@ -200,10 +212,61 @@ def cost_per_record(samples: list[Sample], rounds: int = 5) -> float:
     return best / len(samples) * 1e6
 
 
+def model_errors(seed: int, seconds: float) -> dict[int, list[float]]:
+    """Each node's errors of ``time`` (after WARM_UP) with the simulator's line model
+    run in simulated time, event by event, and every packet given to NodeClock when its
+    last byte leaves the UART."""
+    rng = random.Random(seed)
+    start = 1000.0
+    nodes = [SimNode(settings, start, random.Random(rng.random())) for settings in NODES]
+    station = BaseStation(nodes, line=STALLS, rng=rng)
+    decoder = Decoder()
+    clocks = {n.address: NodeClock() for n in nodes}
+    last_timer: dict[int, int] = {}
+    wraps = dict.fromkeys(clocks, 0)
+    errors: dict[int, list[float]] = {a: [] for a in clocks}
+    now = start
+    while now < start + seconds:
+        now = station.next_due(now)
+        station.advance(now)
+        for event in decoder.feed(station.take_output(now)):
+            if not isinstance(event, Reply):
+                continue
+            record = decode(event.raw, HEADER_SIZE, len(event.raw) - 4)
+            node, timer = event.node, record.values[record.spec.field_names.index("timer")]
+            if timer < last_timer.get(node, 0):
+                wraps[node] += 1
+            last_timer[node] = timer
+            device = (timer + wraps[node] * TIMER_MODULUS) / TICKS_PER_SECOND
+            arrival = now - len(event.raw) * station.byte_time
+            error = clocks[node].update(device, arrival) - RADIO_LATENCY \
+                - station.nodes[node].sampled[timer]
+            if now - start > WARM_UP:
+                errors[node].append(error)
+    return errors
+
+
+def model(seeds: int, seconds: float) -> int:
+    print(f"\nthe simulator's line model alone, {seconds:.0f} s of simulated time a seed")
+    print("| seed | time, all: spread p50 / p99 / max (ms) | each node's bias (ms) |")
+    print("|---|---|---|")
+    for seed in range(1, seeds + 1):
+        errors = model_errors(seed, seconds)
+        p50, p99, worst, _ = spread([e for node in errors.values() for e in node])
+        biases = ", ".join(f"{a} {statistics.median(e) * 1e3:+.3f}"
+                           for a, e in errors.items())
+        print(f"| {seed} | {p50:.3f} / {p99:.3f} / {worst:.3f} | {biases} |")
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=80.0)
+    parser.add_argument("--model", type=int, metavar="SEEDS",
+                        help="the simulator's line model alone, for this many seeds")
     args = parser.parse_args()
+    if args.model:
+        return model(args.model, args.seconds)
     samples, stalls = collect(args.seconds)
     groups: dict[tuple[int, int], list[Sample]] = {}
     for s in samples:
