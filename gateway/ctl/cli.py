@@ -30,41 +30,54 @@ DEFAULT_TIMEOUT = 5.0
 CLIENT_KEY_ENV, SERVER_KEY_ENV = "GX2_CLIENT_KEY", "GX2_SERVER_KEY"
 
 
+def add_gateway_options(parser: argparse.ArgumentParser, suppress: bool = False) -> None:
+    """Where the gateway is and how to talk to it. Given before the command (their
+    defaults there) or after it (``suppress``: left out unless given, so that what came
+    before the command stands): ``gx2ctl status --json`` is what people type."""
+    def default(value: object) -> object:
+        return argparse.SUPPRESS if suppress else value
+
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--config", metavar="FILE", default=default(None),
+                       help="the gateway's nodes.yaml: use its control and publish endpoints")
+    where.add_argument("--control", type=endpoint, metavar="ENDPOINT", default=default(None),
+                       help=f"the gateway's control endpoint (default {DEFAULT_CONTROL})")
+    parser.add_argument("--timeout", type=bounded(float, 0.01, 86400),
+                        default=default(DEFAULT_TIMEOUT), metavar="SECONDS",
+                        help=f"give up (exit 3) after this long (default {DEFAULT_TIMEOUT:g})")
+    parser.add_argument("--client-key", metavar="FILE", default=default(None),
+                        help="CURVE: this client's .key_secret file (default: "
+                        f"${CLIENT_KEY_ENV})")
+    parser.add_argument("--server-key", metavar="KEY", default=default(None),
+                        help="CURVE: the gateway's public key, as Z85 text or a .key file "
+                        f"(default: ${SERVER_KEY_ENV}, or beside the server key --config "
+                        "names)")
+    parser.add_argument("--json", action="store_true", default=default(False),
+                        help="print each reply as one strict JSON object on one line "
+                        "(NaN as null); poll and tail always print JSON")
+
+
 def build_parser() -> ArgumentParser:
     parser = ArgumentParser(
         prog=PROG, description="Control a running gx2-gateway. Exit status: 0 success, "
         "1 a node failed, 2 bad usage or input, 3 the gateway did not answer in time.")
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--config", metavar="FILE",
-                       help="the gateway's nodes.yaml: use its control and publish endpoints")
-    where.add_argument("--control", type=endpoint, metavar="ENDPOINT",
-                       help=f"the gateway's control endpoint (default {DEFAULT_CONTROL})")
-    parser.add_argument("--timeout", type=bounded(float, 0.01, 86400), default=DEFAULT_TIMEOUT,
-                        metavar="SECONDS",
-                        help=f"give up (exit 3) after this long (default {DEFAULT_TIMEOUT:g})")
-    parser.add_argument("--client-key", metavar="FILE",
-                        help="CURVE: this client's .key_secret file (default: "
-                        f"${CLIENT_KEY_ENV})")
-    parser.add_argument("--server-key", metavar="KEY",
-                        help="CURVE: the gateway's public key, as Z85 text or a .key file "
-                        f"(default: ${SERVER_KEY_ENV}, or beside the server key --config "
-                        "names)")
-    parser.add_argument("--json", action="store_true",
-                        help="print each reply as one strict JSON object on one line "
-                        "(NaN as null); poll and tail always print JSON")
+    add_gateway_options(parser)
+    anywhere = argparse.ArgumentParser(add_help=False)
+    add_gateway_options(anywhere, suppress=True)
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     groups: dict[str, Any] = {}
     for op in OPS:
-        add_op(commands, groups, op)
+        add_op(commands, groups, op, anywhere)
     commands.add_parser(
-        "tail", help="print published records as JSON lines until interrupted",
+        "tail", parents=[anywhere], help="print published records as JSON lines until interrupted",
         description="Print each published record as one JSON line until SIGINT/SIGTERM. "
         "With NODEs, only their records; without, every node's records (the gateway's own "
         "gx2/gateway/... messages are not printed). The publish endpoint comes from "
         "--config, or else from the gateway's status reply.").add_argument(
         "nodes", nargs="*", type=node_address, metavar="NODE")
     commands.add_parser(
-        "top", help="a live table of every node, refreshed in place until q or Ctrl-C",
+        "top", parents=[anywhere],
+        help="a live table of every node, refreshed in place until q or Ctrl-C",
         description="A live table of the gateway's link and every node (state, record, "
         "rate against the expected rate, radio loss over the health window, losses in the "
         "gateway, reboots, LQI/RSSI, clock drift, last seen, health), drawn from the "
@@ -74,7 +87,7 @@ def build_parser() -> ArgumentParser:
         "off.").add_argument("nodes", nargs="*", type=node_address, metavar="NODE",
                              help="only these nodes (default: all)")
     recorder = commands.add_parser(
-        "record", help="record the published stream to an MCAP file",
+        "record", parents=[anywhere], help="record the published stream to an MCAP file",
         description="Record every published record (of the NODEs given, or of all), the "
         "gateway's status and every mark to FILE, an MCAP file with one JSON channel per "
         "topic, until SIGINT/SIGTERM or --seconds (counted from the first message). Shows "
@@ -93,8 +106,10 @@ def build_parser() -> ArgumentParser:
     return parser
 
 
-def add_op(commands: Any, groups: dict[str, Any], op: Op) -> None:
-    """The op's command (``eeprom read``: a group ``eeprom`` with an action ``read``)."""
+def add_op(commands: Any, groups: dict[str, Any], op: Op,
+           anywhere: argparse.ArgumentParser) -> None:
+    """The op's command (``eeprom read``: a group ``eeprom`` with an action ``read``),
+    taking the gateway's options after it too (``anywhere``)."""
     *group, word = op.command
     parent = commands
     if group:
@@ -103,7 +118,8 @@ def add_op(commands: Any, groups: dict[str, Any], op: Op) -> None:
             groups[group[0]] = holder.add_subparsers(dest="action", required=True,
                                                      metavar="ACTION")
         parent = groups[group[0]]
-    sub = parent.add_parser(word, help=op.help, description=op.description or op.help)
+    sub = parent.add_parser(word, parents=[anywhere], help=op.help,
+                            description=op.description or op.help)
     sub.set_defaults(op=op)
     for param in op.params:
         metavar = param.name.upper()
@@ -231,7 +247,11 @@ def run_keygen(prefix: str) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "config", None) and getattr(args, "control", None):
+        # (one before the command and one after it: each group saw only one)
+        parser.error("argument --control: not allowed with argument --config")
     try:
         if args.command == "keygen":
             return run_keygen(args.prefix)

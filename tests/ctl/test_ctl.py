@@ -394,10 +394,15 @@ def json_runs(fake: FakeGateway, pool: ThreadPoolExecutor) -> dict[str, Future[R
             for name, args in JSON.items()}
     runs["poll without --json"] = pool.submit(run, "--control", fake.control, "poll", "76",
                                               "0xC7")
+    # the gateway's options after the command, as people type them
+    runs["status --json"] = pool.submit(run, "status", "--json", "--control", fake.control)
+    runs["stop 76 --json"] = pool.submit(run, "--control", fake.control, "stop", "76",
+                                         "--json", "--timeout", "4")
     return runs
 
 
-@pytest.mark.parametrize("name", [*JSON, "poll without --json"])
+@pytest.mark.parametrize("name", [*JSON, "poll without --json", "status --json",
+                                  "stop 76 --json"])
 def test_json_output_is_one_strict_object_per_line(name: str, fake: FakeGateway,
                                                    json_runs: dict[str, Future[Run]]) -> None:
     result = json_runs[name].result()
@@ -411,7 +416,7 @@ def test_json_output_is_one_strict_object_per_line(name: str, fake: FakeGateway,
         assert data["node"] == 76 and data["device_time"] == 1.5, data
     if name == "mark":
         assert data["text"] == "trial 3 start" and data["nodes"] == [95], data
-    if name == "status":
+    if name.startswith("status"):
         assert data["nodes"][1]["rate_hz"] is None, data
         assert data["gateway"]["publish_endpoint"] == fake.advertised
 
@@ -519,6 +524,8 @@ USAGE: dict[str, list[str]] = {
     "timeout 0": ["--timeout", "0", "status"],
     "timeout not a number": ["--timeout", "soon", "status"],
     "both config and control": ["--config", BAD_CONFIG, "--control", CONTROL, "status"],
+    "config before, control after": ["--config", BAD_CONFIG, "status", "--control", CONTROL],
+    "timeout after, not a number": ["--control", CONTROL, "status", "--timeout", "soon"],
     "control not an endpoint": ["--control", "localhost:5556", "status"],
     "too many ping nodes": ["ping", *[str(n) for n in range(1, MAX_PING_NODES + 2)]],
     "bad config file": ["--config", BAD_CONFIG, "status"],
