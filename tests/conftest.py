@@ -15,7 +15,7 @@ from gateway.sim.base_station import LineFaults, RadioLink
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
 from tests.helpers.gateway import RunningGateway, gateway_config
-from tests.helpers.processes import STARTUP
+from tests.helpers.processes import STARTUP, restore_sigint
 from tests.helpers.waiting import wait_for
 
 # GNU readline, which pytest imports (for pdb), exports the size of the terminal pytest
@@ -24,6 +24,8 @@ from tests.helpers.waiting import wait_for
 # test gives one.
 os.unsetenv("COLUMNS")
 os.unsetenv("LINES")
+
+restore_sigint()
 
 
 @pytest.fixture

@@ -11,6 +11,7 @@ import errno
 import os
 import queue
 import shutil
+import signal
 import subprocess
 import sys
 import threading
@@ -27,6 +28,18 @@ EXIT = 2.0
 STARVED = 3.0
 """Seconds more allowed to a process starved of CPU on a loaded CI VM (exits seen at
 4.6 s with 80% of the CPU stolen): the tests then tell a hang from the promise kept."""
+
+
+def restore_sigint() -> None:
+    """Let Ctrl-C reach the programs the tests start, however the suite was started.
+
+    A suite started in the background by a shell without job control (``pytest &`` in
+    a script) inherits SIGINT ignored, and so does every program it starts: one that
+    leaves SIGINT to Python (gx2ctl export) never sees the Ctrl-C a test sends it
+    (found running the suite beside the demo). A handler is reset to the default at
+    each child's exec, as a terminal leaves it."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def script(name: str) -> str:
