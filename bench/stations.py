@@ -202,7 +202,15 @@ def watch(url: str, channels: int, seconds: float) -> None:
     once ``channels`` are advertised, reading everything for ``seconds``."""
     sys.path.insert(0, str(REPO))
     from tests.helpers.viewer import Viewer  # (the tests' independent Foxglove client)
-    viewer = Viewer(url)
+    deadline = time.monotonic() + 30
+    while True:  # (started beside the gateway: its live view may not listen yet)
+        try:
+            viewer = Viewer(url)
+            break
+        except ConnectionRefusedError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
     viewer.until(lambda v: len(v.channels) >= channels, 30, f"{channels} channels")
     viewer.subscribe(*viewer.channels)
     end = time.monotonic() + seconds
