@@ -21,14 +21,16 @@ Spread is |error - its median| (p50/p99/max); bias is the median error (the conf
 first record to the first record after which the error stays within 0.5 ms of the
 settled median. Cost: aspp.clock.NodeClock.update over the recorded pairs, per record.
 
-    python bench/timesync.py --model 6  # six seeds, about a minute
+    python bench/timesync.py --model 6  # six seeds, about 15 s
 
 runs the simulator's line model alone in simulated time (no pty, no gateway, no
 reboot): each packet reaches the host exactly when its last byte leaves the base
 station, and goes straight to NodeClock. What is left is the geometry: the nodes power
 up together, so their samples coincide and a node's packets queue behind another's for
-tens of seconds while their crystals drift apart; what the estimate does with that, at
-best, is this mode's figure.
+tens of seconds while their crystals drift apart (the last column: each node's share
+of packets that began on the line the moment the one before ended). Beside it, a
+reference given each node's true drift (the line through the lowest point of the last
+minute at that slope): the gap between the two is the drift estimate's.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,7 +55,7 @@ import zmq
 from benchutil import free_port
 
 from aspp import Decoder, Reply, decode
-from aspp.clock import NodeClock
+from aspp.clock import WINDOW, NodeClock
 from aspp.frame import HEADER_SIZE
 from aspp.timing import TICKS_PER_SECOND, TIMER_MODULUS
 from gateway.sim.base_station import RADIO_LATENCY, BaseStation, LineFaults
@@ -212,20 +215,52 @@ def cost_per_record(samples: list[Sample], rounds: int = 5) -> float:
     return best / len(samples) * 1e6
 
 
-def model_errors(seed: int, seconds: float) -> dict[int, list[float]]:
-    """Each node's errors of ``time`` (after WARM_UP) with the simulator's line model
-    run in simulated time, event by event, and every packet given to NodeClock when its
-    last byte leaves the UART."""
+class TrueDriftFloor:
+    """The reference for the model: the line at the node's true drift, through the
+    lowest point of the last WINDOW seconds (a sliding minimum). Only the drift is
+    given; what is left of its error is what the floor itself leaves."""
+
+    def __init__(self, ppm: float) -> None:
+        self.drift = -ppm * 1e-6 / (1 + ppm * 1e-6)  # host - device against device
+        self.lows: deque[tuple[float, float]] = deque()
+
+    def update(self, device: float, host: float) -> float:
+        level = host - device - self.drift * device
+        while self.lows and self.lows[-1][1] >= level:
+            self.lows.pop()
+        self.lows.append((device, level))
+        while self.lows[0][0] < device - WINDOW:
+            self.lows.popleft()
+        return device + self.lows[0][1] + self.drift * device
+
+
+@dataclass
+class ModelRun:
+    """One seed of the model: each node's errors of ``time`` and of the reference
+    (after WARM_UP), and its share of packets that queued (began on the line the moment
+    the one before it ended)."""
+
+    errors: dict[int, list[float]]
+    true_drift: dict[int, list[float]]
+    queued: dict[int, float]
+
+
+def model_run(seed: int, seconds: float) -> ModelRun:
+    """The simulator's line model run in simulated time, event by event, every packet
+    given to NodeClock (and the reference) when its last byte leaves the UART."""
     rng = random.Random(seed)
     start = 1000.0
     nodes = [SimNode(settings, start, random.Random(rng.random())) for settings in NODES]
     station = BaseStation(nodes, line=STALLS, rng=rng)
     decoder = Decoder()
     clocks = {n.address: NodeClock() for n in nodes}
+    references = {n.address: TrueDriftFloor(n.ppm) for n in nodes}
     last_timer: dict[int, int] = {}
     wraps = dict.fromkeys(clocks, 0)
-    errors: dict[int, list[float]] = {a: [] for a in clocks}
-    now = start
+    run = ModelRun({a: [] for a in clocks}, {a: [] for a in clocks}, {})
+    queued = dict.fromkeys(clocks, 0)
+    packets = dict.fromkeys(clocks, 0)
+    line_free = now = start
     while now < start + seconds:
         now = station.next_due(now)
         station.advance(now)
@@ -239,23 +274,33 @@ def model_errors(seed: int, seconds: float) -> dict[int, list[float]]:
             last_timer[node] = timer
             device = (timer + wraps[node] * TIMER_MODULUS) / TICKS_PER_SECOND
             arrival = now - len(event.raw) * station.byte_time
-            error = clocks[node].update(device, arrival) - RADIO_LATENCY \
-                - station.nodes[node].sampled[timer]
+            packets[node] += 1
+            queued[node] += arrival - line_free < station.byte_time
+            line_free = now
+            truth = station.nodes[node].sampled[timer] + RADIO_LATENCY
+            found = clocks[node].update(device, arrival)
+            reference = references[node].update(device, arrival)
             if now - start > WARM_UP:
-                errors[node].append(error)
-    return errors
+                run.errors[node].append(found - truth)
+                run.true_drift[node].append(reference - truth)
+    run.queued = {a: queued[a] / max(packets[a], 1) for a in clocks}
+    return run
 
 
 def model(seeds: int, seconds: float) -> int:
     print(f"\nthe simulator's line model alone, {seconds:.0f} s of simulated time a seed")
-    print("| seed | time, all: spread p50 / p99 / max (ms) | each node's bias (ms) |")
-    print("|---|---|---|")
+    print("| seed | time, all: spread p50 / p99 / max (ms) | each node's bias (ms) "
+          "| with the true drift: p99 / max (ms) | each node's packets queued |")
+    print("|---|---|---|---|---|")
     for seed in range(1, seeds + 1):
-        errors = model_errors(seed, seconds)
-        p50, p99, worst, _ = spread([e for node in errors.values() for e in node])
+        run = model_run(seed, seconds)
+        p50, p99, worst, _ = spread([e for node in run.errors.values() for e in node])
+        _, true_p99, true_worst, _ = spread([e for n in run.true_drift.values() for e in n])
         biases = ", ".join(f"{a} {statistics.median(e) * 1e3:+.3f}"
-                           for a, e in errors.items())
-        print(f"| {seed} | {p50:.3f} / {p99:.3f} / {worst:.3f} | {biases} |")
+                           for a, e in run.errors.items())
+        shares = ", ".join(f"{a} {share:.0%}" for a, share in run.queued.items())
+        print(f"| {seed} | {p50:.3f} / {p99:.3f} / {worst:.3f} | {biases} "
+              f"| {true_p99:.3f} / {true_worst:.3f} | {shares} |")
     return 0
 
 
