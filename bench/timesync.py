@@ -21,6 +21,10 @@ Spread is |error - its median| (p50/p99/max); bias is the median error (the conf
 ``latency_ms`` matches the simulator's radio floor, 3 ms). Lock time: from a stream's
 first record to the first record after which the error stays within 0.5 ms of the
 settled median. Cost: aspp.clock.NodeClock.update over the recorded pairs, per record.
+Last, each stream's share of packets that found the serial line free (read more than a
+packet's time after the one before): a stream with almost none, its packets all
+waiting behind another node's, never shows the host its floor (the run that fails the
+bars is one where node 77 comes back from its reboot so).
 
     python bench/timesync.py --model 6  # six seeds, about 15 s
 
@@ -48,6 +52,7 @@ import tempfile
 import time
 from collections import deque
 from dataclasses import dataclass
+from itertools import pairwise
 from pathlib import Path
 
 import msgpack
@@ -57,8 +62,9 @@ from benchutil import free_port
 
 from aspp import Decoder, Reply, decode
 from aspp.clock import WINDOW, NodeClock
-from aspp.frame import HEADER_SIZE
-from aspp.timing import TICKS_PER_SECOND, TIMER_MODULUS
+from aspp.frame import HEADER_SIZE, REPLY_OVERHEAD
+from aspp.records import BY_NAME
+from aspp.timing import BITS_PER_BYTE, TICKS_PER_SECOND, TIMER_MODULUS
 from gateway.sim.base_station import RADIO_LATENCY, BaseStation, LineFaults
 from gateway.sim.node import NodeSettings, SimNode
 from gateway.sim.server import Simulator
@@ -69,6 +75,10 @@ NODES = [NodeSettings(76, divider=592, stream="accel_angrate", ppm=40.0),
 """3 x 86.5 Hz of 40-byte packets: 10.4 of the line's 11.5 kB/s."""
 STALLS = LineFaults(stall_rate=1.0, stall_ms=50.0)
 REBOOTS = 77
+PACKET_TIME = (BY_NAME["accel_angrate"].reply_size + REPLY_OVERHEAD) * BITS_PER_BYTE / 115200
+"""Seconds one of the nodes' packets takes on the line."""
+READ_SLACK = 0.3e-3
+"""How much later than back to back a read may come and still count as queued."""
 WARM_UP = 5.0
 """Seconds of each stream left out of the spread and bias."""
 GAIN = 0.01
@@ -309,6 +319,19 @@ BARS = (0.4, 1.0)
 """Issue 21's bars for ``time`` at a busy line: p99 spread and worst spread (ms)."""
 
 
+def line_free(samples: list[Sample]) -> dict[tuple[int, int], float]:
+    """Each stream's share of packets read more than a packet's time after the one
+    before (of any node): they found the line idle. The rest began as another ended and
+    may have waited behind it; a stream with none free never shows the host its floor."""
+    free: dict[tuple[int, int], list[bool]] = {}
+    ordered = sorted(samples, key=lambda s: s.host_time)
+    for before, sample in pairwise(ordered):
+        gap = sample.host_time - before.host_time
+        free.setdefault((sample.node, sample.segment), []).append(
+            gap > PACKET_TIME + READ_SLACK)
+    return {key: sum(flags) / len(flags) for key, flags in free.items()}
+
+
 def measure(seconds: float) -> tuple[float, float]:
     """One live run: its table printed; returns ``time``'s pooled p99 and worst (ms)."""
     samples, stalls = collect(seconds)
@@ -353,6 +376,9 @@ def measure(seconds: float) -> tuple[float, float]:
             worst_time = worst
         print(f"| {kind} | all | {p50:.3f} / {p99[kind]:.3f} / {worst:.3f} | {bias:+.3f} "
               f"| |")
+    shares = ", ".join(f"{node}{' after reboot' if segment else ''} {share:.0%}"
+                       for (node, segment), share in sorted(line_free(samples).items()))
+    print(f"\npackets that found the line free: {shares}")
     agree = max(medians.values()) - min(medians.values())
     kinds = list(errors)
     print(f"\nnodes agree within {agree * 1e3:.1f} us (spread of the nodes' biases); "
