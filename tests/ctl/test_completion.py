@@ -223,12 +223,26 @@ needs_zsh = pytest.mark.skipif(shutil.which("zsh") is None, reason="zsh is not i
 @pytest.mark.parametrize(("line", "offered"), [
     ("gx2ctl sta", ["start", "status"]),
     ("gx2ctl start 76 eu", ["euler", "euler_angrate"]),
-    ("gx2ctl status --", ["--check", "--help"]),
     ("gx2ctl --config nodes.yaml ping ", ["76", "77", "95"]),
     ("gx2-gateway --log-level ", ["DEBUG", "ERROR", "INFO", "WARNING"]),
 ])
 def test_zsh_completes(scripts: Path, here: Path, line: str, offered: list[str]) -> None:
     assert sorted(zsh_complete(scripts, line)) == offered
+
+
+@needs_zsh
+@pytest.mark.parametrize("command", ["status", "stop"])
+def test_zsh_offers_every_option_the_command_takes(scripts: Path, here: Path,
+                                                   command: str) -> None:
+    # read from the parser, so an option added to a command (or the gateway's options,
+    # which every command takes after it too) cannot leave this test behind
+    commands = next(a for a in build_parser()._actions
+                    if isinstance(a, argparse._SubParsersAction))
+    takes = sorted(o for a in commands.choices[command]._actions
+                   for o in a.option_strings if o.startswith("--"))
+    assert {"--config", "--json", "--timeout"} <= set(takes)
+    line = f"gx2ctl {command} {'76 ' if command == 'stop' else ''}--"
+    assert sorted(zsh_complete(scripts, line)) == takes
 
 
 # --- man pages -------------------------------------------------------------------------
