@@ -33,7 +33,8 @@ try:
     from gateway.daemon.app import Gateway
     from gateway.daemon.config import GatewayConfig
     from gateway.daemon.reader import Reader
-    def feeder(gw): return gw.reader.on_data
+    # a gateway of base stations: its first station's reader (before: the gateway's)
+    def feeder(gw): return (gw.stations[0] if hasattr(gw, "stations") else gw).reader.on_data
     # a read's UNIX time, and its monotonic time where the reader takes one too
     CLOCKS = 2 if "monotonic" in inspect.signature(Reader.on_data).parameters else 1
 except ImportError:  # a tree from before the daemon's package
