@@ -64,7 +64,7 @@ from aspp import Decoder, Reply, decode
 from aspp.clock import WINDOW, NodeClock
 from aspp.frame import HEADER_SIZE, REPLY_OVERHEAD
 from aspp.records import BY_NAME
-from aspp.timing import BITS_PER_BYTE, TICKS_PER_SECOND, TIMER_MODULUS
+from aspp.timing import TICKS_PER_SECOND, TIMER_MODULUS, byte_time
 from gateway.sim.base_station import RADIO_LATENCY, BaseStation, LineFaults
 from gateway.sim.node import NodeSettings, SimNode
 from gateway.sim.server import Simulator
@@ -75,7 +75,7 @@ NODES = [NodeSettings(76, divider=592, stream="accel_angrate", ppm=40.0),
 """3 x 86.5 Hz of 40-byte packets: 10.4 of the line's 11.5 kB/s."""
 STALLS = LineFaults(stall_rate=1.0, stall_ms=50.0)
 REBOOTS = 77
-PACKET_TIME = (BY_NAME["accel_angrate"].reply_size + REPLY_OVERHEAD) * BITS_PER_BYTE / 115200
+PACKET_TIME = (BY_NAME["accel_angrate"].reply_size + REPLY_OVERHEAD) * byte_time(115200)
 """Seconds one of the nodes' packets takes on the line."""
 READ_SLACK = 0.3e-3
 """How much later than back to back a read may come and still count as queued."""
@@ -319,6 +319,10 @@ BARS = (0.4, 1.0)
 """Issue 21's bars for ``time`` at a busy line: p99 spread and worst spread (ms)."""
 
 
+def held(p99: float, worst: float) -> bool:
+    return p99 <= BARS[0] and worst <= BARS[1]
+
+
 def line_free(samples: list[Sample]) -> dict[tuple[int, int], float]:
     """Each stream's share of packets read more than a packet's time after the one
     before (of any node): they found the line idle. The rest began as another ended and
@@ -406,10 +410,9 @@ def main() -> int:
         print("| run | p99 spread (ms) | worst (ms) | bars held |")
         print("|---|---|---|---|")
         for number, (p99, worst) in enumerate(runs, 1):
-            held = "yes" if p99 <= BARS[0] and worst <= BARS[1] else "no"
-            print(f"| {number} | {p99:.3f} | {worst:.3f} | {held} |")
-        held = sum(p99 <= BARS[0] and worst <= BARS[1] for p99, worst in runs)
-        print(f"\nthe bars held in {held} of {args.runs} runs")
+            print(f"| {number} | {p99:.3f} | {worst:.3f} | "
+                  f"{'yes' if held(p99, worst) else 'no'} |")
+        print(f"\nthe bars held in {sum(held(*run) for run in runs)} of {args.runs} runs")
     return 0
 
 
