@@ -6,12 +6,14 @@ and the run exits 1 ("partial"). Ctrl-C during an export leaves no table cut."""
 from __future__ import annotations
 
 import signal
+import struct
 import subprocess
 from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
 
+from gateway.recording.files import FOOTER_BYTES, RECORD_HEAD
 from gateway.recording.plot import picture, records_of
 from gateway.recording.reader import read_all
 from gateway.recording.reports import Reading
@@ -254,3 +256,46 @@ def test_a_replay_skips_what_it_cannot_read_and_exits_1(gateway, tmp_path):
     assert "gx2-a.mcap: skipped 1 damaged chunk (100 messages" in log
     assert "gx2-b.mcap: skipped: empty" in log
     assert "replay finished: 200 reads" in log
+
+
+def damage_footer(path: Path, how: str, chunks: list[tuple[int, int]]) -> None:
+    """The footer's summary start (the first of its fields) with its highest bit set
+    flipped (``bit``: it then points into the data), or set to where a chunk begins."""
+    data = bytearray(path.read_bytes())
+    field = len(data) - FOOTER_BYTES + RECORD_HEAD.size
+    (start,) = struct.unpack_from("<Q", data, field)
+    wrong = start ^ (1 << (start.bit_length() - 1)) if how == "bit" else chunks[4][0]
+    assert wrong < chunks[-1][0]  # (so the old reader stopped before the last chunk)
+    struct.pack_into("<Q", data, field, wrong)
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("how", ["bit", "boundary"])
+def test_a_damaged_footer_loses_no_message_and_is_said(tmp_path, how):
+    path = tmp_path / "run.mcap"
+    chunks = write_chunks(path, [[(TOPIC, euler(seq)) for seq in range(start, start + 100)]
+                                 for start in range(1, 1001, 100)])
+    damage_footer(path, how, chunks)
+    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
+    assert ran.status == 0, ran  # nothing was skipped: every message is in the tables
+    assert seqs(tmp_path / "out" / "76_euler.csv") == list(range(1, 1001))
+    assert ran.stderr == (f"gx2ctl: {path}: its footer is damaged (it points to the wrong "
+                          "place for the summary, found by reading the records); read "
+                          "every message\n")
+    assert "1,000 rows" in ran.stdout
+
+
+def test_a_damaged_footer_and_a_damaged_chunk_are_both_said_and_counted(tmp_path):
+    # the summary found by the records still counts the messages a damaged chunk held
+    path = tmp_path / "run.mcap"
+    chunks = write_chunks(path, [[(TOPIC, euler(seq)) for seq in range(start, start + 100)]
+                                 for start in range(1, 1001, 100)])
+    damage(path, chunks[7], "content")
+    damage_footer(path, "boundary", chunks)
+    reading = Reading()
+    read = [entry.payload()["seq"] for entry in read_all([path], reading)]
+    assert read == [*range(1, 701), *range(801, 1001)]
+    [line] = reading.lines()
+    assert line.startswith(f"{path}: its footer is damaged (it points to the wrong place "
+                           "for the summary, found by reading the records); skipped 1 "
+                           "damaged chunk (100 messages,"), line
