@@ -115,6 +115,8 @@ def records_of(paths: list[Path], node: int, record: str | None,
     marks: list[Mark] = []
     name = None
     for entry in read_all(paths, reading):
+        if entry.after_damage:
+            losses.unread()
         if entry.topic == "gx2/gateway/status":
             for listed in entry.payload().get("nodes") or []:
                 if isinstance(listed, dict) and listed.get("node") == node and listed.get(
@@ -150,7 +152,7 @@ def _keep(counted: dict[str, dict[int, Counted[int]]],
           decided: list[Counted[tuple[str, int]]]) -> None:
     for row in decided:
         record, index = row.item
-        counted.setdefault(record, {})[index] = Counted(index, row.lost, row.gateway)
+        counted.setdefault(record, {})[index] = row._replace(item=index)
 
 
 def count(payloads: list[dict]) -> Counts:
@@ -185,7 +187,7 @@ def picture(node: int, record: str, payloads: list[dict], name: str | None,
                          "NaN: a magnetometer an Inertia-Link does not have?)")
     summary = Summary()
     for row in lost:
-        summary.add(row)
+        summary.add(row, period=period or None)
     who = f"{name} ({node})" if name else f"node {node}"
     rate = f"{1 / period:.1f} Hz" if period else "rate unknown"
     title = (f"{who}: {record}, {rate}, {len(rows):,} records\n"

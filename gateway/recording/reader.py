@@ -9,7 +9,7 @@ import os
 import struct
 import zlib
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import IO, Any
 
@@ -54,6 +54,9 @@ class Entry:
     log_time: int
     publish_time: int
     data: bytes
+    after_damage: bool = False
+    """A stretch of the file was skipped unread just before it (and after the message
+    before it): what the streams miss across it was recorded, then lost by the file."""
 
     def payload(self) -> dict[str, Any]:
         """A JSON channel's message; RecordingError if it is not a JSON object."""
@@ -139,6 +142,14 @@ class _Walk:
         return self._stream.read(size)
 
     def entries(self, wanted: frozenset[str] | None) -> Iterator[Entry]:
+        damaged = False  # (a skipped stretch before entries not wanted: said by the next)
+        for entry in self._entries():
+            damaged = damaged or entry.after_damage
+            if wanted is None or entry.topic in wanted:
+                yield replace(entry, after_damage=True) if damaged else entry
+                damaged = False
+
+    def _entries(self) -> Iterator[Entry]:
         end = self._summary()
         at = len(MAGIC)
         while at < end:
@@ -160,7 +171,7 @@ class _Walk:
                 self._counting = None
                 for channel, log_time, publish_time, data in found:
                     entry = self._entry(channel, log_time, publish_time, data)
-                    if entry is not None and (wanted is None or entry.topic in wanted):
+                    if entry is not None:
                         yield entry
             elif opcode in (Opcode.MESSAGE, Opcode.CHANNEL, Opcode.MESSAGE_INDEX):
                 body = self._at(at + RECORD_HEAD.size, length)
@@ -169,7 +180,7 @@ class _Walk:
                 except (struct.error, UnicodeDecodeError):
                     at = self._resync(at, end, chunk=False)
                     continue
-                if entry is not None and (wanted is None or entry.topic in wanted):
+                if entry is not None:
                     yield entry
             at = after
         if at >= end and end < self._size:
@@ -316,10 +327,11 @@ class _Walk:
             return None
         self._report.read += 1
         self._report.last = log_time
+        damaged = bool(self._waiting)
         for loss in self._waiting:
             loss.before = log_time
         self._waiting.clear()
-        return Entry(topic, log_time, publish_time, data)
+        return Entry(topic, log_time, publish_time, data, damaged)
 
     def _lost(self, offset: int, size: int, chunk: bool) -> Loss:
         loss = Loss(offset, size, chunk, after=self._report.last)

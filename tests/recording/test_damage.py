@@ -299,3 +299,39 @@ def test_a_damaged_footer_and_a_damaged_chunk_are_both_said_and_counted(tmp_path
     assert line.startswith(f"{path}: its footer is damaged (it points to the wrong place "
                            "for the summary, found by reading the records); skipped 1 "
                            "damaged chunk (100 messages,"), line
+
+
+def test_messages_a_damaged_file_lost_are_said_as_the_files_not_the_gateways(tmp_path):
+    # 1,000 samples at 100 Hz: the radio lost two (no seq for them), the gateway one (its
+    # seq missing too), and 200 bytes zeroed in the middle of the sixth chunk lose the
+    # 100 samples it held, which were recorded: the file's loss, said apart
+    path = tmp_path / "run.mcap"
+    samples, seq = [], 0
+    for i in range(1000):
+        seq += 1
+        if i in (50, 51):
+            seq -= 1
+            continue
+        if i == 300:
+            continue
+        samples.append((TOPIC, payload(76, "euler", seq, T0 + i / 100, timer=i * 196_608,
+                                       roll=0.1, pitch=0.2, yaw=0.3)))
+    chunks = write_chunks(path, [samples[start:start + 100]
+                                 for start in range(0, len(samples), 100)])
+    data = bytearray(path.read_bytes())
+    offset, length = chunks[5]
+    data[offset + length // 2:offset + length // 2 + 200] = bytes(200)
+    path.write_bytes(bytes(data))
+    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
+    assert ran.status == 1, ran
+    assert ran.stdout == (f"{tmp_path / 'out' / '76_euler.csv'}  897 rows "
+                          "(file damaged: 100 messages, 1.0 s unread)\n")
+    assert "skipped 1 damaged chunk (100 messages" in ran.stderr
+    found = records_of([path], 76, None, Reading())
+    image = picture(76, found.record, found.payloads, found.name, found.marks, found.counts)
+    assert image.title.splitlines()[1] == ("radio: 2 lost (0.20%) · gateway: 1 lost "
+                                           "(0.10%) · file damaged: 100 messages, 1.0 s "
+                                           "unread")
+    drawn = gx2ctl("plot", str(path), "76", "--out", str(tmp_path / "76.png"))
+    assert drawn.status == 1, drawn
+    assert (tmp_path / "76.png").read_bytes()[:4] == b"\x89PNG"
