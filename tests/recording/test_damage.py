@@ -335,3 +335,18 @@ def test_messages_a_damaged_file_lost_are_said_as_the_files_not_the_gateways(tmp
     drawn = gx2ctl("plot", str(path), "76", "--out", str(tmp_path / "76.png"))
     assert drawn.status == 1, drawn
     assert (tmp_path / "76.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_damaged_summary_is_not_used_and_loses_no_message(tmp_path):
+    path = tmp_path / "run.mcap"
+    write_chunks(path, [[(TOPIC, euler(seq)) for seq in range(start, start + 100)]
+                        for start in range(1, 301, 100)])
+    data = bytearray(path.read_bytes())
+    (start,) = struct.unpack_from("<Q", data, len(data) - FOOTER_BYTES + RECORD_HEAD.size)
+    data[start] = 0x7F  # the summary's first record: an opcode no record has
+    path.write_bytes(bytes(data))
+    reading = Reading()
+    assert [e.payload()["seq"] for e in read_all([path], reading)] == list(range(1, 301))
+    assert not reading.partial
+    assert reading.lines() == [f"{path}: its summary is damaged (not used); read every "
+                               "message"]
