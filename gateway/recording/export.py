@@ -38,7 +38,7 @@ from aspp.records import BY_NAME
 from gateway.common.topics import parse
 
 from .files import MARK, RecordingError
-from .losses import Counted, Losses
+from .losses import Counted, Losses, Summary
 from .reader import Entry, Mark, read_all
 from .reports import Reading
 
@@ -111,7 +111,13 @@ class Table:
         self.node, self.record = node, record
         self.fields = field_columns(record, first)
         self.columns = [*LEADING, *(column for column, _, _ in self.fields)]
-        self.rows = 0
+        self.losses = Summary()
+        """Its rows (``received``), and what the file lost of them (the radio's and
+        the gateway's losses are in ``lost_before``, not said)."""
+
+    @property
+    def rows(self) -> int:
+        return self.losses.received
 
     def row(self, payload: Mapping[str, Any]) -> list[Any]:
         return [*(payload.get(name) for name in LEADING),
@@ -241,6 +247,8 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
         for entry in read_all(paths, reading):
             if progress is not None:
                 progress(entry)
+            if entry.after_damage:
+                losses.unread()
             if entry.topic == MARK:
                 if marks is None:
                     marks = Output(out, f"{MARKS}.{form}", form, MARK_COLUMNS)
@@ -258,8 +266,8 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
                 outputs.append(output)
                 open_table = tables[where] = (table, output)
             table, output = open_table
-            _write(losses.add(*where, payload, (table, output, table.row(payload))))
-        _write(losses.finish())
+            _write(losses.add(*where, payload, (table, output, table.row(payload))), losses)
+        _write(losses.finish(), losses)
         for output in outputs:
             output.finish()
             done.append(output.path)
@@ -271,13 +279,14 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
         marks.rows if marks is not None else 0)
 
 
-def _write(counted: list[Counted[tuple[Table, Output, list[Any]]]]) -> None:
+def _write(counted: list[Counted[tuple[Table, Output, list[Any]]]],
+           losses: Losses[Any]) -> None:
     """Write rows whose ``lost_before`` is now known."""
     for row in counted:
         table, output, values = row.item
         values[LOST_BEFORE] = row.lost
         output.add(values)
-        table.rows += 1
+        table.losses.add(row, period=losses.period(table.node, table.record))
 
 
 def mark_row(mark: Mark) -> list[Any]:

@@ -32,6 +32,10 @@ gateway restarted): the first row after a reboot says so. A continuous-mode repl
 is where it begins again: its next row is counted from that cycle, not from the row
 before (a stream stopped in between lost nothing), unless the timer restarted before
 it (a reboot, then a start: what the stream lost before is not known).
+
+Where a reader skipped a damaged stretch of a recording (:meth:`Losses.unread`), what
+each stream misses across it was recorded but could not be read: neither the radio's
+nor the gateway's loss, it is counted apart (``unread``), and said as the file's.
 """
 
 from __future__ import annotations
@@ -75,11 +79,14 @@ class Counted(NamedTuple, Generic[T]):
     """Of ``lost``, the samples that are missing from ``seq`` too (the node's messages
     missing by ``seq`` since the stream's previous row, at most ``lost``): the
     gateway's losses, not the radio's."""
+    unread: int = 0
+    """Of ``lost``, the samples in a stretch of the recording that could not be read
+    (all of ``lost``, for the first row after it; the others 0)."""
 
     @property
     def radio(self) -> int:
         """Of ``lost``, the samples the radio lost."""
-        return max(0, (self.lost or 0) - self.gateway)
+        return max(0, (self.lost or 0) - self.gateway - self.unread)
 
 
 class _Row(NamedTuple, Generic[T]):
@@ -91,6 +98,8 @@ class _Row(NamedTuple, Generic[T]):
     """Decided already (a first row, a restart, a short step), or None to decide."""
     gateway: int
     """The node's messages missing by ``seq`` since the stream's previous row."""
+    unread: bool = False
+    """A stretch of the recording that could not be read lies before it."""
 
 
 class _Last(NamedTuple):
@@ -112,6 +121,8 @@ class Stream(Generic[T]):
         """The stream's last row, or the node's continuous-mode reply since."""
         self._unknown = False
         """The timer restarted before a continuous-mode reply: the next row says so."""
+        self._unread = False
+        """A stretch of the recording was skipped unread: the next row's losses lie in it."""
         self._pending: deque[_Row[T]] = deque()
         self._behind: deque[int] = deque()
         self._window: dict[int, int] = {}
@@ -149,6 +160,7 @@ class Stream(Generic[T]):
             return [Counted(item, None, 0)]
         ticks, timer, seq = new.ticks, new.timer, new.seq
         last, self._last = self._last, new
+        unread, self._unread = self._unread, False
         restarted = self._unknown or (last is not None and _restarted(last, ticks, timer, seq))
         self._unknown = False
         if last is None or restarted:
@@ -162,12 +174,17 @@ class Stream(Generic[T]):
         if step < MIN_DIVIDER:
             self._pending.append(_Row(item, None, 0, 0))
         else:
-            self._pending.append(_Row(item, step, None, gateway))
+            self._pending.append(_Row(item, step, None, gateway, unread))
             self._window[step] = self._window.get(step, 0) + 1
         out = []
         while len(self._pending) > self.ahead:
             out.append(self._decide())
         return out
+
+    def unread(self) -> None:
+        """A stretch of the recording was skipped unread: what the next row misses was
+        in it (recorded, not lost by the radio or the gateway)."""
+        self._unread = True
 
     @property
     def seconds(self) -> float | None:
@@ -193,6 +210,8 @@ class Stream(Generic[T]):
                 self._window[old] = left
             else:
                 del self._window[old]
+        if row.unread:  # what it misses was recorded: the file lost it, not the gateway
+            return Counted(row.item, lost, 0, lost)
         return Counted(row.item, lost, min(lost, row.gateway))
 
     def _period(self) -> int | None:
@@ -232,6 +251,12 @@ class Losses(Generic[T]):
                     other.started(payload, count)
         return out
 
+    def unread(self) -> None:
+        """A stretch of the recording was skipped unread (a damaged chunk): each
+        stream's next row misses what was in it."""
+        for stream in self.streams.values():
+            stream.unread()
+
     def finish(self) -> list[Counted[T]]:
         """The rows still waiting, decided on what came."""
         return [counted for stream in self.streams.values() for counted in stream.flush()]
@@ -244,25 +269,41 @@ class Losses(Generic[T]):
 
 @dataclass
 class Summary:
-    """Totals of rows counted: received, and lost by the radio and by the gateway."""
+    """Totals of rows counted: received, lost by the radio and by the gateway, and
+    recorded but unread (a damaged stretch of a recording)."""
 
     received: int = 0
     radio: int = 0
     gateway: int = 0
+    unread: int = 0
+    unread_seconds: float = 0.0
 
-    def add(self, counted: Counted[Any], gateway: int | None = None) -> None:
+    def add(self, counted: Counted[Any], gateway: int | None = None,
+            period: float | None = None) -> None:
         """Count a row; ``gateway``: the messages the gateway lost just before it, if
-        known otherwise than by its stream (a subscriber's count of every record)."""
+        known otherwise than by its stream (a subscriber's count of every record);
+        ``period``: the stream's (s), to say how long the unread stretches are."""
         self.received += 1
         self.radio += counted.radio
         self.gateway += counted.gateway if gateway is None else gateway
+        self.unread += counted.unread
+        self.unread_seconds += counted.unread * (period or 0.0)
 
     def line(self, separator: str = ", ") -> str:
         """``radio: 2,600 lost (26.00%), gateway: 0 lost (0.00%)``: each a share of what
-        should have arrived (received and lost)."""
-        total = self.received + self.radio + self.gateway
-        return (f"radio: {self.radio:,} lost ({_share(self.radio, total)}){separator}"
+        should have arrived (received and lost); then the file's damage, if any."""
+        total = self.received + self.radio + self.gateway + self.unread
+        said = (f"radio: {self.radio:,} lost ({_share(self.radio, total)}){separator}"
                 f"gateway: {self.gateway:,} lost ({_share(self.gateway, total)})")
+        return f"{said}{separator}{self.damage()}" if self.unread else said
+
+    def damage(self) -> str:
+        """``file damaged: 98 messages, 1.0 s unread``; empty if none was."""
+        if not self.unread:
+            return ""
+        seconds = f", {self.unread_seconds:.1f} s" if self.unread_seconds else ""
+        return (f"file damaged: {self.unread:,} message{'s' * (self.unread != 1)}"
+                f"{seconds} unread")
 
 
 def _share(part: int, total: int) -> str:

@@ -16,8 +16,9 @@ loss shows as a gap; where an angle wraps (a jump of more than HALF_TURN, from +
 gives the rate, and the samples lost by the radio (the timer's steps) and by the
 gateway (``seq``) apart, as counts and shares. Each panel's legend is beside it, off
 the data. Marks (``gx2ctl mark``) of the node or of the whole experiment, made within
-the samples' time, are vertical lines labelled with their text (none against
-``device_time``: a mark's time is UNIX time). matplotlib is an optional extra,
+the samples' time, are vertical lines labelled with their text, inside the top panel
+(shortened with an ellipsis where it is too long for it), none against
+``device_time`` (a mark's time is UNIX time). matplotlib is an optional extra,
 imported only here.
 """
 
@@ -114,6 +115,8 @@ def records_of(paths: list[Path], node: int, record: str | None,
     marks: list[Mark] = []
     name = None
     for entry in read_all(paths, reading):
+        if entry.after_damage:
+            losses.unread()
         if entry.topic == "gx2/gateway/status":
             for listed in entry.payload().get("nodes") or []:
                 if isinstance(listed, dict) and listed.get("node") == node and listed.get(
@@ -149,7 +152,7 @@ def _keep(counted: dict[str, dict[int, Counted[int]]],
           decided: list[Counted[tuple[str, int]]]) -> None:
     for row in decided:
         record, index = row.item
-        counted.setdefault(record, {})[index] = Counted(index, row.lost, row.gateway)
+        counted.setdefault(record, {})[index] = row._replace(item=index)
 
 
 def count(payloads: list[dict]) -> Counts:
@@ -184,7 +187,7 @@ def picture(node: int, record: str, payloads: list[dict], name: str | None,
                          "NaN: a magnetometer an Inertia-Link does not have?)")
     summary = Summary()
     for row in lost:
-        summary.add(row)
+        summary.add(row, period=period or None)
     who = f"{name} ({node})" if name else f"node {node}"
     rate = f"{1 / period:.1f} Hz" if period else "rate unknown"
     title = (f"{who}: {record}, {rate}, {len(rows):,} records\n"
@@ -322,15 +325,54 @@ def figure_of(image: Picture) -> Figure:
                     fontsize="small")
         for at, _ in image.marks:
             axis.axvline(at, color=MARK_COLOUR, linewidth=1.0, linestyle="--")
+    top = axes[0, 0]
+    middle = (image.x[0] + image.x[-1]) / 2 if image.x else 0.0
+    labels = []
     for at, text in image.marks:
         # the label once, at the top panel's top edge (x in data, y in the axes' own
-        # 0..1), so it stays put whatever the panel's values
-        axes[0, 0].annotate(text, (at, 1.0), xycoords=("data", "axes fraction"),
-                            xytext=(2, -2), textcoords="offset points", rotation=90,
-                            va="top", ha="left", fontsize="small", color=MARK_COLOUR)
+        # 0..1), so it stays put whatever the panel's values; on the line's inner side
+        # (left of a mark in the right half), so it does not run past the panel's edge
+        right = at <= middle
+        label = top.annotate(text, (at, 1.0), xycoords=("data", "axes fraction"),
+                             xytext=(2 if right else -2, -2), textcoords="offset points",
+                             rotation=90, va="top", ha="left" if right else "right",
+                             fontsize="small", color=MARK_COLOUR)
+        label.set_in_layout(False)  # (else a long one squashes the panels to make room)
+        labels.append(label)
     axes[-1, 0].set_xlabel(image.x_label)
     figure.suptitle(image.title)
+    if labels:
+        figure.draw_without_rendering()  # the layout (everything else in), whose
+        bottom = top.get_window_extent().y0  # panel the labels are fitted into
+        for label in labels:
+            _fit(label, bottom)
     return figure
+
+
+ELLIPSIS = "\u2026"
+
+
+def _fit(label: Any, bottom: float) -> None:
+    """Shorten a mark's label (hung from the top panel's top edge) with an ellipsis
+    until it ends above ``bottom``, the panel's lower edge (display units)."""
+    text = label.get_text()
+
+    def fits(shown: str) -> bool:
+        label.set_text(shown)
+        return label.get_window_extent().y0 >= bottom
+
+    if fits(text):
+        return
+    # the longest prefix that fits with the ellipsis: found by halving (fitting is
+    # monotone in the prefix's length)
+    low, high = 0, len(text)
+    while low < high:
+        half = (low + high + 1) // 2
+        if fits(text[:half].rstrip() + ELLIPSIS):
+            low = half
+        else:
+            high = half - 1
+    label.set_text(text[:low].rstrip() + ELLIPSIS)
 
 
 def draw(image: Picture, out: Path) -> None:

@@ -9,7 +9,7 @@ import os
 import struct
 import zlib
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import IO, Any
 
@@ -54,6 +54,9 @@ class Entry:
     log_time: int
     publish_time: int
     data: bytes
+    after_damage: bool = False
+    """A stretch of the file was skipped unread just before it (and after the message
+    before it): what the streams miss across it was recorded, then lost by the file."""
 
     def payload(self) -> dict[str, Any]:
         """A JSON channel's message; RecordingError if it is not a JSON object."""
@@ -139,6 +142,14 @@ class _Walk:
         return self._stream.read(size)
 
     def entries(self, wanted: frozenset[str] | None) -> Iterator[Entry]:
+        damaged = False  # (a skipped stretch before entries not wanted: said by the next)
+        for entry in self._entries():
+            damaged = damaged or entry.after_damage
+            if wanted is None or entry.topic in wanted:
+                yield replace(entry, after_damage=True) if damaged else entry
+                damaged = False
+
+    def _entries(self) -> Iterator[Entry]:
         end = self._summary()
         at = len(MAGIC)
         while at < end:
@@ -160,7 +171,7 @@ class _Walk:
                 self._counting = None
                 for channel, log_time, publish_time, data in found:
                     entry = self._entry(channel, log_time, publish_time, data)
-                    if entry is not None and (wanted is None or entry.topic in wanted):
+                    if entry is not None:
                         yield entry
             elif opcode in (Opcode.MESSAGE, Opcode.CHANNEL, Opcode.MESSAGE_INDEX):
                 body = self._at(at + RECORD_HEAD.size, length)
@@ -169,15 +180,23 @@ class _Walk:
                 except (struct.error, UnicodeDecodeError):
                     at = self._resync(at, end, chunk=False)
                     continue
-                if entry is not None and (wanted is None or entry.topic in wanted):
+                if entry is not None:
                     yield entry
             at = after
         if at >= end and end < self._size:
             self._report.whole = True  # at the summary of a finished file
 
+    # The footer's summary start is only a hint: a flipped bit or a stray write there
+    # would otherwise end the data section wherever it points, and every chunk after
+    # that would go unread without a word. It is used where it checks out (a data end
+    # record just before it, and the summary's records tiling exactly up to the
+    # footer); else the data section's end is found from the records themselves (each
+    # record's opcode and length lead to the next, up to the data end), and the
+    # summary is looked for there. The damage is said (FileReport.summary).
+
     def _summary(self) -> int:
         """Where the data section ends: a finished file's summary (its channels and
-        message count read here), else the end of the file."""
+        message count read here), else the end of the file, or its footer's start."""
         if self._size < len(MAGIC) + FOOTER_BYTES:
             return self._size
         tail = self._at(self._size - FOOTER_BYTES, FOOTER_BYTES)
@@ -185,24 +204,61 @@ class _Walk:
         if tail[-len(MAGIC):] != MAGIC or opcode != Opcode.FOOTER or length != 20:
             return self._size
         footer = self._size - FOOTER_BYTES
-        start, offsets, _ = struct.unpack_from("<QQI", tail, RECORD_HEAD.size)
-        if not len(MAGIC) <= start <= footer:
-            return footer
-        summary = self._at(start, (offsets if start < offsets <= footer else footer) - start)
+        (start,) = struct.unpack_from("<Q", tail, RECORD_HEAD.size)
+        if start == 0:
+            return footer  # no summary written (as the MCAP spec allows)
+        if self._summary_at(start, footer):
+            return start
+        found = self._data_end(footer)
+        if found is not None and self._summary_at(found, footer):
+            self._report.summary = ("its footer is damaged (it points to the wrong place "
+                                    "for the summary, found by reading the records)")
+            return found
+        self._report.summary = "its summary is damaged (not used)"
+        return footer
+
+    def _summary_at(self, start: int, footer: int) -> bool:
+        """Whether a summary starts at ``start``: after a data end record, its records
+        tiling exactly up to the footer; its channels and message count read if so."""
+        if not len(MAGIC) + _DATA_END_BYTES <= start <= footer:
+            return False
+        before = self._at(start - _DATA_END_BYTES, RECORD_HEAD.size)
+        if RECORD_HEAD.unpack(before) != (Opcode.DATA_END, _DATA_END_BYTES - RECORD_HEAD.size):
+            return False
+        summary = self._at(start, footer - start)
+        channels: dict[int, str] = {}
+        expected = None
         at = 0
         try:
-            while at + RECORD_HEAD.size <= len(summary):
+            while at < len(summary):
                 opcode, length = RECORD_HEAD.unpack_from(summary, at)
                 body = summary[at + RECORD_HEAD.size:at + RECORD_HEAD.size + length]
+                if not _known(opcode) or len(body) != length:
+                    return False
                 if opcode == Opcode.CHANNEL:
                     channel, topic = _channel(body)
-                    self._channels[channel] = topic
+                    channels[channel] = topic
                 elif opcode == Opcode.STATISTICS:
-                    (self._report.expected,) = struct.unpack_from("<Q", body)
+                    (expected,) = struct.unpack_from("<Q", body)
                 at += RECORD_HEAD.size + length
         except (struct.error, UnicodeDecodeError):
-            pass  # a damaged summary: the data section read alone says what is there
-        return start
+            return False
+        self._channels.update(channels)
+        self._report.expected = expected
+        return True
+
+    def _data_end(self, footer: int) -> int | None:
+        """Where the data section ends, by its records' lengths (one read of each
+        record's head); None if they do not lead to a data end record."""
+        at = len(MAGIC)
+        while at + RECORD_HEAD.size <= footer:
+            opcode, length = RECORD_HEAD.unpack(self._at(at, RECORD_HEAD.size))
+            at += RECORD_HEAD.size + length
+            if not _known(opcode) or at > footer:
+                return None
+            if opcode == Opcode.DATA_END:
+                return at
+        return None
 
     def _chunk(self, body: bytes) -> list[tuple[int, int, int, bytes]] | None:
         """(channel, log_time, publish_time, data) of a chunk's messages, its channels
@@ -271,10 +327,11 @@ class _Walk:
             return None
         self._report.read += 1
         self._report.last = log_time
+        damaged = bool(self._waiting)
         for loss in self._waiting:
             loss.before = log_time
         self._waiting.clear()
-        return Entry(topic, log_time, publish_time, data)
+        return Entry(topic, log_time, publish_time, data, damaged)
 
     def _lost(self, offset: int, size: int, chunk: bool) -> Loss:
         loss = Loss(offset, size, chunk, after=self._report.last)
@@ -343,6 +400,8 @@ class _Walk:
 
 
 _OPCODES = frozenset(int(opcode) for opcode in Opcode)
+_DATA_END_BYTES = RECORD_HEAD.size + 4
+"""A data end record: its head and a CRC."""
 
 
 def _known(opcode: int) -> bool:

@@ -42,6 +42,10 @@ class FileReport:
     """Its data section ends where a finished file's does: it was not cut short."""
     last: int | None = None
     """log_time (ns) of the last message read."""
+    summary: str = ""
+    """What was wrong with a finished file's footer or summary: every record was read
+    all the same (the data section's end found from the records), so it is said, but
+    nothing was skipped for it."""
 
     @property
     def partial(self) -> bool:
@@ -52,7 +56,7 @@ class FileReport:
         """One line for the user; empty for a file read whole."""
         if self.skipped:
             return f"{self.path}: skipped: {self.skipped}"
-        said = []
+        said = [self.summary] if self.summary else []
         if self.losses or self.orphans:
             said.append(self._damage())
         if not self.whole:
@@ -61,7 +65,8 @@ class FileReport:
         if not said:
             return ""
         return f"{self.path}: {'; '.join(said)}; read " + (
-            "the rest" if self.losses or self.orphans else "up to there")
+            "the rest" if self.losses or self.orphans else
+            "up to there" if not self.whole else "every message")
 
     def _damage(self) -> str:
         chunks = sum(loss.chunk for loss in self.losses)

@@ -24,6 +24,7 @@ from gateway.common.yamlfile import ConfigError
 
 from .config import SimConfig, SimNodeEntry, SimStationsConfig, load_sim_config
 from .node import GX2, INERTIA_LINK
+from .physics import MOTIONS
 from .server import LinkInUse, Simulator
 
 PROG = "gx2-sim"
@@ -57,6 +58,8 @@ def build_parser() -> ArgumentParser:
     nodes.add_argument("--timer-start", type=bounded(float, 0.0, 1e9), default=0.0,
                        metavar="SECONDS",
                        help="timer value at power-up (215 starts 3.45 s before the wrap)")
+    nodes.add_argument("--motion", choices=tuple(MOTIONS), default="turn",
+                       help="turn about the vertical (default), or swing as well")
     faults = parser.add_argument_group("faults (applied to every node of every station)")
     for name, what in (("command-loss", "commands lost over the radio"),
                        ("data-loss", "packets from nodes lost over the radio"),
@@ -88,7 +91,8 @@ def merged_config(args: Any, base: SimConfig) -> SimConfig:
         if address in known:
             raise ConfigError(f"node {address} is both in --config and in --nodes")
         data["nodes"].append({"address": address, "model": args.model, "stream": args.stream,
-                              "divider": args.divider, "timer_start": args.timer_start})
+                              "divider": args.divider, "timer_start": args.timer_start,
+                              "motion": args.motion})
     _override(data, args)
     config = _validated(SimConfig, data, args.config or "command line")
     if not config.nodes:

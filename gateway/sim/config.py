@@ -9,6 +9,7 @@ nodes:
   - address: 76
     model: inertia-link       # or 3dm-gx2 (which has a magnetometer)
     stream: accel_angrate     # auto-start record (EEPROM 0xFCA6), or omit for polled
+    motion: turn              # turn (about the vertical) or swing (and wobbling, 4 s)
     divider: 512              # 51200 / 512 = 100 Hz
     timer_start: 0.0          # seconds on the timer at power-up (215: near the wrap)
     gyro: ADXRS610            # rate sensor model (its temperature output)
@@ -52,6 +53,7 @@ from gateway.common.yamlfile import ConfigError, read_mapping
 
 from .base_station import LineFaults, RadioLink
 from .node import GX2, INERTIA_LINK, NodeSettings
+from .physics import MOTIONS
 
 Probability = Field(default=0.0, ge=0.0, le=1.0)
 
@@ -91,7 +93,15 @@ class SimNodeEntry(Strict):
     accel_noise: float = Field(default=0.0, ge=0.0, le=1.0)
     rate_noise: float = Field(default=0.0, ge=0.0, le=1.0)
     bit_faults: list[str] = Field(default_factory=list)
+    motion: str = "turn"
     radio: RadioConfig = RadioConfig()
+
+    @field_validator("motion")
+    @classmethod
+    def _known_motion(cls, value: str) -> str:
+        if value not in MOTIONS:
+            raise ValueError(f"must be {' or '.join(MOTIONS)}, not {value!r}")
+        return value
 
     @field_validator("gyro")
     @classmethod
@@ -126,7 +136,8 @@ class SimNodeEntry(Strict):
                             serial=self.serial, gyro=self.gyro,
                             gyro_bias_error=tuple(self.gyro_bias_error),  # type: ignore[arg-type]
                             accel_noise=self.accel_noise, rate_noise=self.rate_noise,
-                            bit_faults=frozenset(self.bit_faults))
+                            bit_faults=frozenset(self.bit_faults),
+                            motion=MOTIONS[self.motion])
 
 
 class SimConfig(Strict):
@@ -215,6 +226,7 @@ def load_sim_config(path: str | Path) -> SimConfig | SimStationsConfig:
 
 _URL_KEYS = {"line": {"garbage", "bad_checksum", "false_header", "glue_ack", "nack"},
              "radio": {"command_loss", "data_loss", "stop_loss"},
+             "node": {"motion"},
              "top": {"seed", "first_write_failure"}}
 
 
@@ -226,7 +238,7 @@ def from_url(url: str, nodes: list[int]) -> SimConfig:
     if parts.scheme != "sim" or parts.netloc or parts.path not in ("", "/"):
         raise ValueError(f"{url!r}: sim:// takes only query parameters, "
                          "e.g. sim://?data_loss=0.05")
-    groups: dict[str, dict[str, str]] = {"line": {}, "radio": {}, "top": {}}
+    groups: dict[str, dict[str, str]] = {"line": {}, "radio": {}, "node": {}, "top": {}}
     out_of_range: set[int] = set()
     for key, value in parse_qsl(parts.query, keep_blank_values=True):
         if key == "out_of_range":
@@ -247,8 +259,9 @@ def from_url(url: str, nodes: list[int]) -> SimConfig:
     try:
         return SimConfig.model_validate({  # query values are text: convert them
             "line": groups["line"], **groups["top"],
-            "nodes": [{"address": a, "radio": {"in_range": a not in out_of_range,
-                                               **groups["radio"]}} for a in nodes]},
+            "nodes": [{"address": a, **groups["node"],
+                       "radio": {"in_range": a not in out_of_range, **groups["radio"]}}
+                      for a in nodes]},
             strict=False)
     except ValidationError as error:
         raise ValueError(describe(error, "sim://")) from None

@@ -306,7 +306,13 @@ class SimNode:
         if code == 0xC2:
             return encode(code, accel=accel, ang_rate=rate, timer=timer)
         if code in (0xC3, 0xD3):
-            fields = dict(delta_angle=_scale(rate, period), delta_velocity=_scale(accel, period))
+            # the motion's integrals over the cycle, plus what the sensors add (bias,
+            # noise, a self-test's step) held over it
+            fields = dict(
+                delta_angle=_plus3(motion.delta_angle(t, period),
+                                   _scale(_minus(rate, motion.ang_rate(t)), period)),
+                delta_velocity=_plus3(motion.delta_velocity(t, period),
+                                      _scale(_minus(accel, motion.accel(t)), period)))
             if code == 0xD3:
                 fields["mag"] = mag
             return encode(code, **fields, timer=timer)

@@ -6,12 +6,14 @@ and the run exits 1 ("partial"). Ctrl-C during an export leaves no table cut."""
 from __future__ import annotations
 
 import signal
+import struct
 import subprocess
 from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
 
+from gateway.recording.files import FOOTER_BYTES, RECORD_HEAD
 from gateway.recording.plot import picture, records_of
 from gateway.recording.reader import read_all
 from gateway.recording.reports import Reading
@@ -254,3 +256,97 @@ def test_a_replay_skips_what_it_cannot_read_and_exits_1(gateway, tmp_path):
     assert "gx2-a.mcap: skipped 1 damaged chunk (100 messages" in log
     assert "gx2-b.mcap: skipped: empty" in log
     assert "replay finished: 200 reads" in log
+
+
+def damage_footer(path: Path, how: str, chunks: list[tuple[int, int]]) -> None:
+    """The footer's summary start (the first of its fields) with its highest bit set
+    flipped (``bit``: it then points into the data), or set to where a chunk begins."""
+    data = bytearray(path.read_bytes())
+    field = len(data) - FOOTER_BYTES + RECORD_HEAD.size
+    (start,) = struct.unpack_from("<Q", data, field)
+    wrong = start ^ (1 << (start.bit_length() - 1)) if how == "bit" else chunks[4][0]
+    assert wrong < chunks[-1][0]  # (so the old reader stopped before the last chunk)
+    struct.pack_into("<Q", data, field, wrong)
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("how", ["bit", "boundary"])
+def test_a_damaged_footer_loses_no_message_and_is_said(tmp_path, how):
+    path = tmp_path / "run.mcap"
+    chunks = write_chunks(path, [[(TOPIC, euler(seq)) for seq in range(start, start + 100)]
+                                 for start in range(1, 1001, 100)])
+    damage_footer(path, how, chunks)
+    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
+    assert ran.status == 0, ran  # nothing was skipped: every message is in the tables
+    assert seqs(tmp_path / "out" / "76_euler.csv") == list(range(1, 1001))
+    assert ran.stderr == (f"gx2ctl: {path}: its footer is damaged (it points to the wrong "
+                          "place for the summary, found by reading the records); read "
+                          "every message\n")
+    assert "1,000 rows" in ran.stdout
+
+
+def test_a_damaged_footer_and_a_damaged_chunk_are_both_said_and_counted(tmp_path):
+    # the summary found by the records still counts the messages a damaged chunk held
+    path = tmp_path / "run.mcap"
+    chunks = write_chunks(path, [[(TOPIC, euler(seq)) for seq in range(start, start + 100)]
+                                 for start in range(1, 1001, 100)])
+    damage(path, chunks[7], "content")
+    damage_footer(path, "boundary", chunks)
+    reading = Reading()
+    read = [entry.payload()["seq"] for entry in read_all([path], reading)]
+    assert read == [*range(1, 701), *range(801, 1001)]
+    [line] = reading.lines()
+    assert line.startswith(f"{path}: its footer is damaged (it points to the wrong place "
+                           "for the summary, found by reading the records); skipped 1 "
+                           "damaged chunk (100 messages,"), line
+
+
+def test_messages_a_damaged_file_lost_are_said_as_the_files_not_the_gateways(tmp_path):
+    # 1,000 samples at 100 Hz: the radio lost two (no seq for them), the gateway one (its
+    # seq missing too), and 200 bytes zeroed in the middle of the sixth chunk lose the
+    # 100 samples it held, which were recorded: the file's loss, said apart
+    path = tmp_path / "run.mcap"
+    samples, seq = [], 0
+    for i in range(1000):
+        seq += 1
+        if i in (50, 51):
+            seq -= 1
+            continue
+        if i == 300:
+            continue
+        samples.append((TOPIC, payload(76, "euler", seq, T0 + i / 100, timer=i * 196_608,
+                                       roll=0.1, pitch=0.2, yaw=0.3)))
+    chunks = write_chunks(path, [samples[start:start + 100]
+                                 for start in range(0, len(samples), 100)])
+    data = bytearray(path.read_bytes())
+    offset, length = chunks[5]
+    data[offset + length // 2:offset + length // 2 + 200] = bytes(200)
+    path.write_bytes(bytes(data))
+    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
+    assert ran.status == 1, ran
+    assert ran.stdout == (f"{tmp_path / 'out' / '76_euler.csv'}  897 rows "
+                          "(file damaged: 100 messages, 1.0 s unread)\n")
+    assert "skipped 1 damaged chunk (100 messages" in ran.stderr
+    found = records_of([path], 76, None, Reading())
+    image = picture(76, found.record, found.payloads, found.name, found.marks, found.counts)
+    assert image.title.splitlines()[1] == ("radio: 2 lost (0.20%) · gateway: 1 lost "
+                                           "(0.10%) · file damaged: 100 messages, 1.0 s "
+                                           "unread")
+    drawn = gx2ctl("plot", str(path), "76", "--out", str(tmp_path / "76.png"))
+    assert drawn.status == 1, drawn
+    assert (tmp_path / "76.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_damaged_summary_is_not_used_and_loses_no_message(tmp_path):
+    path = tmp_path / "run.mcap"
+    write_chunks(path, [[(TOPIC, euler(seq)) for seq in range(start, start + 100)]
+                        for start in range(1, 301, 100)])
+    data = bytearray(path.read_bytes())
+    (start,) = struct.unpack_from("<Q", data, len(data) - FOOTER_BYTES + RECORD_HEAD.size)
+    data[start] = 0x7F  # the summary's first record: an opcode no record has
+    path.write_bytes(bytes(data))
+    reading = Reading()
+    assert [e.payload()["seq"] for e in read_all([path], reading)] == list(range(1, 301))
+    assert not reading.partial
+    assert reading.lines() == [f"{path}: its summary is damaged (not used); read every "
+                               "message"]

@@ -18,6 +18,7 @@ from matplotlib import pyplot
 from aspp.orientation import matrix_from_euler
 from aspp.records import BY_NAME, decode, encode
 from gateway.recording.plot import figure_of, picture, records_of
+from gateway.recording.reader import Mark
 from gateway.recording.reports import Reading
 from gateway.recording.writer import RecordingWriter
 from gateway.sim.node import GX2, NodeSettings, SimNode
@@ -321,3 +322,39 @@ def test_a_record_with_nothing_to_draw_is_refused_in_one_line(tmp_path):
     assert ran.status == 2, ran
     assert "no values to draw" in ran.stderr and len(ran.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "95.png").exists()
+
+
+LONG_LABEL = "tap 2 with a rather long label to see how it is drawn on the plot"
+
+
+def panels_with_marks(texts: list[tuple[float, str]]) -> tuple[list, list]:
+    """The panels' window extents, and (text, its extent, its panel's) of each mark, of
+    node 77's euler_angrate plot (two panels) with marks ``texts`` at (s, text)."""
+    rows = [payload(77, "euler_angrate", i + 1, T0 + i / 100, timer=i * 196_608, roll=0.1,
+                    pitch=-0.2, yaw=0.01 * i, ang_rate=(0.0, 0.0, 0.2)) for i in range(500)]
+    marks = [Mark(T0 + at, T0 + at, (77,), text) for at, text in texts]
+    figure = figure_of(picture(77, "euler_angrate", rows, None, marks))
+    figure.canvas.draw()  # (as savefig does: the layout is done again)
+    renderer = figure.canvas.get_renderer()
+    panels = [axis.get_window_extent(renderer) for axis in figure.axes if axis.lines]
+    labels = [(text.get_text(), text.get_window_extent(renderer),
+               axis.get_window_extent(renderer)) for axis in figure.axes
+              for text in axis.texts]
+    pyplot.close(figure)
+    return panels, labels
+
+
+def test_a_long_mark_label_stays_inside_its_panel_and_leaves_the_panels_alone():
+    plain, _ = panels_with_marks([])
+    panels, labels = panels_with_marks([(0.5, "start"), (2.5, LONG_LABEL),
+                                        (4.9, LONG_LABEL)])
+    assert [v for p in panels for v in (p.y0, p.y1, p.x0)] == pytest.approx(
+        [v for p in plain for v in (p.y0, p.y1, p.x0)])  # not squashed, y labels not cut
+    assert panels[0].height == pytest.approx(panels[1].height)
+    assert [text for text, _, _ in labels] == ["start", *[labels[1][0]] * 2]
+    shortened = labels[1][0]
+    assert shortened.endswith("\u2026") and LONG_LABEL.startswith(shortened[:-1])
+    assert len(shortened) > 20  # as much as fits, not cut to nothing
+    for text, extent, inside in labels:
+        assert inside.x0 <= extent.x0 and extent.x1 <= inside.x1, text
+        assert inside.y0 <= extent.y0 and extent.y1 <= inside.y1, text
