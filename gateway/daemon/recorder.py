@@ -7,7 +7,11 @@ the queue is full, or the disk fails, messages are dropped and counted, never he
 The thread wakes every WAKE_S, writes what is queued, and flushes the chunk in
 progress at least every FLUSH_S, so a process killed without warning leaves a file
 readable up to about the last second. Files are finished (summary and index) when
-they rotate, by age or size, and when the gateway stops.
+they rotate, by age or size, and when the gateway stops. The flush, rotation and
+retention keep their second under any load (issue 31): a queue that never empties (a
+disk slower than what comes) is written until they are due, not until it is empty,
+and overflows meanwhile (counted), so a slow disk drops messages, never postpones them
+(late at most by the one write the disk is taking).
 
 A disk that fails (full, an I/O error, a directory that cannot be made) is loud and
 leaves nothing broken behind (issue 20): the recorder's ``failure`` says why it
@@ -220,28 +224,38 @@ class Recorder:
 
     def _run(self) -> None:
         self._list()
-        last_tick = time.monotonic()
-        while not self._stop.wait(WAKE_S):
-            self._drain()
-            now = time.monotonic()
-            if now - last_tick >= FLUSH_S:
-                last_tick = now
+        # The flush, rotation and retention are due once a second whatever the load: a
+        # queue that never empties (a disk slower than what comes) is written until the
+        # next one is due, never past it, and overflows meanwhile (counted: the loop's
+        # side drops what does not fit). Waiting happens only on an empty queue.
+        due = time.monotonic() + FLUSH_S
+        while True:
+            backlog = self._drain(due)
+            if time.monotonic() >= due:
                 if self._writer is not None:
                     self._guarded(self._flush)
                 self._retain()
-        self._drain()
+                due = time.monotonic() + FLUSH_S
+            if backlog:
+                if self._stop.is_set():
+                    break
+            elif self._stop.wait(WAKE_S):
+                break
+        self._drain(self._drain_until)
         self.cut = len(self._queue)
         self.lost += self.cut
         self._queue.clear()
         self._guarded(self._finish)  # (the chunk in progress, then the summary)
 
-    def _drain(self) -> None:
-        """Write what is queued (once closing, until the queue's time is up: a backlog
-        the thread was writing when close() came is bounded too)."""
+    def _drain(self, until: float) -> bool:
+        """Write what is queued until time.monotonic() reaches ``until`` (once closing,
+        until the queue's share of close()'s time is up: a backlog the thread was
+        writing when close() came is bounded too); whether some is left."""
         queue = self._queue
         while queue:
-            if self._closing and time.monotonic() >= self._drain_until:
-                return
+            now = time.monotonic()
+            if now >= until or (self._closing and now >= self._drain_until):
+                return True
             item = queue.popleft()
             writer = self._writer or self._open()
             if writer is None:
@@ -249,6 +263,7 @@ class Recorder:
                 continue
             if not self._guarded(self._write, writer, item):
                 self.lost += 1
+        return False
 
     def _write(self, writer: RecordingWriter, item: tuple[Any, ...]) -> None:
         kind = item[0]

@@ -162,6 +162,65 @@ def test_a_disk_too_slow_for_the_summary_leaves_the_file_readable_to_its_last_ch
         recorder._thread.join(5)
 
 
+class ThrottledDisk:
+    """Files on a disk that takes ``rate`` bytes a second: each write to the OS takes its
+    share of a second (the disk's speed, not a synchronisation)."""
+
+    def __init__(self, rate: float) -> None:
+        self.rate = rate
+
+    def create(self, path: Path) -> Any:
+        disk = self
+
+        class Throttled(io.FileIO):
+            def write(self, data: Any) -> int:
+                time.sleep(len(data) / disk.rate)
+                return super().write(data)
+        return io.BufferedWriter(Throttled(path, "xb"))
+
+
+def test_a_queue_that_never_empties_still_flushes_rotates_and_retains(tmp_path):
+    """The disk takes 1 MB/s, 1.5 MB/s comes (incompressible): the queue never empties,
+    yet the flush, rotation (1 MB) and retention (2 MB) keep their second."""
+    recorder = Recorder(RecordConfig(directory=str(tmp_path), rotate_mb=1, keep_gb=0.002,
+                                     queue=10_000_000), {},
+                        create=ThrottledDisk(1e6).create)
+    stop = threading.Event()
+
+    def stream() -> None:
+        sent = 0
+        start = time.monotonic()
+        while not stop.is_set():
+            while sent < (time.monotonic() - start) * 1000:  # 1000 reads of 1.5 kB a second
+                recorder.serial(os.urandom(1500), time.time(), time.monotonic())
+                sent += 1
+            time.sleep(0.005)  # (a stream's pace)
+    feeder = threading.Thread(target=stream)
+    recorder.start()
+    feeder.start()
+    queued: list[int] = []
+
+    def rotated_and_retained() -> bool:
+        status = recorder.status()
+        if status["files"] >= 2:  # (a backlog of more than a chunk by then)
+            queued.append(status["queued"])
+        return status["files"] >= 3 and len(list(tmp_path.iterdir())) < status["files"]
+    try:
+        wait_for(lambda: recorder.status()["queued"] > 0, 5, "a backlog")
+        wait_for(rotated_and_retained, 15, "files rotated and the oldest deleted")
+        status = recorder.status()
+        assert min(queued) > 0, f"the queue emptied: the disk kept up after all {queued}"
+        assert status["written"] > 0 and status["bytes"] > 0, status
+    finally:
+        stop.set()
+        feeder.join()
+        recorder.close()
+    # the rotated files read whole by mcap's reader (the last, left to a disk too slow
+    # for close()'s time, up to its last whole chunk)
+    rotated = sorted(tmp_path.iterdir())[:-1]
+    assert rotated and all(readable(path)[0] and readable(path)[1] for path in rotated)
+
+
 class FullDisk:
     """Files on a disk that fills up (every write to the OS fails with ENOSPC while
     ``full`` is set) and frees again; buffered as a file opened by Python is."""
