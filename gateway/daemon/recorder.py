@@ -24,6 +24,13 @@ and counted, and a new file is tried every RETRY_S; recording has resumed, and s
 so, once a flush of the new file has put messages on the disk (a file created on a
 full disk is not yet a file written).
 
+A message the file cannot take (a time no MCAP timestamp holds: a replayed ``time`` in
+nanoseconds) is refused before mcap has any of it, counted in ``dropped`` and said once
+per kind; the thread goes on with the next (issue 31: one such message ended it, and
+the file with it). No exception ends the thread quietly: one of the file's that is not
+the disk's (a bug) fails the file as a full disk would, with its traceback; one that
+still ends the thread is logged, and ``failure`` says so (the gateway is ERROR).
+
 Retention (``record.keep_gb``, ``record.keep_days``) runs in the same thread once a
 second: finished files of the directory (named as :func:`file_name` names them) are
 deleted oldest first, each deletion logged, never the file being written. The
@@ -54,7 +61,7 @@ from pathlib import Path
 from typing import IO, Any, NamedTuple
 
 from gateway.recording.files import SERIAL as SERIAL_READS
-from gateway.recording.files import SUFFIX, WRITTEN, file_name
+from gateway.recording.files import SUFFIX, WRITTEN, OutOfRange, file_name
 from gateway.recording.writer import RecordingWriter
 
 from .config import RecordConfig
@@ -123,11 +130,17 @@ class Recorder:
         """Messages the thread could not write: the disk failed."""
         self.written = 0
         """Messages on the disk: handed to the OS by a flush (or a finish)."""
+        self.refused = 0
+        """Messages the thread could not write at all (a time no recording can hold)."""
+        self._refusals: set[str] = set()
+        """The kinds of refusal already logged: each is said once."""
         self.errors = 0
         self.files = 0
         self.last_error = ""
         self._failure = ""
         """Why nothing can be written now ("" while files are written)."""
+        self._crash = ""
+        """What ended the thread, if an exception did (a bug)."""
         self._lost_before = 0
         """``lost`` when the failure began: what resuming says was dropped."""
         self.path: Path | None = None
@@ -181,8 +194,9 @@ class Recorder:
 
     @property
     def dropped(self) -> int:
-        """Messages never written: the queue was full, or the disk failed."""
-        return self.overflowed + self.lost
+        """Messages never written: the queue was full, the disk failed, or the message
+        could not be written."""
+        return self.overflowed + self.lost + self.refused
 
     @property
     def failure(self) -> str:
@@ -190,7 +204,8 @@ class Recorder:
         one attribute, set by the thread)."""
         if self._thread.ident is not None and not self._thread.is_alive() \
                 and not self._closing:
-            return "its thread stopped"
+            return f"its thread stopped ({self._crash})" if self._crash \
+                else "its thread stopped"
         return self._failure
 
     def status(self) -> dict[str, Any]:
@@ -223,6 +238,16 @@ class Recorder:
     # -- the thread ---------------------------------------------------------------------------
 
     def _run(self) -> None:
+        try:
+            self._record()
+        except Exception as error:  # (a bug: never silent, and the gateway is ERROR)
+            self.errors += 1
+            self.last_error = f"{type(error).__name__}: {error}"
+            self._crash = self.last_error
+            log.exception("recording stopped: its thread failed (%s); nothing more is "
+                          "recorded", self.last_error)
+
+    def _record(self) -> None:
         self._list()
         # The flush, rotation and retention are due once a second whatever the load: a
         # queue that never empties (a disk slower than what comes) is written until the
@@ -266,12 +291,33 @@ class Recorder:
         return False
 
     def _write(self, writer: RecordingWriter, item: tuple[Any, ...]) -> None:
-        kind = item[0]
-        if kind == PUBLISHED:
-            writer.message(item[1].decode(), item[2])
-        else:
-            writer.serial(item[1], item[2], item[3], topic=item[4])
+        """One message into the file; one it cannot take (anything but the disk's
+        failure) is refused, and the thread goes on with the next."""
+        try:
+            if item[0] == PUBLISHED:
+                writer.message(item[1].decode(), item[2])
+            else:
+                writer.serial(item[1], item[2], item[3], topic=item[4])
+        except OSError:
+            raise
+        except Exception as error:  # (the message's: the thread survives any)
+            self._refuse(item, error)
+            return
         self._unflushed += 1
+
+    def _refuse(self, item: tuple[Any, ...], error: Exception) -> None:
+        """A message not written, counted; the first of each kind said in one line (with
+        its traceback if it is not a time out of range: a bug, here or in mcap)."""
+        self.refused += 1
+        topic = item[1].decode(errors="replace") if item[0] == PUBLISHED else item[4]
+        kind = type(error).__name__
+        if kind in self._refusals:
+            return
+        self._refusals.add(kind)
+        log.error("recording: a message on %s cannot be recorded: %s; it and any other "
+                  "such are dropped and counted (recording.dropped)", topic,
+                  error if isinstance(error, OutOfRange) else f"{kind}: {error}",
+                  exc_info=None if isinstance(error, OutOfRange) else error)
 
     def _flush(self) -> None:
         writer = self._writer
@@ -302,7 +348,7 @@ class Recorder:
             # out here and removed (a full disk left an empty file every retry)
             self._output.flush()
         except OSError as error:
-            self._failed(error)
+            self._failed(error.strerror or str(error))
             return None
         self.files += 1
         self._opened = time.monotonic()
@@ -324,16 +370,20 @@ class Recorder:
         self._keep(path)
 
     def _guarded(self, action: Any, *args: Any) -> bool:
-        """Run a disk action; on failure, count it, drop the file and say so."""
+        """Run a disk action; on failure, count it, drop the file and say so. Any other
+        exception (a bug, here or in mcap) is a failure of the file too, its traceback
+        logged: what it left of the file may not be whole, and the thread goes on."""
         try:
             action(*args)
         except OSError as error:
-            self._failed(error)
+            self._failed(error.strerror or str(error))
+            return False
+        except Exception as error:
+            self._failed(f"{type(error).__name__}: {error}", error)
             return False
         return True
 
-    def _failed(self, error: OSError) -> None:
-        why = error.strerror or str(error)
+    def _failed(self, why: str, unexpected: Exception | None = None) -> None:
         self.errors += 1
         self.last_error = why
         if why != self._failure:
@@ -341,7 +391,7 @@ class Recorder:
                 self._lost_before = self.lost
             log.error("recording to %s failed: %s; messages are dropped (and counted) "
                       "until a new file can be written, tried every %g s",
-                      self.directory, why, RETRY_S)
+                      self.directory, why, RETRY_S, exc_info=unexpected)
             self._failure = why
         # what the failed file holds up to its last flush stays readable
         self.lost += self._unflushed

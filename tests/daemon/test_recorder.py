@@ -343,3 +343,78 @@ def test_retention_never_deletes_the_file_being_written(tmp_path):
     finally:
         recorder.close()
     assert len(list(tmp_path.iterdir())) == 1
+
+
+def test_a_message_that_cannot_be_written_is_counted_said_once_and_the_rest_written(
+        tmp_path, caplog):
+    """Times no MCAP timestamp holds (nanoseconds where seconds belong, negative), and a
+    payload that cannot be encoded: each refused and counted, each kind said once, the
+    thread going on with the rest."""
+    recorder = Recorder(RecordConfig(directory=str(tmp_path)), {})
+    recorder.start()
+    bad = [(b"gx2/76/euler", {"host_time": 1.7e9, "time": 1.7e18}),
+           (b"gx2/76/euler", {"host_time": -1.0}), (b"gx2/\xff", {"host_time": 1.7e9})]
+    sent = 0
+    for seq in range(30):
+        if seq % 10 == 5:
+            recorder.published(*bad[seq // 10])
+        else:
+            recorder.published(b"gx2/76/euler", {"seq": seq, "host_time": 1.7e9 + seq})
+            sent += 1
+    recorder.serial(b"\xaa", 1.7e18, 1.0)
+    wait_for(lambda: recorder.status()["dropped"] == 4, 5, "the refused counted")
+    assert recorder.failure == ""
+    recorder.published(b"gx2/76/euler", {"seq": 30, "host_time": 1.7e9 + 30})
+    recorder.close()
+    (path,) = tmp_path.iterdir()
+    assert finished(path) == sent + 1 == recorder.written
+    said = [r for r in caplog.records if "cannot be recorded" in r.getMessage()]
+    assert len(said) == 2, said
+    assert said[0].getMessage().startswith(
+        "recording: a message on gx2/76/euler cannot be recorded: time 1.7e+18 s is "
+        "outside what a recording holds")
+    assert said[1].getMessage().startswith(
+        "recording: a message on gx2/\ufffd cannot be recorded: UnicodeDecodeError")
+    assert said[0].exc_info is None and said[1].exc_info is not None  # (a bug's traceback)
+
+
+def test_an_unexpected_error_of_the_file_fails_it_and_the_thread_goes_on(
+        tmp_path, monkeypatch, caplog):
+    monkeypatch.setattr(recorder_module, "RETRY_S", 0.2)
+    failing = threading.Event()
+    failing.set()
+    flush = recorder_module.RecordingWriter.flush
+
+    def broken(writer: Any) -> None:
+        if failing.is_set():
+            failing.clear()
+            raise RuntimeError("a bug")
+        flush(writer)
+    monkeypatch.setattr(recorder_module.RecordingWriter, "flush", broken)
+    recorder = Recorder(RecordConfig(directory=str(tmp_path)), {})
+    recorder.start()
+    try:
+        sent = feed(recorder, 0.1)
+        wait_for(lambda: recorder.failure, 5, "the file to fail")
+        assert recorder.failure == "RuntimeError: a bug"
+        while recorder.failure:  # a new file, written
+            sent += feed(recorder, 0.1, sent)
+    finally:
+        recorder.close()
+    assert recorder.written + recorder.dropped == sent and recorder.written > 0
+    said = [r for r in caplog.records if "failed: RuntimeError: a bug" in r.getMessage()]
+    assert len(said) == 1 and said[0].exc_info is not None
+
+
+def test_a_thread_that_dies_is_said_and_makes_a_failure(tmp_path, monkeypatch, caplog):
+    def broken(recorder: Recorder) -> None:
+        raise RuntimeError("a bug")
+    monkeypatch.setattr(Recorder, "_retain", broken)
+    recorder = Recorder(RecordConfig(directory=str(tmp_path)), {})
+    recorder.start()
+    wait_for(lambda: recorder.failure, 5, "the thread to stop")
+    assert recorder.failure == "its thread stopped (RuntimeError: a bug)"
+    assert recorder.status()["errors"] == 1
+    said = [r for r in caplog.records if "recording stopped" in r.getMessage()]
+    assert len(said) == 1 and said[0].exc_info is not None
+    recorder.close()

@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 import ctypes
 import errno
+import json
 import os
 import shutil
 import subprocess
@@ -25,6 +26,7 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import NonSeekingReader, make_reader
+from mcap.writer import Writer
 
 from gateway.sim.node import NodeSettings
 from tests.e2e.test_watching import Scraper
@@ -35,6 +37,7 @@ from tests.helpers.waiting import wait_for
 CLONE_NEWNS = 0x00020000
 """setns(2)'s flag for a mount namespace (<sched.h>)."""
 NODES = [{"address": 76, "stream": "accel_angrate"}]
+TOPIC = "gx2/76/accel_angrate"
 HOLD = 'mount -t tmpfs -o "$2" gx2-test "$1" && echo mounted && exec cat >/dev/null'
 """The holder: mounts the tmpfs in its own namespace, says so, and keeps it until its
 standard input closes (the test ends, or dies)."""
@@ -183,3 +186,45 @@ def test_a_read_only_directory_makes_the_gateway_an_error_and_leaves_nothing(
     assert list(read_only_disk.outside.iterdir()) == []
     status, _ = gw.terminate()
     assert status == 0
+
+
+def foreign_recording(path: Path, count: int, absurd: int) -> None:
+    """A recording of published records made by another tool (mcap's own writer), whose
+    message ``absurd`` gives its ``time`` in nanoseconds rather than seconds."""
+    with path.open("wb") as output:
+        writer = Writer(output)
+        writer.start(profile="", library="another tool")
+        channel = writer.register_channel(TOPIC, "json", 0)
+        for seq in range(1, count + 1):
+            when = 1.7e9 + seq / 100
+            payload = {"node": 76, "seq": seq, "host_time": when,
+                       "time": when * 1e9 if seq == absurd else when,
+                       "accel": [0.0, 0.0, 1.0], "angrate": [0.0, 0.0, 0.0]}
+            writer.add_message(channel, int(when * 1e9), json.dumps(payload).encode(),
+                               int(when * 1e9), seq)
+        writer.finish()
+
+
+def test_a_message_whose_time_cannot_be_recorded_is_counted_and_the_rest_recorded(
+        gateway, tmp_path):
+    source = tmp_path / "foreign.mcap"
+    foreign_recording(source, 51, absurd=26)
+    recordings = tmp_path / "recordings"
+    gw = gateway(f"replay://{source}?speed=0&delay=0", NODES,
+                 record={"directory": str(recordings)})
+    wait_for(lambda: gw.status()["replay"]["finished"], 10, "the replay to end")
+    wait_for(lambda: gw.status()["recording"]["dropped"] == 1, 5, "the message counted")
+    recording = gw.status()["recording"]
+    assert recording["failure"] == "" and gw.status()["gateway"]["health"] == "OK", recording
+    status, _ = gw.terminate()
+    assert status == 0, gw.log()
+    # every other message recorded, in a file mcap's reader reads whole
+    files = sorted(recordings.iterdir())
+    assert len(files) == 1, files
+    with files[0].open("rb") as stream:
+        seqs = [json.loads(message.data)["seq"] for _, channel, message
+                in make_reader(stream).iter_messages(log_time_order=False)
+                if channel.topic == TOPIC]
+    assert seqs == [seq for seq in range(1, 52) if seq != 26]
+    said = [line for line in gw.log().splitlines() if "cannot be recorded" in line]
+    assert len(said) == 1 and TOPIC in said[0], gw.log()
