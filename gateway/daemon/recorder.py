@@ -31,11 +31,8 @@ the file with it). No exception ends the thread quietly: one of the file's that 
 the disk's (a bug) fails the file as a full disk would, with its traceback; one that
 still ends the thread is logged, and ``failure`` says so (the gateway is ERROR).
 
-Retention (``record.keep_gb``, ``record.keep_days``) runs in the same thread once a
-second: finished files of the directory (named as :func:`file_name` names them) are
-deleted oldest first, each deletion logged, never the file being written. The
-directory is listed when the thread starts and whenever a new file is opened; in
-between, the files this thread finishes are added to what it knows.
+Retention (``record.keep_gb``, ``record.keep_days``; :mod:`.retention`) runs in the
+same thread once a second.
 
 Closing is bounded, so that the gateway keeps its promise to exit within 2 s: close()
 is given what is left of it. The thread writes what is queued for DRAIN_SHARE of that
@@ -52,19 +49,19 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import re
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
-from typing import IO, Any, NamedTuple
+from typing import IO, Any
 
 from gateway.recording.files import SERIAL as SERIAL_READS
-from gateway.recording.files import SUFFIX, WRITTEN, OutOfRange, file_name
+from gateway.recording.files import WRITTEN, OutOfRange, file_name
 from gateway.recording.writer import RecordingWriter
 
 from .config import RecordConfig
+from .retention import Retention
 
 log = logging.getLogger("gx2.record")
 WAKE_S = 0.1
@@ -78,32 +75,11 @@ DRAIN_SHARE = 0.5
 summary's (a handful of writes)."""
 SERIAL, SENT, PUBLISHED = 0, 1, 2
 """What a queued item is: a read, a write, a published message."""
-GB = 1e9
-DAY_S = 86400.0
-OWN_FILE = re.compile(r"gx2-\d{8}T\d{6}\.\d{3}Z" + re.escape(SUFFIX))
-"""The names :func:`file_name` gives: the only files retention ever deletes."""
-
-
-def size_text(count: float) -> str:
-    """``812 B``, ``30.0 kB``, ``117.2 MB``, ``84.0 GB`` (powers of 10, as keep_gb)."""
-    for unit, scale in (("GB", GB), ("MB", 1e6), ("kB", 1e3)):
-        if count >= scale:
-            return f"{count / scale:.1f} {unit}"
-    return f"{count:.0f} B"
 
 
 def exclusive(path: Path) -> IO[bytes]:
     """A new file, never one that exists."""
     return path.open("xb")
-
-
-class Kept(NamedTuple):
-    """A finished file of the directory, as retention knows it."""
-
-    path: Path
-    size: int
-    modified: float
-    """UNIX time of its last write: its age is that of the last data it holds."""
 
 
 class Recorder:
@@ -116,8 +92,7 @@ class Recorder:
         self.directory = Path(config.directory)
         self.rotate_s = config.rotate_minutes * 60
         self.rotate_bytes = int(config.rotate_mb * 1e6)
-        self.keep_bytes = None if config.keep_gb is None else config.keep_gb * GB
-        self.keep_s = None if config.keep_days is None else config.keep_days * DAY_S
+        self.retention = Retention(self.directory, config.keep_gb, config.keep_days)
         self.capacity = config.queue
         self.metadata = metadata
         self._queue: deque[tuple[Any, ...]] = deque()
@@ -151,12 +126,6 @@ class Recorder:
         self._opened = 0.0
         self._unflushed = 0
         self._retry_at = 0.0
-        self._kept: list[Kept] = []
-        """The finished files of the directory, oldest first."""
-        self.bytes = 0
-        """What the directory's recordings take, the file being written included."""
-        self.oldest = ""
-        """The oldest file kept."""
         self._closing = False
         self._drain_until = 0.0
         """Once closing, the time.monotonic() past which no more of the queue is written."""
@@ -213,7 +182,8 @@ class Recorder:
                 "file": str(self.path) if self._output is not None else "",
                 "files": self.files, "written": self.written, "queued": len(self._queue),
                 "dropped": self.dropped, "errors": self.errors, "error": self.last_error,
-                "failure": self.failure, "bytes": self.bytes, "oldest": self.oldest}
+                "failure": self.failure, "bytes": self.retention.bytes,
+                "oldest": self.retention.oldest}
 
     def start(self) -> None:
         self._thread.start()
@@ -248,7 +218,7 @@ class Recorder:
                           "recorded", self.last_error)
 
     def _record(self) -> None:
-        self._list()
+        self.retention.list(self._writing())
         # The flush, rotation and retention are due once a second whatever the load: a
         # queue that never empties (a disk slower than what comes) is written until the
         # next one is due, never past it, and overflows meanwhile (counted: the loop's
@@ -356,7 +326,7 @@ class Recorder:
             log.debug("recording: trying %s", path)
         else:
             log.info("recording to %s", path)
-        self._list()
+        self.retention.list(self._writing())
         return self._writer
 
     def _finish(self) -> None:
@@ -367,7 +337,7 @@ class Recorder:
         self.written += self._unflushed
         self._unflushed = 0
         self._writer = self._output = None
-        self._keep(path)
+        self.retention.add(path)
 
     def _guarded(self, action: Any, *args: Any) -> bool:
         """Run a disk action; on failure, count it, drop the file and say so. Any other
@@ -416,7 +386,7 @@ class Recorder:
         if path.exists():
             log.warning("recording: %s cut short, readable up to its last flush (%d "
                         "messages)", path, writer.kept if writer else 0)
-            self._keep(path)
+            self.retention.add(path)
         else:
             log.debug("recording: %s removed: nothing of it reached the disk", path)
 
@@ -425,61 +395,13 @@ class Recorder:
                     self.lost - self._lost_before, self._failure)
         self._failure = ""
 
-    # -- retention ------------------------------------------------------------------------
-
-    def _list(self) -> None:
-        """What the directory holds (another process may have added or deleted files)."""
-        try:
-            paths = sorted(p for p in self.directory.iterdir() if OWN_FILE.fullmatch(p.name))
-        except OSError:
-            return
-        kept = []
-        for path in paths:
-            if path == self.path and self._output is not None:
-                continue  # (being written)
-            with contextlib.suppress(OSError):
-                found = path.stat()
-                kept.append(Kept(path, found.st_size, found.st_mtime))
-        self._kept = kept
-
-    def _keep(self, path: Path) -> None:
-        """A file just finished (or cut short): retention's from now on."""
-        with contextlib.suppress(OSError):
-            self._kept.append(Kept(path, path.stat().st_size, time.time()))
-
     def _retain(self) -> None:
-        """Delete finished files, oldest first, until the directory is within
-        ``keep_gb`` and ``keep_days``; update what status says it holds."""
-        writing = 0
+        """Retention, once a second: the file being written counts, never deleted."""
+        size = 0
         if self._output is not None:
             with contextlib.suppress(OSError, ValueError):
-                writing = self._output.tell()
-        total = writing + sum(kept.size for kept in self._kept)
-        now = time.time()
-        while self._kept:
-            oldest = self._kept[0]
-            if self.keep_s is not None and now - oldest.modified > self.keep_s:
-                why = f"older than keep_days {self.keep_s / DAY_S:g}"
-            elif self.keep_bytes is not None and total > self.keep_bytes:
-                why = (f"the recordings took {size_text(total)}, over keep_gb "
-                       f"{self.keep_bytes / GB:g}")
-            else:
-                break
-            del self._kept[0]
-            total -= oldest.size
-            try:
-                oldest.path.unlink()
-            except FileNotFoundError:
-                continue  # (someone else deleted it)
-            except OSError as error:
-                total += oldest.size  # (still there)
-                log.warning("recording: cannot delete %s (%s): %s", oldest.path,
-                            error.strerror or error, why)
-                continue
-            log.info("recording: deleted %s (%s, last written %s): %s",
-                     oldest.path.name, size_text(oldest.size),
-                     time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(oldest.modified)), why)
-        self.bytes = total
-        first = self._kept[0].path if self._kept else (
-            self.path if self._output is not None else None)
-        self.oldest = str(first or "")
+                size = self._output.tell()
+        self.retention.apply(self._writing(), size)
+
+    def _writing(self) -> Path | None:
+        return self.path if self._output is not None else None
