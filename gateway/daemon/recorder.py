@@ -21,8 +21,9 @@ left empty; a file cut short is cut back to its last flush and ended there (a da
 and a footer, as the MCAP spec allows), so every reader reads it whole, and removed if
 that flush kept nothing (``RecordingWriter.abandon``). Meanwhile messages are dropped
 and counted, and a new file is tried every RETRY_S; recording has resumed, and says
-so, once a flush of the new file has put messages on the disk (a file created on a
-full disk is not yet a file written).
+so, once RESUMED_AFTER flushes of the new file in a row have put messages on the disk
+(a file created on a full disk is not yet a file written, nor is one flush a disk that
+keeps taking them).
 
 A message the file cannot take (a time no MCAP timestamp holds: a replayed ``time`` in
 nanoseconds) is refused before mcap has any of it, counted in ``dropped`` and said once
@@ -68,6 +69,11 @@ WAKE_S = 0.1
 FLUSH_S = 1.0
 """Also how often retention looks at the directory's files."""
 RETRY_S = 5.0
+RESUMED_AFTER = 3
+"""Flushes of a new file in a row that put messages on the disk before recording has
+resumed: one that fits in the little a full disk gave back (the partial chunk cut off
+the failed file) is not yet a disk that takes what comes (issue 31: it said "resumed",
+and was ERROR again a second later)."""
 CLOSE_S = 1.0
 """What close() takes at the most unless told otherwise."""
 DRAIN_SHARE = 0.5
@@ -124,6 +130,8 @@ class Recorder:
         self._output: Any = None
         """The file being written, open (None between files)."""
         self._opened = 0.0
+        self._proven = 0
+        """Flushes of this file that put messages on the disk (while failed)."""
         self._unflushed = 0
         self._retry_at = 0.0
         self._closing = False
@@ -291,11 +299,14 @@ class Recorder:
 
     def _flush(self) -> None:
         writer = self._writer
+        before = writer.kept  # type: ignore[union-attr]
         writer.flush()  # type: ignore[union-attr]
         self.written += self._unflushed
         self._unflushed = 0
-        if self._failure and writer.kept:  # type: ignore[union-attr]
-            self._resumed()
+        if self._failure and writer.kept > before:  # type: ignore[union-attr]
+            self._proven += 1
+            if self._proven >= RESUMED_AFTER:
+                self._resumed()
         if (time.monotonic() - self._opened >= self.rotate_s
                 or self._output.tell() >= self.rotate_bytes):
             self._finish()
@@ -322,6 +333,7 @@ class Recorder:
             return None
         self.files += 1
         self._opened = time.monotonic()
+        self._proven = 0
         if self._failure:
             log.debug("recording: trying %s", path)
         else:

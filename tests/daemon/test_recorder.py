@@ -227,6 +227,8 @@ class FullDisk:
 
     def __init__(self) -> None:
         self.full = threading.Event()
+        self.room = 0
+        """Writes to the OS a full disk still takes (what it gave back)."""
         self.created: list[Path] = []
 
     def create(self, path: Path) -> Any:
@@ -235,7 +237,9 @@ class FullDisk:
         class Filling(io.FileIO):
             def write(self, data: Any) -> int:
                 if disk.full.is_set():
-                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                    if not disk.room:
+                        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                    disk.room -= 1
                 return super().write(data)
         file = io.BufferedWriter(Filling(path, "xb"))
         self.created.append(path)
@@ -290,6 +294,45 @@ def test_a_full_disk_fails_loudly_leaves_no_broken_file_and_recording_resumes(
     resumed = [line for line in said if "recording resumed in" in line]
     assert len(resumed) == 1 and str(paths[1]) in resumed[0], said
     assert f"after {recorder.lost} messages dropped" in resumed[0]
+
+
+def test_a_new_file_that_takes_one_flush_and_fails_again_is_not_resuming(
+        tmp_path, monkeypatch, caplog):
+    """A full disk gives back a little (the partial chunk cut off the failed file): a
+    new file's header and one flush fit, the next fails. Recording has not resumed
+    meanwhile: the failure stands throughout, one line says it, none says "resumed"
+    until the disk takes several flushes in a row."""
+    monkeypatch.setattr(recorder_module, "RETRY_S", 0.2)
+    disk = FullDisk()
+    recorder = Recorder(RecordConfig(directory=str(tmp_path)), {}, create=disk.create)
+    recorder.start()
+    sent = 0
+    try:
+        while not recorder.written:
+            sent += feed(recorder, 0.1, sent)
+        disk.full.set()
+        while not recorder.failure:
+            sent += feed(recorder, 0.1, sent)
+        errors = recorder.errors
+        disk.room = 2  # a new file's header and its first flush
+        while disk.room or recorder.errors == errors:
+            sent += feed(recorder, 0.1, sent)
+            assert recorder.failure == "No space left on device"
+        while len(disk.created) < 3:  # (a file tried after that one)
+            sent += feed(recorder, 0.1, sent)
+        assert recorder.failure == "No space left on device"
+        disk.full.clear()
+        while recorder.failure:
+            sent += feed(recorder, 0.1, sent)
+    finally:
+        recorder.close()
+    assert recorder.written + recorder.dropped == sent
+    said = [r.message for r in caplog.records if r.name == "gx2.record"]
+    assert sum("failed: No space left on device" in line for line in said) == 1, said
+    assert sum("recording resumed in" in line for line in said) == 1, said
+    # the file that took one flush is kept, cut back to it and ended there
+    kept = [path for path in disk.created[1:] if path.exists()]
+    assert readable(kept[0]) == (readable(kept[0])[0], True) and readable(kept[0])[0] > 0
 
 
 def seed(directory: Path, ages_days: list[float], size: int) -> list[Path]:

@@ -81,8 +81,13 @@ class SmallDisk:
                     assert error.errno == errno.ENOSPC, error
         return added
 
-    def free(self) -> None:
-        (self.outside / "filler").unlink()
+    def free(self, size: int | None = None) -> None:
+        """Free the disk, or only ``size`` bytes of it."""
+        filler = self.outside / "filler"
+        if size is None:
+            filler.unlink()
+        else:
+            os.truncate(filler, filler.stat().st_size - size)
 
     def close(self) -> None:
         os.close(self._namespace)
@@ -171,6 +176,40 @@ def test_a_full_disk_makes_the_gateway_an_error_and_recording_resumes_when_it_fr
     assert run.status == 0, run
     with (out / "76_accel_angrate.csv").open() as table:
         assert sum(1 for _ in csv.DictReader(table)) == recorded > 100
+
+
+def test_a_disk_that_takes_a_flush_and_is_full_again_has_not_resumed(
+        simulator, gateway, small_disk):
+    """What a full disk gives back takes a new file's header and a flush or two, then
+    the disk is full again: the gateway stays ERROR throughout and never says recording
+    resumed (it flapped: "resumed", OK for a second, ERROR again); it does once the disk
+    keeps taking what comes."""
+    sim = simulator(NodeSettings(76))
+    recordings = small_disk.inside / "recordings"
+    gw = gateway(sim.path, NODES, record={"directory": str(recordings)},
+                 preexec=small_disk.enter)
+    gw.wait_streaming(76)
+    wait_for(lambda: gw.status()["recording"]["written"], 10, "the first flush")
+    small_disk.fill()
+    wait_for(lambda: gw.status()["recording"]["errors"], 10, "the disk to refuse")
+    small_disk.fill()  # (the file cut short gave back its last, partial chunk)
+    errors = gw.status()["recording"]["errors"]
+    small_disk.free(12288)  # three pages: a header and a flush, not three flushes
+
+    def full_again() -> bool:
+        status = gw.status()
+        assert status["gateway"]["health"] == "ERROR", status["gateway"]
+        # (the new file kept what it flushed: cut short, as the first was)
+        return status["recording"]["errors"] > errors and gw.log().count("cut short") == 2
+    wait_for(full_again, 15, "a new file to take a flush into what was freed and fail")
+    assert "recording resumed" not in gw.log()
+
+    small_disk.free()
+    wait_for(lambda: gw.status()["gateway"]["health"] == "OK", 20, "recording to resume")
+    resumed = [line for line in gw.log().splitlines() if "recording resumed in" in line]
+    assert len(resumed) == 1, gw.log()
+    status, _ = gw.terminate()
+    assert status == 0, gw.log()
 
 
 def test_a_read_only_directory_makes_the_gateway_an_error_and_leaves_nothing(
