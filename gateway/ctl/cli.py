@@ -94,7 +94,8 @@ def build_parser() -> ArgumentParser:
         "records, rate and gaps on stderr. Exit 0 when the file was written; 1 if nothing "
         "came within --timeout and three heartbeats (no file is left) or the disk failed "
         "(the file keeps what was written up to the last second, or is removed if that is "
-        "nothing); 3 if the gateway falls silent (the file keeps what came).")
+        "nothing); 2 if FILE exists, cannot be made or is not named .mcap; 3 if the "
+        "gateway falls silent (the file keeps what came).")
     recorder.add_argument("file", metavar="FILE.mcap", help="a new file")
     recorder.add_argument("nodes", nargs="*", type=node_address, metavar="NODE")
     recorder.add_argument("--seconds", type=bounded(float, 0.1, 1e7), metavar="S",

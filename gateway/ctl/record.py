@@ -32,6 +32,7 @@ from gateway.client import Message, Status, Subscriber
 from gateway.common import curve
 from gateway.common.protocol import MAX_REPLY_BYTES, Exit
 from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC, topic
+from gateway.recording.files import SUFFIX
 from gateway.recording.losses import Losses, Summary
 from gateway.recording.writer import RecordingWriter
 
@@ -54,6 +55,9 @@ MARK_CHANNEL = MARK_TOPIC.decode()
 def run_record(path: str, nodes: list[int], seconds: float | None, where: Endpoints,
                timeout: float) -> int:
     target = Path(path)
+    if target.suffix != SUFFIX:  # (x.csv would hold MCAP, and a directory skip it)
+        raise CtlError(f"{target}: gx2ctl record writes MCAP: name the file "
+                       f"{target.with_suffix(SUFFIX).name}", Exit.USAGE)
     if target.exists():
         raise CtlError(f"{target} exists: record to a new file", Exit.USAGE)
     creatable(target)

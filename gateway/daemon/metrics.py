@@ -78,8 +78,8 @@ NODE = (
 )
 RECORDING = (
     ("gx2_recording_written_total", COUNTER, "Messages written to recordings", "written"),
-    ("gx2_recording_dropped_total", COUNTER, "Messages never written (queue full or disk "
-     "failed)", "dropped"),
+    ("gx2_recording_dropped_total", COUNTER, "Messages never written (queue full, disk "
+     "failed, or a message that cannot be recorded)", "dropped"),
     ("gx2_recording_errors_total", COUNTER, "Disk failures while recording", "errors"),
     ("gx2_recording_bytes", GAUGE, "Bytes the recordings of its directory take (the file "
      "being written included)", "bytes"),

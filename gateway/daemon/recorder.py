@@ -7,7 +7,11 @@ the queue is full, or the disk fails, messages are dropped and counted, never he
 The thread wakes every WAKE_S, writes what is queued, and flushes the chunk in
 progress at least every FLUSH_S, so a process killed without warning leaves a file
 readable up to about the last second. Files are finished (summary and index) when
-they rotate, by age or size, and when the gateway stops.
+they rotate, by age or size, and when the gateway stops. The flush, rotation and
+retention keep their second under any load (issue 31): a queue that never empties (a
+disk slower than what comes) is written until they are due, not until it is empty,
+and overflows meanwhile (counted), so a slow disk drops messages, never postpones them
+(late at most by the one write the disk is taking).
 
 A disk that fails (full, an I/O error, a directory that cannot be made) is loud and
 leaves nothing broken behind (issue 20): the recorder's ``failure`` says why it
@@ -17,14 +21,19 @@ left empty; a file cut short is cut back to its last flush and ended there (a da
 and a footer, as the MCAP spec allows), so every reader reads it whole, and removed if
 that flush kept nothing (``RecordingWriter.abandon``). Meanwhile messages are dropped
 and counted, and a new file is tried every RETRY_S; recording has resumed, and says
-so, once a flush of the new file has put messages on the disk (a file created on a
-full disk is not yet a file written).
+so, once RESUMED_AFTER flushes of the new file in a row have put messages on the disk
+(a file created on a full disk is not yet a file written, nor is one flush a disk that
+keeps taking them).
 
-Retention (``record.keep_gb``, ``record.keep_days``) runs in the same thread once a
-second: finished files of the directory (named as :func:`file_name` names them) are
-deleted oldest first, each deletion logged, never the file being written. The
-directory is listed when the thread starts and whenever a new file is opened; in
-between, the files this thread finishes are added to what it knows.
+A message the file cannot take (a time no MCAP timestamp holds: a replayed ``time`` in
+nanoseconds) is refused before mcap has any of it, counted in ``dropped`` and said once
+per kind; the thread goes on with the next (issue 31: one such message ended it, and
+the file with it). No exception ends the thread quietly: one of the file's that is not
+the disk's (a bug) fails the file as a full disk would, with its traceback; one that
+still ends the thread is logged, and ``failure`` says so (the gateway is ERROR).
+
+Retention (``record.keep_gb``, ``record.keep_days``; :mod:`.retention`) runs in the
+same thread once a second.
 
 Closing is bounded, so that the gateway keeps its promise to exit within 2 s: close()
 is given what is left of it. The thread writes what is queued for DRAIN_SHARE of that
@@ -41,25 +50,30 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import re
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
-from typing import IO, Any, NamedTuple
+from typing import IO, Any
 
 from gateway.recording.files import SERIAL as SERIAL_READS
-from gateway.recording.files import SUFFIX, WRITTEN, file_name
+from gateway.recording.files import WRITTEN, OutOfRange, file_name
 from gateway.recording.writer import RecordingWriter
 
 from .config import RecordConfig
+from .retention import Retention
 
 log = logging.getLogger("gx2.record")
 WAKE_S = 0.1
 FLUSH_S = 1.0
 """Also how often retention looks at the directory's files."""
 RETRY_S = 5.0
+RESUMED_AFTER = 3
+"""Flushes of a new file in a row that put messages on the disk before recording has
+resumed: one that fits in the little a full disk gave back (the partial chunk cut off
+the failed file) is not yet a disk that takes what comes (issue 31: it said "resumed",
+and was ERROR again a second later)."""
 CLOSE_S = 1.0
 """What close() takes at the most unless told otherwise."""
 DRAIN_SHARE = 0.5
@@ -67,32 +81,11 @@ DRAIN_SHARE = 0.5
 summary's (a handful of writes)."""
 SERIAL, SENT, PUBLISHED = 0, 1, 2
 """What a queued item is: a read, a write, a published message."""
-GB = 1e9
-DAY_S = 86400.0
-OWN_FILE = re.compile(r"gx2-\d{8}T\d{6}\.\d{3}Z" + re.escape(SUFFIX))
-"""The names :func:`file_name` gives: the only files retention ever deletes."""
-
-
-def size_text(count: float) -> str:
-    """``812 B``, ``30.0 kB``, ``117.2 MB``, ``84.0 GB`` (powers of 10, as keep_gb)."""
-    for unit, scale in (("GB", GB), ("MB", 1e6), ("kB", 1e3)):
-        if count >= scale:
-            return f"{count / scale:.1f} {unit}"
-    return f"{count:.0f} B"
 
 
 def exclusive(path: Path) -> IO[bytes]:
     """A new file, never one that exists."""
     return path.open("xb")
-
-
-class Kept(NamedTuple):
-    """A finished file of the directory, as retention knows it."""
-
-    path: Path
-    size: int
-    modified: float
-    """UNIX time of its last write: its age is that of the last data it holds."""
 
 
 class Recorder:
@@ -105,8 +98,7 @@ class Recorder:
         self.directory = Path(config.directory)
         self.rotate_s = config.rotate_minutes * 60
         self.rotate_bytes = int(config.rotate_mb * 1e6)
-        self.keep_bytes = None if config.keep_gb is None else config.keep_gb * GB
-        self.keep_s = None if config.keep_days is None else config.keep_days * DAY_S
+        self.retention = Retention(self.directory, config.keep_gb, config.keep_days)
         self.capacity = config.queue
         self.metadata = metadata
         self._queue: deque[tuple[Any, ...]] = deque()
@@ -119,11 +111,17 @@ class Recorder:
         """Messages the thread could not write: the disk failed."""
         self.written = 0
         """Messages on the disk: handed to the OS by a flush (or a finish)."""
+        self.refused = 0
+        """Messages the thread could not write at all (a time no recording can hold)."""
+        self._refusals: set[str] = set()
+        """The kinds of refusal already logged: each is said once."""
         self.errors = 0
         self.files = 0
         self.last_error = ""
         self._failure = ""
         """Why nothing can be written now ("" while files are written)."""
+        self._crash = ""
+        """What ended the thread, if an exception did (a bug)."""
         self._lost_before = 0
         """``lost`` when the failure began: what resuming says was dropped."""
         self.path: Path | None = None
@@ -132,14 +130,10 @@ class Recorder:
         self._output: Any = None
         """The file being written, open (None between files)."""
         self._opened = 0.0
+        self._proven = 0
+        """Flushes of this file that put messages on the disk (while failed)."""
         self._unflushed = 0
         self._retry_at = 0.0
-        self._kept: list[Kept] = []
-        """The finished files of the directory, oldest first."""
-        self.bytes = 0
-        """What the directory's recordings take, the file being written included."""
-        self.oldest = ""
-        """The oldest file kept."""
         self._closing = False
         self._drain_until = 0.0
         """Once closing, the time.monotonic() past which no more of the queue is written."""
@@ -177,8 +171,9 @@ class Recorder:
 
     @property
     def dropped(self) -> int:
-        """Messages never written: the queue was full, or the disk failed."""
-        return self.overflowed + self.lost
+        """Messages never written: the queue was full, the disk failed, or the message
+        could not be written."""
+        return self.overflowed + self.lost + self.refused
 
     @property
     def failure(self) -> str:
@@ -186,7 +181,8 @@ class Recorder:
         one attribute, set by the thread)."""
         if self._thread.ident is not None and not self._thread.is_alive() \
                 and not self._closing:
-            return "its thread stopped"
+            return f"its thread stopped ({self._crash})" if self._crash \
+                else "its thread stopped"
         return self._failure
 
     def status(self) -> dict[str, Any]:
@@ -194,7 +190,8 @@ class Recorder:
                 "file": str(self.path) if self._output is not None else "",
                 "files": self.files, "written": self.written, "queued": len(self._queue),
                 "dropped": self.dropped, "errors": self.errors, "error": self.last_error,
-                "failure": self.failure, "bytes": self.bytes, "oldest": self.oldest}
+                "failure": self.failure, "bytes": self.retention.bytes,
+                "oldest": self.retention.oldest}
 
     def start(self) -> None:
         self._thread.start()
@@ -219,29 +216,49 @@ class Recorder:
     # -- the thread ---------------------------------------------------------------------------
 
     def _run(self) -> None:
-        self._list()
-        last_tick = time.monotonic()
-        while not self._stop.wait(WAKE_S):
-            self._drain()
-            now = time.monotonic()
-            if now - last_tick >= FLUSH_S:
-                last_tick = now
+        try:
+            self._record()
+        except Exception as error:  # (a bug: never silent, and the gateway is ERROR)
+            self.errors += 1
+            self.last_error = f"{type(error).__name__}: {error}"
+            self._crash = self.last_error
+            log.exception("recording stopped: its thread failed (%s); nothing more is "
+                          "recorded", self.last_error)
+
+    def _record(self) -> None:
+        self.retention.list(self._writing())
+        # The flush, rotation and retention are due once a second whatever the load: a
+        # queue that never empties (a disk slower than what comes) is written until the
+        # next one is due, never past it, and overflows meanwhile (counted: the loop's
+        # side drops what does not fit). Waiting happens only on an empty queue.
+        due = time.monotonic() + FLUSH_S
+        while True:
+            backlog = self._drain(due)
+            if time.monotonic() >= due:
                 if self._writer is not None:
                     self._guarded(self._flush)
                 self._retain()
-        self._drain()
+                due = time.monotonic() + FLUSH_S
+            if backlog:
+                if self._stop.is_set():
+                    break
+            elif self._stop.wait(WAKE_S):
+                break
+        self._drain(self._drain_until)
         self.cut = len(self._queue)
         self.lost += self.cut
         self._queue.clear()
         self._guarded(self._finish)  # (the chunk in progress, then the summary)
 
-    def _drain(self) -> None:
-        """Write what is queued (once closing, until the queue's time is up: a backlog
-        the thread was writing when close() came is bounded too)."""
+    def _drain(self, until: float) -> bool:
+        """Write what is queued until time.monotonic() reaches ``until`` (once closing,
+        until the queue's share of close()'s time is up: a backlog the thread was
+        writing when close() came is bounded too); whether some is left."""
         queue = self._queue
         while queue:
-            if self._closing and time.monotonic() >= self._drain_until:
-                return
+            now = time.monotonic()
+            if now >= until or (self._closing and now >= self._drain_until):
+                return True
             item = queue.popleft()
             writer = self._writer or self._open()
             if writer is None:
@@ -249,22 +266,47 @@ class Recorder:
                 continue
             if not self._guarded(self._write, writer, item):
                 self.lost += 1
+        return False
 
     def _write(self, writer: RecordingWriter, item: tuple[Any, ...]) -> None:
-        kind = item[0]
-        if kind == PUBLISHED:
-            writer.message(item[1].decode(), item[2])
-        else:
-            writer.serial(item[1], item[2], item[3], topic=item[4])
+        """One message into the file; one it cannot take (anything but the disk's
+        failure) is refused, and the thread goes on with the next."""
+        try:
+            if item[0] == PUBLISHED:
+                writer.message(item[1].decode(), item[2])
+            else:
+                writer.serial(item[1], item[2], item[3], topic=item[4])
+        except OSError:
+            raise
+        except Exception as error:  # (the message's: the thread survives any)
+            self._refuse(item, error)
+            return
         self._unflushed += 1
+
+    def _refuse(self, item: tuple[Any, ...], error: Exception) -> None:
+        """A message not written, counted; the first of each kind said in one line (with
+        its traceback if it is not a time out of range: a bug, here or in mcap)."""
+        self.refused += 1
+        topic = item[1].decode(errors="replace") if item[0] == PUBLISHED else item[4]
+        kind = type(error).__name__
+        if kind in self._refusals:
+            return
+        self._refusals.add(kind)
+        log.error("recording: a message on %s cannot be recorded: %s; it and any other "
+                  "such are dropped and counted (recording.dropped)", topic,
+                  error if isinstance(error, OutOfRange) else f"{kind}: {error}",
+                  exc_info=None if isinstance(error, OutOfRange) else error)
 
     def _flush(self) -> None:
         writer = self._writer
+        before = writer.kept  # type: ignore[union-attr]
         writer.flush()  # type: ignore[union-attr]
         self.written += self._unflushed
         self._unflushed = 0
-        if self._failure and writer.kept:  # type: ignore[union-attr]
-            self._resumed()
+        if self._failure and writer.kept > before:  # type: ignore[union-attr]
+            self._proven += 1
+            if self._proven >= RESUMED_AFTER:
+                self._resumed()
         if (time.monotonic() - self._opened >= self.rotate_s
                 or self._output.tell() >= self.rotate_bytes):
             self._finish()
@@ -287,15 +329,16 @@ class Recorder:
             # out here and removed (a full disk left an empty file every retry)
             self._output.flush()
         except OSError as error:
-            self._failed(error)
+            self._failed(error.strerror or str(error))
             return None
         self.files += 1
         self._opened = time.monotonic()
+        self._proven = 0
         if self._failure:
             log.debug("recording: trying %s", path)
         else:
             log.info("recording to %s", path)
-        self._list()
+        self.retention.list(self._writing())
         return self._writer
 
     def _finish(self) -> None:
@@ -306,19 +349,23 @@ class Recorder:
         self.written += self._unflushed
         self._unflushed = 0
         self._writer = self._output = None
-        self._keep(path)
+        self.retention.add(path)
 
     def _guarded(self, action: Any, *args: Any) -> bool:
-        """Run a disk action; on failure, count it, drop the file and say so."""
+        """Run a disk action; on failure, count it, drop the file and say so. Any other
+        exception (a bug, here or in mcap) is a failure of the file too, its traceback
+        logged: what it left of the file may not be whole, and the thread goes on."""
         try:
             action(*args)
         except OSError as error:
-            self._failed(error)
+            self._failed(error.strerror or str(error))
+            return False
+        except Exception as error:
+            self._failed(f"{type(error).__name__}: {error}", error)
             return False
         return True
 
-    def _failed(self, error: OSError) -> None:
-        why = error.strerror or str(error)
+    def _failed(self, why: str, unexpected: Exception | None = None) -> None:
         self.errors += 1
         self.last_error = why
         if why != self._failure:
@@ -326,7 +373,7 @@ class Recorder:
                 self._lost_before = self.lost
             log.error("recording to %s failed: %s; messages are dropped (and counted) "
                       "until a new file can be written, tried every %g s",
-                      self.directory, why, RETRY_S)
+                      self.directory, why, RETRY_S, exc_info=unexpected)
             self._failure = why
         # what the failed file holds up to its last flush stays readable
         self.lost += self._unflushed
@@ -351,7 +398,7 @@ class Recorder:
         if path.exists():
             log.warning("recording: %s cut short, readable up to its last flush (%d "
                         "messages)", path, writer.kept if writer else 0)
-            self._keep(path)
+            self.retention.add(path)
         else:
             log.debug("recording: %s removed: nothing of it reached the disk", path)
 
@@ -360,61 +407,13 @@ class Recorder:
                     self.lost - self._lost_before, self._failure)
         self._failure = ""
 
-    # -- retention ------------------------------------------------------------------------
-
-    def _list(self) -> None:
-        """What the directory holds (another process may have added or deleted files)."""
-        try:
-            paths = sorted(p for p in self.directory.iterdir() if OWN_FILE.fullmatch(p.name))
-        except OSError:
-            return
-        kept = []
-        for path in paths:
-            if path == self.path and self._output is not None:
-                continue  # (being written)
-            with contextlib.suppress(OSError):
-                found = path.stat()
-                kept.append(Kept(path, found.st_size, found.st_mtime))
-        self._kept = kept
-
-    def _keep(self, path: Path) -> None:
-        """A file just finished (or cut short): retention's from now on."""
-        with contextlib.suppress(OSError):
-            self._kept.append(Kept(path, path.stat().st_size, time.time()))
-
     def _retain(self) -> None:
-        """Delete finished files, oldest first, until the directory is within
-        ``keep_gb`` and ``keep_days``; update what status says it holds."""
-        writing = 0
+        """Retention, once a second: the file being written counts, never deleted."""
+        size = 0
         if self._output is not None:
             with contextlib.suppress(OSError, ValueError):
-                writing = self._output.tell()
-        total = writing + sum(kept.size for kept in self._kept)
-        now = time.time()
-        while self._kept:
-            oldest = self._kept[0]
-            if self.keep_s is not None and now - oldest.modified > self.keep_s:
-                why = f"older than keep_days {self.keep_s / DAY_S:g}"
-            elif self.keep_bytes is not None and total > self.keep_bytes:
-                why = (f"the recordings took {size_text(total)}, over keep_gb "
-                       f"{self.keep_bytes / GB:g}")
-            else:
-                break
-            del self._kept[0]
-            total -= oldest.size
-            try:
-                oldest.path.unlink()
-            except FileNotFoundError:
-                continue  # (someone else deleted it)
-            except OSError as error:
-                total += oldest.size  # (still there)
-                log.warning("recording: cannot delete %s (%s): %s", oldest.path,
-                            error.strerror or error, why)
-                continue
-            log.info("recording: deleted %s (%s, last written %s): %s",
-                     oldest.path.name, size_text(oldest.size),
-                     time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(oldest.modified)), why)
-        self.bytes = total
-        first = self._kept[0].path if self._kept else (
-            self.path if self._output is not None else None)
-        self.oldest = str(first or "")
+                size = self._output.tell()
+        self.retention.apply(self._writing(), size)
+
+    def _writing(self) -> Path | None:
+        return self.path if self._output is not None else None

@@ -67,7 +67,21 @@ def file_name(now: float | None = None) -> str:
     return f"gx2-{seconds}.{int(stamp % 1 * 1000):03d}Z{SUFFIX}"
 
 
+class OutOfRange(ValueError):
+    """A time no MCAP timestamp can hold: one line saying which."""
+
+
+NS_LIMIT = 2.0 ** 64
+"""An MCAP timestamp is an unsigned 64-bit count of nanoseconds (to the year 2554)."""
+
+
 def ns(seconds: float) -> int:
+    """``seconds`` as an MCAP timestamp; OutOfRange for a time none can hold (negative,
+    not finite, or one already in nanoseconds: a foreign recording's ``time``), found
+    here before the writer has taken any of the message."""
+    if not math.isfinite(seconds) or not 0 <= seconds * 1e9 < NS_LIMIT:
+        raise OutOfRange(f"time {seconds:g} s is outside what a recording holds "
+                         "(0 to 1.8e10 s: seconds since 1970)")
     return round(seconds * 1e9)
 
 

@@ -71,17 +71,22 @@ class RecordingWriter:
 
     def serial(self, data: bytes, host_time: float, monotonic: float,
                topic: str = SERIAL) -> None:
-        """A read from (or, with ``topic=WRITTEN``, a write to) the base station."""
+        """A read from (or, with ``topic=WRITTEN``, a write to) the base station;
+        OutOfRange, and nothing written, if a time cannot be recorded."""
+        logged, sampled = ns(host_time), ns(monotonic)
         self.messages += 1
-        self._writer.add_message(self._channel(topic, RAW_ENCODING), ns(host_time), data,
-                                 ns(monotonic), self.messages)
+        self._writer.add_message(self._channel(topic, RAW_ENCODING), logged, data,
+                                 sampled, self.messages)
 
     def message(self, topic: str, payload: Mapping[str, Any]) -> None:
-        """A published message: a node's record, or the gateway's status."""
-        logged, sampled = message_times(payload)
+        """A published message: a node's record, or the gateway's status; OutOfRange,
+        and nothing written, if its times cannot be recorded (mcap would fail part-way,
+        its statistics already holding them, and then fail to finish the file)."""
+        logged, sampled = (ns(when) for when in message_times(payload))
+        data = compact(payload).encode()
         self.messages += 1
-        self._writer.add_message(self._channel(topic, JSON_ENCODING), ns(logged),
-                                 compact(payload).encode(), ns(sampled), self.messages)
+        self._writer.add_message(self._channel(topic, JSON_ENCODING), logged, data,
+                                 sampled, self.messages)
 
     def flush(self) -> None:
         """Close the chunk in progress and hand it to the OS: what a process killed

@@ -162,12 +162,73 @@ def test_a_disk_too_slow_for_the_summary_leaves_the_file_readable_to_its_last_ch
         recorder._thread.join(5)
 
 
+class ThrottledDisk:
+    """Files on a disk that takes ``rate`` bytes a second: each write to the OS takes its
+    share of a second (the disk's speed, not a synchronisation)."""
+
+    def __init__(self, rate: float) -> None:
+        self.rate = rate
+
+    def create(self, path: Path) -> Any:
+        disk = self
+
+        class Throttled(io.FileIO):
+            def write(self, data: Any) -> int:
+                time.sleep(len(data) / disk.rate)
+                return super().write(data)
+        return io.BufferedWriter(Throttled(path, "xb"))
+
+
+def test_a_queue_that_never_empties_still_flushes_rotates_and_retains(tmp_path):
+    """The disk takes 1 MB/s, 1.5 MB/s comes (incompressible): the queue never empties,
+    yet the flush, rotation (1 MB) and retention (2 MB) keep their second."""
+    recorder = Recorder(RecordConfig(directory=str(tmp_path), rotate_mb=1, keep_gb=0.002,
+                                     queue=10_000_000), {},
+                        create=ThrottledDisk(1e6).create)
+    stop = threading.Event()
+
+    def stream() -> None:
+        sent = 0
+        start = time.monotonic()
+        while not stop.is_set():
+            while sent < (time.monotonic() - start) * 1000:  # 1000 reads of 1.5 kB a second
+                recorder.serial(os.urandom(1500), time.time(), time.monotonic())
+                sent += 1
+            time.sleep(0.005)  # (a stream's pace)
+    feeder = threading.Thread(target=stream)
+    recorder.start()
+    feeder.start()
+    queued: list[int] = []
+
+    def rotated_and_retained() -> bool:
+        status = recorder.status()
+        if status["files"] >= 2:  # (a backlog of more than a chunk by then)
+            queued.append(status["queued"])
+        return status["files"] >= 3 and len(list(tmp_path.iterdir())) < status["files"]
+    try:
+        wait_for(lambda: recorder.status()["queued"] > 0, 5, "a backlog")
+        wait_for(rotated_and_retained, 15, "files rotated and the oldest deleted")
+        status = recorder.status()
+        assert min(queued) > 0, f"the queue emptied: the disk kept up after all {queued}"
+        assert status["written"] > 0 and status["bytes"] > 0, status
+    finally:
+        stop.set()
+        feeder.join()
+        recorder.close()
+    # the rotated files read whole by mcap's reader (the last, left to a disk too slow
+    # for close()'s time, up to its last whole chunk)
+    rotated = sorted(tmp_path.iterdir())[:-1]
+    assert rotated and all(readable(path)[0] and readable(path)[1] for path in rotated)
+
+
 class FullDisk:
     """Files on a disk that fills up (every write to the OS fails with ENOSPC while
     ``full`` is set) and frees again; buffered as a file opened by Python is."""
 
     def __init__(self) -> None:
         self.full = threading.Event()
+        self.room = 0
+        """Writes to the OS a full disk still takes (what it gave back)."""
         self.created: list[Path] = []
 
     def create(self, path: Path) -> Any:
@@ -176,7 +237,9 @@ class FullDisk:
         class Filling(io.FileIO):
             def write(self, data: Any) -> int:
                 if disk.full.is_set():
-                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                    if not disk.room:
+                        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                    disk.room -= 1
                 return super().write(data)
         file = io.BufferedWriter(Filling(path, "xb"))
         self.created.append(path)
@@ -233,6 +296,45 @@ def test_a_full_disk_fails_loudly_leaves_no_broken_file_and_recording_resumes(
     assert f"after {recorder.lost} messages dropped" in resumed[0]
 
 
+def test_a_new_file_that_takes_one_flush_and_fails_again_is_not_resuming(
+        tmp_path, monkeypatch, caplog):
+    """A full disk gives back a little (the partial chunk cut off the failed file): a
+    new file's header and one flush fit, the next fails. Recording has not resumed
+    meanwhile: the failure stands throughout, one line says it, none says "resumed"
+    until the disk takes several flushes in a row."""
+    monkeypatch.setattr(recorder_module, "RETRY_S", 0.2)
+    disk = FullDisk()
+    recorder = Recorder(RecordConfig(directory=str(tmp_path)), {}, create=disk.create)
+    recorder.start()
+    sent = 0
+    try:
+        while not recorder.written:
+            sent += feed(recorder, 0.1, sent)
+        disk.full.set()
+        while not recorder.failure:
+            sent += feed(recorder, 0.1, sent)
+        errors = recorder.errors
+        disk.room = 2  # a new file's header and its first flush
+        while disk.room or recorder.errors == errors:
+            sent += feed(recorder, 0.1, sent)
+            assert recorder.failure == "No space left on device"
+        while len(disk.created) < 3:  # (a file tried after that one)
+            sent += feed(recorder, 0.1, sent)
+        assert recorder.failure == "No space left on device"
+        disk.full.clear()
+        while recorder.failure:
+            sent += feed(recorder, 0.1, sent)
+    finally:
+        recorder.close()
+    assert recorder.written + recorder.dropped == sent
+    said = [r.message for r in caplog.records if r.name == "gx2.record"]
+    assert sum("failed: No space left on device" in line for line in said) == 1, said
+    assert sum("recording resumed in" in line for line in said) == 1, said
+    # the file that took one flush is kept, cut back to it and ended there
+    kept = [path for path in disk.created[1:] if path.exists()]
+    assert readable(kept[0]) == (readable(kept[0])[0], True) and readable(kept[0])[0] > 0
+
+
 def seed(directory: Path, ages_days: list[float], size: int) -> list[Path]:
     """Finished recordings of ``size`` bytes, last written ``ages_days`` ago, named as
     the recorder names them (by their start, an hour before)."""
@@ -284,3 +386,78 @@ def test_retention_never_deletes_the_file_being_written(tmp_path):
     finally:
         recorder.close()
     assert len(list(tmp_path.iterdir())) == 1
+
+
+def test_a_message_that_cannot_be_written_is_counted_said_once_and_the_rest_written(
+        tmp_path, caplog):
+    """Times no MCAP timestamp holds (nanoseconds where seconds belong, negative), and a
+    payload that cannot be encoded: each refused and counted, each kind said once, the
+    thread going on with the rest."""
+    recorder = Recorder(RecordConfig(directory=str(tmp_path)), {})
+    recorder.start()
+    bad = [(b"gx2/76/euler", {"host_time": 1.7e9, "time": 1.7e18}),
+           (b"gx2/76/euler", {"host_time": -1.0}), (b"gx2/\xff", {"host_time": 1.7e9})]
+    sent = 0
+    for seq in range(30):
+        if seq % 10 == 5:
+            recorder.published(*bad[seq // 10])
+        else:
+            recorder.published(b"gx2/76/euler", {"seq": seq, "host_time": 1.7e9 + seq})
+            sent += 1
+    recorder.serial(b"\xaa", 1.7e18, 1.0)
+    wait_for(lambda: recorder.status()["dropped"] == 4, 5, "the refused counted")
+    assert recorder.failure == ""
+    recorder.published(b"gx2/76/euler", {"seq": 30, "host_time": 1.7e9 + 30})
+    recorder.close()
+    (path,) = tmp_path.iterdir()
+    assert finished(path) == sent + 1 == recorder.written
+    said = [r for r in caplog.records if "cannot be recorded" in r.getMessage()]
+    assert len(said) == 2, said
+    assert said[0].getMessage().startswith(
+        "recording: a message on gx2/76/euler cannot be recorded: time 1.7e+18 s is "
+        "outside what a recording holds")
+    assert said[1].getMessage().startswith(
+        "recording: a message on gx2/\ufffd cannot be recorded: UnicodeDecodeError")
+    assert said[0].exc_info is None and said[1].exc_info is not None  # (a bug's traceback)
+
+
+def test_an_unexpected_error_of_the_file_fails_it_and_the_thread_goes_on(
+        tmp_path, monkeypatch, caplog):
+    monkeypatch.setattr(recorder_module, "RETRY_S", 0.2)
+    failing = threading.Event()
+    failing.set()
+    flush = recorder_module.RecordingWriter.flush
+
+    def broken(writer: Any) -> None:
+        if failing.is_set():
+            failing.clear()
+            raise RuntimeError("a bug")
+        flush(writer)
+    monkeypatch.setattr(recorder_module.RecordingWriter, "flush", broken)
+    recorder = Recorder(RecordConfig(directory=str(tmp_path)), {})
+    recorder.start()
+    try:
+        sent = feed(recorder, 0.1)
+        wait_for(lambda: recorder.failure, 5, "the file to fail")
+        assert recorder.failure == "RuntimeError: a bug"
+        while recorder.failure:  # a new file, written
+            sent += feed(recorder, 0.1, sent)
+    finally:
+        recorder.close()
+    assert recorder.written + recorder.dropped == sent and recorder.written > 0
+    said = [r for r in caplog.records if "failed: RuntimeError: a bug" in r.getMessage()]
+    assert len(said) == 1 and said[0].exc_info is not None
+
+
+def test_a_thread_that_dies_is_said_and_makes_a_failure(tmp_path, monkeypatch, caplog):
+    def broken(recorder: Recorder) -> None:
+        raise RuntimeError("a bug")
+    monkeypatch.setattr(Recorder, "_retain", broken)
+    recorder = Recorder(RecordConfig(directory=str(tmp_path)), {})
+    recorder.start()
+    wait_for(lambda: recorder.failure, 5, "the thread to stop")
+    assert recorder.failure == "its thread stopped (RuntimeError: a bug)"
+    assert recorder.status()["errors"] == 1
+    said = [r for r in caplog.records if "recording stopped" in r.getMessage()]
+    assert len(said) == 1 and said[0].exc_info is not None
+    recorder.close()

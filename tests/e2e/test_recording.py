@@ -21,6 +21,7 @@ from gateway.recording.reader import read
 from gateway.recording.reports import Reading
 from gateway.sim.node import NodeSettings
 from tests.helpers.gateway import gateway_config
+from tests.helpers.ports import free_port
 from tests.helpers.processes import Running, gx2ctl, script, spawn_run
 from tests.helpers.waiting import wait_for
 
@@ -260,6 +261,17 @@ def test_gx2ctl_record_with_no_gateway_exits_1_and_leaves_no_file(tmp_path):
     [line] = ran.stderr.splitlines()
     assert "not even its heartbeat" in line and "nothing recorded" in line, line
     assert not target.exists()
+
+
+def test_gx2ctl_record_refuses_a_file_not_named_mcap_in_one_line(tmp_path):
+    """Asked before any gateway is: nothing listens on the endpoint."""
+    for name, suggested in (("x.csv", "x.mcap"), ("run", "run.mcap")):
+        target = tmp_path / name
+        ran = gx2ctl("--control", f"tcp://127.0.0.1:{free_port()}", "record", str(target))
+        assert ran.status == 2, ran
+        assert ran.stderr.splitlines() == [
+            f"gx2ctl: {target}: gx2ctl record writes MCAP: name the file {suggested}"]
+        assert not target.exists()
 
 
 def limited_to(size: int) -> Callable[[], None]:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 import ctypes
 import errno
+import json
 import os
 import shutil
 import subprocess
@@ -25,6 +26,7 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import NonSeekingReader, make_reader
+from mcap.writer import Writer
 
 from gateway.sim.node import NodeSettings
 from tests.e2e.test_watching import Scraper
@@ -35,6 +37,7 @@ from tests.helpers.waiting import wait_for
 CLONE_NEWNS = 0x00020000
 """setns(2)'s flag for a mount namespace (<sched.h>)."""
 NODES = [{"address": 76, "stream": "accel_angrate"}]
+TOPIC = "gx2/76/accel_angrate"
 HOLD = 'mount -t tmpfs -o "$2" gx2-test "$1" && echo mounted && exec cat >/dev/null'
 """The holder: mounts the tmpfs in its own namespace, says so, and keeps it until its
 standard input closes (the test ends, or dies)."""
@@ -78,8 +81,13 @@ class SmallDisk:
                     assert error.errno == errno.ENOSPC, error
         return added
 
-    def free(self) -> None:
-        (self.outside / "filler").unlink()
+    def free(self, size: int | None = None) -> None:
+        """Free the disk, or only ``size`` bytes of it."""
+        filler = self.outside / "filler"
+        if size is None:
+            filler.unlink()
+        else:
+            os.truncate(filler, filler.stat().st_size - size)
 
     def close(self) -> None:
         os.close(self._namespace)
@@ -170,6 +178,40 @@ def test_a_full_disk_makes_the_gateway_an_error_and_recording_resumes_when_it_fr
         assert sum(1 for _ in csv.DictReader(table)) == recorded > 100
 
 
+def test_a_disk_that_takes_a_flush_and_is_full_again_has_not_resumed(
+        simulator, gateway, small_disk):
+    """What a full disk gives back takes a new file's header and a flush or two, then
+    the disk is full again: the gateway stays ERROR throughout and never says recording
+    resumed (it flapped: "resumed", OK for a second, ERROR again); it does once the disk
+    keeps taking what comes."""
+    sim = simulator(NodeSettings(76))
+    recordings = small_disk.inside / "recordings"
+    gw = gateway(sim.path, NODES, record={"directory": str(recordings)},
+                 preexec=small_disk.enter)
+    gw.wait_streaming(76)
+    wait_for(lambda: gw.status()["recording"]["written"], 10, "the first flush")
+    small_disk.fill()
+    wait_for(lambda: gw.status()["recording"]["errors"], 10, "the disk to refuse")
+    small_disk.fill()  # (the file cut short gave back its last, partial chunk)
+    errors = gw.status()["recording"]["errors"]
+    small_disk.free(12288)  # three pages: a header and a flush, not three flushes
+
+    def full_again() -> bool:
+        status = gw.status()
+        assert status["gateway"]["health"] == "ERROR", status["gateway"]
+        # (the new file kept what it flushed: cut short, as the first was)
+        return status["recording"]["errors"] > errors and gw.log().count("cut short") == 2
+    wait_for(full_again, 15, "a new file to take a flush into what was freed and fail")
+    assert "recording resumed" not in gw.log()
+
+    small_disk.free()
+    wait_for(lambda: gw.status()["gateway"]["health"] == "OK", 20, "recording to resume")
+    resumed = [line for line in gw.log().splitlines() if "recording resumed in" in line]
+    assert len(resumed) == 1, gw.log()
+    status, _ = gw.terminate()
+    assert status == 0, gw.log()
+
+
 def test_a_read_only_directory_makes_the_gateway_an_error_and_leaves_nothing(
         simulator, gateway, read_only_disk):
     sim = simulator(NodeSettings(76))
@@ -183,3 +225,45 @@ def test_a_read_only_directory_makes_the_gateway_an_error_and_leaves_nothing(
     assert list(read_only_disk.outside.iterdir()) == []
     status, _ = gw.terminate()
     assert status == 0
+
+
+def foreign_recording(path: Path, count: int, absurd: int) -> None:
+    """A recording of published records made by another tool (mcap's own writer), whose
+    message ``absurd`` gives its ``time`` in nanoseconds rather than seconds."""
+    with path.open("wb") as output:
+        writer = Writer(output)
+        writer.start(profile="", library="another tool")
+        channel = writer.register_channel(TOPIC, "json", 0)
+        for seq in range(1, count + 1):
+            when = 1.7e9 + seq / 100
+            payload = {"node": 76, "seq": seq, "host_time": when,
+                       "time": when * 1e9 if seq == absurd else when,
+                       "accel": [0.0, 0.0, 1.0], "angrate": [0.0, 0.0, 0.0]}
+            writer.add_message(channel, int(when * 1e9), json.dumps(payload).encode(),
+                               int(when * 1e9), seq)
+        writer.finish()
+
+
+def test_a_message_whose_time_cannot_be_recorded_is_counted_and_the_rest_recorded(
+        gateway, tmp_path):
+    source = tmp_path / "foreign.mcap"
+    foreign_recording(source, 51, absurd=26)
+    recordings = tmp_path / "recordings"
+    gw = gateway(f"replay://{source}?speed=0&delay=0", NODES,
+                 record={"directory": str(recordings)})
+    wait_for(lambda: gw.status()["replay"]["finished"], 10, "the replay to end")
+    wait_for(lambda: gw.status()["recording"]["dropped"] == 1, 5, "the message counted")
+    recording = gw.status()["recording"]
+    assert recording["failure"] == "" and gw.status()["gateway"]["health"] == "OK", recording
+    status, _ = gw.terminate()
+    assert status == 0, gw.log()
+    # every other message recorded, in a file mcap's reader reads whole
+    files = sorted(recordings.iterdir())
+    assert len(files) == 1, files
+    with files[0].open("rb") as stream:
+        seqs = [json.loads(message.data)["seq"] for _, channel, message
+                in make_reader(stream).iter_messages(log_time_order=False)
+                if channel.topic == TOPIC]
+    assert seqs == [seq for seq in range(1, 52) if seq != 26]
+    said = [line for line in gw.log().splitlines() if "cannot be recorded" in line]
+    assert len(said) == 1 and TOPIC in said[0], gw.log()
