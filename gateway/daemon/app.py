@@ -190,7 +190,8 @@ class Gateway:
         loop = asyncio.get_running_loop()
         metrics = (loop.run_in_executor(None, self.metrics.close)  # (up to 0.5 s: meanwhile)
                    if self.metrics is not None else None)
-        live = (loop.run_in_executor(None, self.live.close)  # (its viewers told, meanwhile)
+        live = (loop.run_in_executor(None, self.live.close,  # (its viewers told, meanwhile)
+                                     done_by - time.monotonic())
                 if self.live is not None else None)
         # nothing more is started for any node; then every request still running is
         # answered at once ("shutting down") and cancelled: its client hears why now,

@@ -33,6 +33,10 @@ from gateway.recording.files import JSON_ENCODING, message_times, ns
 from .config import LiveConfig
 
 log = logging.getLogger("gx2.live")
+STOP_WAIT = 0.5
+"""Seconds a shutdown waits at most for the server to stop: with viewers connected
+(reading or not) the SDK's ``stop()`` took 0.2 ms here; what outlasts this waits on a
+connection that says nothing (:meth:`LiveServer.close`)."""
 
 
 class Viewers(foxglove.ServerListener):
@@ -118,5 +122,21 @@ class LiveServer:
                 "channels": sum(1 for c in self._channels.values() if c is not None),
                 "messages": self.messages, **self.viewers.status()}
 
-    def close(self) -> None:
-        self._server.stop()
+    def close(self, seconds: float) -> None:
+        """Stop serving, waiting for it ``seconds`` at most (and STOP_WAIT).
+
+        The SDK's ``stop()`` waits for every connection to end, and a connection that
+        never completes its WebSocket handshake (a client that connects and says
+        nothing) is never ended by the server: a bare ``stop()`` waited 48 s, until the
+        client left, and the gateway's exit with it. So it runs in a daemon thread the
+        gateway waits for until its deadline, then leaves: the viewers that did connect
+        have been told by then (they are closed first), and a thread left blocked in
+        the SDK, with the SDK's own runtime threads, ends with the process (a daemon
+        thread is not joined at exit, and the runtime's threads are no Python threads)."""
+        stopping = threading.Thread(target=self._server.stop, name="gx2-live-stop",
+                                    daemon=True)
+        stopping.start()
+        stopping.join(max(0.0, min(seconds, STOP_WAIT)))
+        if stopping.is_alive():
+            log.warning("live view: a connection that never completed its WebSocket "
+                        "handshake is still open: left to the process's exit")

@@ -124,6 +124,26 @@ def test_shutdown_within_its_promise_with_a_viewer_connected(simulator, gateway)
     assert seconds < EXIT + STARVED, seconds
 
 
+def test_shutdown_within_its_promise_with_a_connection_that_never_speaks(
+        simulator, gateway) -> None:
+    """A TCP connection to the live port that never starts the WebSocket handshake (a
+    port scanner, a client that hangs) does not hold the gateway's exit up (issue 31:
+    48 s, until it left)."""
+    gw, url = live_gateway(simulator, gateway)
+    host, port = gw.config["live"]["endpoint"].rsplit(":", 1)
+    with socket.create_connection((host, int(port)), timeout=5):
+        # a viewer connected after it is served once the server has taken the silent
+        # one (one listener, accepted in order): the silent one is then the server's
+        viewer = Viewer(url)
+        try:
+            viewer.until(lambda v: TOPICS <= set(v.topics()), 10, "the channels advertised")
+        finally:
+            viewer.close()
+        status, seconds = gw.terminate(signal.SIGTERM)
+    assert status == 0, gw.log()
+    assert seconds < EXIT + STARVED, seconds
+
+
 def check(tmp_path, live: str) -> subprocess.CompletedProcess:
     path = tmp_path / "live.yaml"
     path.write_text("base_station: {port: 'sim://'}\nnodes: [{address: 76}]\n"
