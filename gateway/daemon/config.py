@@ -13,7 +13,14 @@ import tempfile
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import AfterValidator, Field, PrivateAttr, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    Field,
+    PrivateAttr,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from aspp.frame import MAX_NODE, MIN_NODE
 from aspp.records import checked
@@ -33,7 +40,7 @@ from gateway.common.strict import Strict, load_model
 from gateway.common.topics import STATION_NAME, default_station_name
 from gateway.common.yamlfile import ConfigError
 
-from . import ports
+from . import ports, tls
 
 __all__ = ["ConfigError", "GatewayConfig", "load_config"]
 
@@ -209,15 +216,24 @@ class LiveConfig(Strict):
     tls_key: Annotated[str, Field(min_length=1)] | None = None
     """The PEM (PKCS#8) private key of tls_cert."""
 
-    @model_validator(mode="after")
-    def _both_or_neither(self) -> LiveConfig:
-        if (self.tls_cert is None) != (self.tls_key is None):
+    @model_validator(mode="before")
+    @classmethod
+    def _both_or_neither(cls, data: Any) -> Any:
+        # said before either file is read: the other one is the mistake
+        if isinstance(data, dict) and ((data.get("tls_cert") is None)
+                                       != (data.get("tls_key") is None)):
             raise ValueError("tls_cert and tls_key: give both, or neither")
-        for key in ("tls_cert", "tls_key"):
-            path = getattr(self, key)
-            if path is not None and not os.access(path, os.R_OK):
-                raise ValueError(f"{key}: cannot read {path}")
-        return self
+        return data
+
+    @field_validator("tls_cert")
+    @classmethod
+    def _cert(cls, path: str | None) -> str | None:
+        return tls.check_cert(path)
+
+    @field_validator("tls_key")
+    @classmethod
+    def _key(cls, path: str | None, info: ValidationInfo) -> str | None:
+        return tls.check_key(path, info.data.get("tls_cert"))
 
 
 class HealthConfig(Strict):

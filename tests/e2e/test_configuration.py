@@ -174,8 +174,11 @@ def test_invalid_configuration_files(tmp_path):
     assert failures == {}, "\n".join(f"{k}: {v}" for k, v in failures.items())
 
     assert check_run.returncode == 0, check_run
-    assert len(check_run.stdout.splitlines()) == 1 and check_run.stderr == "", check_run
+    assert len(check_run.stdout.splitlines()) == 1, check_run
     assert str(valid) in check_run.stdout
+    # (its port, a device not plugged in: a warning, test_check_warns_of_...)
+    assert [line for line in check_run.stderr.splitlines()
+            if "warning" not in line] == [], check_run
 
     assert usage_run.returncode == 2, usage_run
     assert len(usage_run.stderr.splitlines()) == 1, usage_run
@@ -219,6 +222,75 @@ def test_a_metrics_port_in_use_stops_the_start_up_with_one_line(tmp_path):
     assert run.returncode == 1, run
     assert run.stderr.count("\n") == 1 and "Traceback" not in run.stderr, run
     assert f"cannot bind 127.0.0.1:{port}: " in run.stderr, run
+
+
+# -- what --check says of this host: warnings, exit 0 --------------------------------------------
+# A device not plugged in yet, an endpoint another process holds (most often the gateway
+# this file is about to replace): a start would meet them, so --check says so, one line
+# each on stderr; the file is valid all the same (issue 31).
+
+def check_warnings(run: subprocess.CompletedProcess, path: Path) -> list[str]:
+    """The warning lines of a --check that passed."""
+    assert run.returncode == 0 and run.stdout == f"{path}: valid (2 nodes)\n", run
+    lines = run.stderr.splitlines()
+    assert all(line.startswith(f"gx2-gateway: warning: {path}: ") for line in lines), run
+    assert "Traceback" not in run.stderr
+    return lines
+
+
+def test_check_warns_of_a_device_that_does_not_exist(tmp_path):
+    path = tmp_path / "nodes.yaml"
+    path.write_text(yaml.safe_dump(valid_config()))
+    [line] = check_warnings(run_gateway("--config", str(path), "--check"), path)
+    assert "base_station.port: /dev/gx2-test-no-such-port does not exist" in line, line
+
+    stations = {**valid_config(), "base_stations": [
+        {"port": "sim://", "nodes": [{"address": 76}]},
+        {"port": str(tmp_path / "unplugged"), "nodes": [{"address": 77}]}]}
+    del stations["base_station"], stations["nodes"]
+    path.write_text(yaml.safe_dump(stations))
+    run = run_gateway("--config", str(path), "--check")
+    assert run.returncode == 0 and "valid (2 nodes on 2 base stations)" in run.stdout, run
+    [line] = run.stderr.splitlines()
+    assert f"base_stations[1].port: {tmp_path / 'unplugged'} does not exist" in line, line
+
+
+def test_check_warns_of_endpoints_another_process_holds(tmp_path, zmq_context):
+    import zmq
+
+    ipc = tmp_path / "control"
+    holder = zmq_context.socket(zmq.ROUTER)
+    holder.setsockopt(zmq.LINGER, 0)
+    holder.bind(f"ipc://{ipc}")
+    listeners = []
+    for _ in range(3):
+        listener = socket.socket()
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        listeners.append(listener)
+    try:
+        publish, metrics, live = (f"127.0.0.1:{s.getsockname()[1]}" for s in listeners)
+        config = {**valid_config(), "base_station": {"port": "sim://"},
+                  "publish": {"endpoint": f"tcp://{publish}"},
+                  "control": {"endpoint": f"ipc://{ipc}"},
+                  "metrics": {"endpoint": metrics}, "live": {"endpoint": live}}
+        path = tmp_path / "nodes.yaml"
+        path.write_text(yaml.safe_dump(config))
+        lines = check_warnings(run_gateway("--config", str(path), "--check"), path)
+        held = {line.split(": ")[3]: line for line in lines}
+        assert sorted(held) == ["control.endpoint", "live.endpoint", "metrics.endpoint",
+                                "publish.endpoint"], lines
+        assert all("held by another process" in line for line in lines), lines
+        # the ipc:// endpoint was only looked at: still the holder's (ZeroMQ's bind would
+        # have taken its path)
+        with socket.socket(socket.AF_UNIX) as peer:
+            peer.connect(str(ipc))
+    finally:
+        for listener in listeners:
+            listener.close()
+        holder.close()
+    # let go (the ipc path left behind, stale): nothing to warn of
+    assert check_warnings(run_gateway("--config", str(path), "--check"), path) == []
 
 
 # -- the recording directory -----------------------------------------------------------------------
