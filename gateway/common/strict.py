@@ -34,6 +34,8 @@ def describe(error: ValidationError, source: str = "", *, skip: int = 0,
         message = "unknown key (a typo?)" if noun == "key" else f"unknown {noun}"
     elif first["type"] == "missing":
         message = f"required {noun} is missing"
+    elif first["type"] in ("bool_type", "bool_parsing"):
+        message = f"must be a boolean: write true or false, not {first['input']!r}"
     more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
     location = tuple(first["loc"][skip:])
     parts = [part for part in (source, key_path(location) if location else "") if part]

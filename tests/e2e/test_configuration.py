@@ -8,13 +8,18 @@ import re
 import shutil
 import socket
 import subprocess
+import types
+import typing
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
+from pydantic import BaseModel
 
+from gateway.common import curve
+from gateway.daemon.config import GatewayConfig
 from tests.helpers.ports import free_port
 from tests.helpers.processes import script, spawn_run
 from tests.helpers.waiting import wait_for
@@ -183,6 +188,72 @@ def test_invalid_configuration_files(tmp_path):
     assert usage_run.returncode == 2, usage_run
     assert len(usage_run.stderr.splitlines()) == 1, usage_run
     assert "--config" in usage_run.stderr and "Traceback" not in usage_run.stderr
+
+
+# -- booleans: true or false, nothing else ---------------------------------------------------------
+# YAML 1.1 (PyYAML's) reads yes, no, on and off as booleans; the interface says `yes` is
+# not one (issue 31): each is refused where a boolean goes, naming the key.
+
+def boolean_keys(model: type[BaseModel], where: tuple[str, ...] = ()) -> list[tuple[str, ...]]:
+    """Every boolean key of ``model`` and of its sections, as paths."""
+    found = []
+    for name, field in model.model_fields.items():
+        kinds = (typing.get_args(field.annotation)
+                 if isinstance(field.annotation, types.UnionType) else (field.annotation,))
+        for kind in kinds:
+            if kind is bool:
+                found.append((*where, name))
+            elif isinstance(kind, type) and issubclass(kind, BaseModel):
+                found += boolean_keys(kind, (*where, name))
+    return found
+
+
+def with_word(config: dict[str, Any], key: tuple[str, ...], word: str) -> str:
+    """``config`` as YAML with ``word`` written bare (unquoted) at ``key``."""
+    section = config
+    for part in key[:-1]:
+        section = section.setdefault(part, {})
+    section[key[-1]] = "WORD-HERE"
+    return yaml.safe_dump(config).replace("WORD-HERE", word)
+
+
+def test_only_true_and_false_are_booleans(tmp_path):
+    curve.generate(tmp_path / "server")
+    curve.generate(tmp_path / "ops")
+    keys = boolean_keys(GatewayConfig)
+    assert {"control.allow_eeprom_write", "shutdown.stop_streams", "curve.publish"} <= \
+        {".".join(key) for key in keys}, keys
+
+    def config() -> dict[str, Any]:
+        return {**valid_config(), "curve": {"server_key": str(tmp_path / "server.key_secret"),
+                                             "clients": [str(tmp_path / "ops.key")]}}
+    runs = {}
+    with ThreadPoolExecutor(max_workers=8) as pool:
+        for key in keys:
+            for word in ("yes", "on", "No", "OFF", "true", "False"):
+                path = tmp_path / f"{'.'.join(key)}-{word}.yaml"
+                path.write_text(with_word(config(), key, word))
+                runs[key, word, path] = pool.submit(run_gateway, "--config", str(path),
+                                                    "--check")
+        sim = tmp_path / "sim.yaml"
+        sim.write_text("line: {glue_ack: yes}\nnodes: [{address: 76, radio: {in_range: on}}]\n")
+        sim_run = pool.submit(spawn_run, [script("gx2-sim"), "--config", str(sim), "--check"],
+                              capture_output=True, text=True, timeout=CLI_TIMEOUT)
+        failures = {}
+        for (key, word, path), future in runs.items():
+            run = future.result()
+            if word in ("true", "False"):
+                if run.returncode != 0:
+                    failures[key, word] = run.stderr
+                continue
+            problems = one_line_problems(run, path, [
+                re.escape(f"{'.'.join(key)}: "), r"write true or false",
+                re.escape(repr(word))])
+            if problems:
+                failures[key, word] = problems
+    assert failures == {}, "\n".join(f"{k}: {v}" for k, v in failures.items())
+    assert one_line_problems(sim_run.result(), sim, [r"line\.glue_ack: ",
+                                                     "write true or false, not 'yes'"]) == []
 
 
 def test_check_rejects_a_bad_sim_port(tmp_path):
