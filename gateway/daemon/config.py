@@ -307,15 +307,13 @@ class GatewayConfig(Strict):
     @model_validator(mode="before")
     @classmethod
     def _one_form(cls, data: Any) -> Any:
-        # one form or the other, said before either is checked key by key
-        if isinstance(data, dict):
-            if "base_stations" in data and ("base_station" in data or "nodes" in data):
-                raise ValueError("base_stations: give either base_stations (each with its "
-                                 "nodes) or base_station and nodes, not both")
-            if "base_stations" not in data:
-                for key in ("base_station", "nodes"):
-                    if key not in data:
-                        raise ValueError(f"{key}: required (or base_stations)")
+        # one form or the other, said before either is checked key by key (a missing
+        # one is said after them, by _distinct: a key given under a typo'd name is
+        # missing, and the typo, an unknown key, is what to say first)
+        if isinstance(data, dict) and "base_stations" in data and (
+                "base_station" in data or "nodes" in data):
+            raise ValueError("base_stations: give either base_stations (each with its "
+                             "nodes) or base_station and nodes, not both")
         return data
 
     _stations: list[StationConfig] = PrivateAttr(default_factory=list)
@@ -349,6 +347,10 @@ class GatewayConfig(Strict):
 
     @model_validator(mode="after")
     def _distinct(self) -> GatewayConfig:
+        if self.base_stations is None:
+            for key in ("base_station", "nodes"):
+                if getattr(self, key) is None:
+                    raise ValueError(f"{key}: required (or base_stations)")
         self._name_stations()
         self._distinct_stations()
         seen: set[int] = set()

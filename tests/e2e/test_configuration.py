@@ -256,6 +256,64 @@ def test_only_true_and_false_are_booleans(tmp_path):
                                                      "write true or false, not 'yes'"]) == []
 
 
+# -- a typo is said first --------------------------------------------------------------------------
+# An unknown key is most often a typo, and the cause of the other problems near it (the
+# key it should have been is missing): it is said first, with the key it is close to
+# (issue 31: `node:` in a station said `base_stations[0].nodes: required key is missing
+# (and 1 more)`).
+
+def _stations_with(typo: str) -> Any:
+    def change(config: dict[str, Any]) -> None:
+        del config["base_station"], config["nodes"]
+        config["base_stations"] = [{"port": "sim://", "nodes": [{"address": 76}]},
+                                   {"port": "sim://", typo: [{"address": 77}]}]
+    return change
+
+
+def _renamed(section: str | None, old: str, new: str, index: int | None = None) -> Any:
+    def change(config: dict[str, Any]) -> None:
+        where = config if section is None else config[section]
+        where = where[index] if index is not None else where
+        where[new] = where.pop(old)
+    return change
+
+
+TYPOS: dict[str, tuple[Any, str]] = {
+    # (change to a valid config, what the one line must say right after the file)
+    "node for nodes in a station": (_stations_with("node"),
+                                    r"base_stations\[1\]\.node: unknown key \(did you mean "
+                                    r"nodes\?\) \(and 1 more\)$"),
+    "nodez for nodes": (_renamed(None, "nodes", "nodez"),
+                        r"nodez: unknown key \(did you mean nodes\?\)$"),
+    "base_staton": (_renamed(None, "base_station", "base_staton"),
+                    r"base_staton: unknown key \(did you mean base_station\?\)$"),
+    "adress in a node": (_renamed("nodes", "address", "adress", 0),
+                         r"nodes\[0\]\.adress: unknown key \(did you mean address\?\) "
+                         r"\(and 1 more\)$"),
+    "a key like no other": (lambda c: c["control"].update(zzz=1),
+                            r"control\.zzz: unknown key \(a typo\?\)$"),
+}
+
+
+def test_a_typo_is_said_first_with_the_key_it_may_be(tmp_path):
+    paths = {name: write_bad_config(tmp_path, name.replace(" ", "-"), change)
+             for name, (change, _) in TYPOS.items()}
+    sim = tmp_path / "sim.yaml"
+    sim.write_text("nodes: [{adress: 76}]\n")
+    with ThreadPoolExecutor(max_workers=6) as pool:
+        runs = {name: pool.submit(run_gateway, "--config", str(path), "--check")
+                for name, path in paths.items()}
+        sim_run = pool.submit(spawn_run, [script("gx2-sim"), "--config", str(sim), "--check"],
+                              capture_output=True, text=True, timeout=CLI_TIMEOUT)
+        failures = {name: problems for name, future in runs.items()
+                    if (problems := one_line_problems(
+                        future.result(), paths[name],
+                        [re.escape(f"{paths[name]}: ") + TYPOS[name][1]]))}
+    assert failures == {}, "\n".join(f"{k}: {v}" for k, v in failures.items())
+    assert one_line_problems(sim_run.result(), sim, [
+        r"nodes\[0\]\.adress: unknown key \(did you mean address\?\)"]) == []
+
+
 def test_check_rejects_a_bad_sim_port(tmp_path):
     """``--check`` validates the configuration (0: valid, 2: not): it must not pass a file
     the daemon then rejects at start-up with exit 2."""
