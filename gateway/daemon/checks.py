@@ -1,5 +1,6 @@
 """What ``gx2-gateway --check`` tells beyond the file itself: the state of this host that
-a start would meet. What no start could get past is exit 2 (:func:`live_refusal`); what
+a start would meet. What no start could get past is exit 2 (:func:`unwritable`, a
+recording directory this user cannot write; :func:`live_refusal`); what
 would not stop a start, or is of this moment and often gone by the time the gateway
 starts, is a warning, one line each (:func:`warnings`), and the check still passes:
 
@@ -18,7 +19,11 @@ from __future__ import annotations
 
 import errno
 import os
+import pwd
 import socket
+import stat
+import tempfile
+from pathlib import Path
 
 import zmq
 
@@ -109,6 +114,44 @@ def _tcp_refusal(endpoint: str) -> str | None:
         except OSError as error:
             return _why(error)
     return None
+
+
+def unwritable(directory: str) -> str | None:
+    """Why the recorder could not write files in ``directory`` as this user, or None.
+
+    Nothing is created: a missing directory is judged by its nearest existing ancestor
+    (the recorder makes the rest). Writing is tried rather than asked: ``os.access``
+    answers for the real, not the effective, user and knows nothing of AppArmor, quotas
+    or a full inode table. The probe is an unnamed temporary file (O_TMPFILE, or one
+    unlinked at once where the file system has no O_TMPFILE): nothing is left behind."""
+    target = Path(directory).absolute()
+    nearest = target
+    while True:
+        try:
+            mode = nearest.stat().st_mode
+            break
+        except (FileNotFoundError, NotADirectoryError):
+            nearest = nearest.parent
+        except OSError as error:
+            # a directory on the way that this user may not search
+            return f"cannot be reached by user {_user()} ({error.strerror})"
+    missing = "" if nearest == target else f"cannot be created: {nearest} "
+    if not stat.S_ISDIR(mode):
+        return f"{missing}is not a directory"
+    try:
+        with tempfile.TemporaryFile(dir=nearest):
+            pass
+    except OSError as error:
+        return f"{missing}is not writable by user {_user()} ({error.strerror})"
+    return None
+
+
+def _user() -> str:
+    uid = os.geteuid()
+    try:
+        return pwd.getpwuid(uid).pw_name
+    except KeyError:
+        return str(uid)
 
 
 def live_refusal(config: GatewayConfig) -> str | None:

@@ -27,7 +27,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from gateway.common.args import ArgumentParser, fail
 
-    from .config import ConfigError, load_config, unwritable
+    from .config import ConfigError, load_config
     from .shipped import PrintFiles
 
     parser = ArgumentParser(prog="gx2-gateway", description="Gateway for MicroStrain "
@@ -64,12 +64,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.check:
         # the unit runs --check as its user, in its sandbox, before the gateway: a
         # directory it cannot write fails there, not as a recorder that keeps nothing
+        from .checks import live_refusal, unwritable, warnings
         record = config.record
         problem = unwritable(record.directory) if record is not None else None
         if problem:
             fail(parser.prog, f"{args.config}: record.directory: {record.directory}: "
                  f"{problem}", 2)
-        from .checks import live_refusal, warnings
         problem = live_refusal(config)
         if problem:
             fail(parser.prog, f"{args.config}: {problem}", 2)

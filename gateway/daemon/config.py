@@ -7,9 +7,6 @@ Strict: an unknown key is an error, so a typo never passes silently.
 from __future__ import annotations
 
 import os
-import pwd
-import stat
-import tempfile
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -155,44 +152,6 @@ class RecordConfig(Strict):
     keep_days: Annotated[float, Field(gt=0)] | None = None
     """Added: finished files older than this many days are deleted, oldest first; never
     the file being written. None: kept however old."""
-
-
-def unwritable(directory: str) -> str | None:
-    """Why the recorder could not write files in ``directory`` as this user, or None.
-
-    Nothing is created: a missing directory is judged by its nearest existing ancestor
-    (the recorder makes the rest). Writing is tried rather than asked: ``os.access``
-    answers for the real, not the effective, user and knows nothing of AppArmor, quotas
-    or a full inode table. The probe is an unnamed temporary file (O_TMPFILE, or one
-    unlinked at once where the file system has no O_TMPFILE): nothing is left behind."""
-    target = Path(directory).absolute()
-    nearest = target
-    while True:
-        try:
-            mode = nearest.stat().st_mode
-            break
-        except (FileNotFoundError, NotADirectoryError):
-            nearest = nearest.parent
-        except OSError as error:
-            # a directory on the way that this user may not search
-            return f"cannot be reached by user {_user()} ({error.strerror})"
-    missing = "" if nearest == target else f"cannot be created: {nearest} "
-    if not stat.S_ISDIR(mode):
-        return f"{missing}is not a directory"
-    try:
-        with tempfile.TemporaryFile(dir=nearest):
-            pass
-    except OSError as error:
-        return f"{missing}is not writable by user {_user()} ({error.strerror})"
-    return None
-
-
-def _user() -> str:
-    uid = os.geteuid()
-    try:
-        return pwd.getpwuid(uid).pw_name
-    except KeyError:
-        return str(uid)
 
 
 class MetricsConfig(Strict):
