@@ -173,7 +173,7 @@ class LiveConfig(Strict):
     tls_cert: Annotated[str, Field(min_length=1)] | None = None
     """A PEM certificate: the server then takes wss:// only (with tls_key)."""
     tls_key: Annotated[str, Field(min_length=1)] | None = None
-    """The PEM (PKCS#8) private key of tls_cert."""
+    """The PEM private key of tls_cert (PKCS#8, PKCS#1 or SEC1), not encrypted."""
 
     @model_validator(mode="before")
     @classmethod
