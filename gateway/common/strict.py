@@ -8,8 +8,11 @@ Strict: an unknown key is an error, so a typo never passes silently, and a YAML
 
 from __future__ import annotations
 
+import difflib
+import types
+import typing
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
@@ -23,21 +26,74 @@ class Strict(BaseModel):
 
 
 def describe(error: ValidationError, source: str = "", *, skip: int = 0,
-             noun: str = "key") -> str:
-    """The first problem pydantic found as one line, ``source: where: what`` (and how
-    many more there are). ``skip`` drops leading parts of the location (a tagged
-    union's tag); ``noun`` is what an unknown name is called ("key", "field")."""
+             noun: str = "key", model: type[BaseModel] | None = None) -> str:
+    """The most useful problem pydantic found as one line, ``source: where: what`` (and
+    how many more there are). ``skip`` drops leading parts of the location (a tagged
+    union's tag); ``noun`` is what an unknown name is called ("key", "field");
+    ``model``, what was validated, lets an unknown key name the key it may be a typo of.
+
+    Pydantic lists problems in the order of the model's fields, with unknown keys last:
+    a typo (``node:`` for ``nodes:``) came out as ``nodes: required key is missing (and
+    1 more)``, the typo itself hidden behind the "1 more". An unknown key is most often
+    the cause of the other problems near it, so it is said first; one that is close to
+    a known key first of all, with that key."""
     problems = error.errors(include_url=False)
-    first = problems[0]
+    hints = {index: _near(model, tuple(problem["loc"][skip:]))
+             for index, problem in enumerate(problems)
+             if problem["type"] == "extra_forbidden"}
+    order = sorted(range(len(problems)),
+                   key=lambda i: 0 if hints.get(i) else 1 if i in hints else 2)
+    first = problems[order[0]]
     message = first["msg"].removeprefix("Value error, ")
     if first["type"] == "extra_forbidden":
-        message = "unknown key (a typo?)" if noun == "key" else f"unknown {noun}"
+        near = hints[order[0]]
+        message = (f"unknown {noun} (did you mean {near}?)" if near
+                   else "unknown key (a typo?)" if noun == "key" else f"unknown {noun}")
     elif first["type"] == "missing":
         message = f"required {noun} is missing"
+    elif first["type"] in ("bool_type", "bool_parsing"):
+        message = f"must be a boolean: write true or false, not {first['input']!r}"
     more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
     location = tuple(first["loc"][skip:])
     parts = [part for part in (source, key_path(location) if location else "") if part]
     return ": ".join([*parts, message]) + more
+
+
+def _near(model: type[BaseModel] | None, location: tuple[int | str, ...]) -> str | None:
+    """The known key that an unknown one at ``location`` is closest to, if any is close."""
+    if model is None or not location or not isinstance(location[-1], str):
+        return None
+    kind: Any = model
+    for part in location[:-1]:
+        kind = _inside(kind, part)
+    known = [name for option in _options(kind) if _is_model(option)
+             for name in option.model_fields]
+    close = difflib.get_close_matches(location[-1], known, n=1, cutoff=0.6)
+    return close[0] if close else None
+
+
+def _inside(kind: Any, part: int | str) -> Any:
+    """The type of the value at ``part`` of a value of type ``kind`` (None if unknown)."""
+    for option in _options(kind):
+        if isinstance(part, str) and _is_model(option) and part in option.model_fields:
+            return option.model_fields[part].annotation
+        if isinstance(part, int) and typing.get_origin(option) in (list, tuple):
+            return typing.get_args(option)[0]
+    return None
+
+
+def _options(kind: Any) -> list[Any]:
+    """``kind`` without its Annotated metadata, as the list of its union's members."""
+    origin = typing.get_origin(kind)
+    if origin is typing.Annotated:
+        return _options(typing.get_args(kind)[0])
+    if origin in (typing.Union, types.UnionType):
+        return [member for arg in typing.get_args(kind) for member in _options(arg)]
+    return [kind]
+
+
+def _is_model(kind: Any) -> bool:
+    return isinstance(kind, type) and issubclass(kind, BaseModel)
 
 
 def load_model(path: str | Path, model: type[M]) -> M:
@@ -46,4 +102,4 @@ def load_model(path: str | Path, model: type[M]) -> M:
     try:
         return model.model_validate(data)
     except ValidationError as error:
-        raise ConfigError(describe(error, str(path))) from None
+        raise ConfigError(describe(error, str(path), model=model)) from None

@@ -7,6 +7,7 @@ is :mod:`gateway.common.strict`'s.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -17,9 +18,13 @@ class ConfigError(Exception):
     """A configuration file cannot be used; ``str()`` is the one-line message."""
 
 
+BOOL_TAG = "tag:yaml.org,2002:bool"
+
+
 class _UniqueKeyLoader(yaml.SafeLoader):
     """safe_load, except that a key given twice is an error: with PyYAML the last one
-    would win silently, and a typo'd copy of a key would hide the real one."""
+    would win silently, and a typo'd copy of a key would hide the real one; and that
+    only ``true`` and ``false`` are booleans (below)."""
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
         seen: set[object] = set()
@@ -30,6 +35,18 @@ class _UniqueKeyLoader(yaml.SafeLoader):
                     None, None, f"key {key!r} appears twice", key_node.start_mark)
             seen.add(key)
         return super().construct_mapping(node, deep=deep)
+
+
+# PyYAML follows YAML 1.1, where yes, no, on and off (any case) are booleans too: a
+# ``allow_eeprom_write: yes`` would be taken as true without a word, and ``name: on``
+# would be no name at all. YAML 1.2's core schema, which the docs promise, has only
+# true and false (and True, TRUE, False, FALSE): the others stay text, which a key that
+# wants a boolean then refuses in one line (strict.py's "write true or false").
+_UniqueKeyLoader.yaml_implicit_resolvers = {
+    first: [(tag, pattern) for tag, pattern in resolvers if tag != BOOL_TAG]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+_UniqueKeyLoader.add_implicit_resolver(
+    BOOL_TAG, re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF"))
 
 
 def read_mapping(path: str | Path) -> dict[str, Any]:

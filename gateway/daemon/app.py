@@ -36,6 +36,7 @@ from gateway.recording.files import PARTIAL
 from . import status
 from .config import GatewayConfig
 from .control import ControlServer
+from .errors import StartupError
 from .health import SAMPLE_PERIOD, Health
 from .operations import Operations
 from .publisher import Publisher, Sink
@@ -69,10 +70,6 @@ def fan_out(sinks: list[Sink]) -> Sink | None:
         for sink in sinks:
             sink(topic, payload)
     return every
-
-
-class StartupError(Exception):
-    """The gateway cannot start (an endpoint cannot be bound): one line, exit 1."""
 
 
 class Gateway:
@@ -122,9 +119,11 @@ class Gateway:
                 from .live import LiveServer
                 endpoint = config.live.endpoint
                 self.live = LiveServer(config.live)
-        except (zmq.ZMQError, OSError) as error:
+        except (zmq.ZMQError, OSError, StartupError) as error:
             self._stop_auth()
             self._context.destroy(linger=0)
+            if isinstance(error, StartupError):
+                raise  # (its own words: the live view's, for what is not the port)
             raise StartupError(f"cannot bind {endpoint}: {error.strerror or error}") from None
         self.health = Health(self.nodes.values(), config.health)
         self.health.lines = [(None if len(self.stations) == 1 else station.name, station.line)
@@ -190,7 +189,8 @@ class Gateway:
         loop = asyncio.get_running_loop()
         metrics = (loop.run_in_executor(None, self.metrics.close)  # (up to 0.5 s: meanwhile)
                    if self.metrics is not None else None)
-        live = (loop.run_in_executor(None, self.live.close)  # (its viewers told, meanwhile)
+        live = (loop.run_in_executor(None, self.live.close,  # (its viewers told, meanwhile)
+                                     done_by - time.monotonic())
                 if self.live is not None else None)
         # nothing more is started for any node; then every request still running is
         # answered at once ("shutting down") and cancelled: its client hears why now,

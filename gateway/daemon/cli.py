@@ -27,7 +27,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from gateway.common.args import ArgumentParser, fail
 
-    from .config import ConfigError, load_config, unwritable
+    from .config import ConfigError, load_config
     from .shipped import PrintFiles
 
     parser = ArgumentParser(prog="gx2-gateway", description="Gateway for MicroStrain "
@@ -42,7 +42,9 @@ def main(argv: list[str] | None = None) -> int:
                         "(deploy/: systemd unit, udev rule, alerting rules; config/: "
                         "example configurations; README.md; docs/) and exit")
     parser.add_argument("--check", action="store_true",
-                        help="validate the configuration and exit (0: valid, 2: not)")
+                        help="validate the configuration and exit (0: valid, 2: not); "
+                        "what a start would meet on this host but not fail on (a device "
+                        "not plugged in, an endpoint held) is a warning on stderr")
     parser.add_argument("--log-level", default="INFO",
                         choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     args = parser.parse_args(argv)
@@ -62,11 +64,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.check:
         # the unit runs --check as its user, in its sandbox, before the gateway: a
         # directory it cannot write fails there, not as a recorder that keeps nothing
+        from .checks import live_refusal, unwritable, warnings
         record = config.record
         problem = unwritable(record.directory) if record is not None else None
         if problem:
             fail(parser.prog, f"{args.config}: record.directory: {record.directory}: "
                  f"{problem}", 2)
+        problem = live_refusal(config)
+        if problem:
+            fail(parser.prog, f"{args.config}: {problem}", 2)
+        for warning in warnings(config):
+            print(f"{parser.prog}: warning: {args.config}: {warning}", file=sys.stderr)
         count, stations = len(config.all_nodes), len(config.stations)
         print(f"{args.config}: valid ({count} node{'s' if count != 1 else ''}"
               + (f" on {stations} base stations)" if stations > 1 else ")"))

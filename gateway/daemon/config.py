@@ -7,13 +7,17 @@ Strict: an unknown key is an error, so a typo never passes silently.
 from __future__ import annotations
 
 import os
-import pwd
-import stat
-import tempfile
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import AfterValidator, Field, PrivateAttr, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    Field,
+    PrivateAttr,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from aspp.frame import MAX_NODE, MIN_NODE
 from aspp.records import checked
@@ -33,7 +37,7 @@ from gateway.common.strict import Strict, load_model
 from gateway.common.topics import STATION_NAME, default_station_name
 from gateway.common.yamlfile import ConfigError
 
-from . import ports
+from . import ports, tls
 
 __all__ = ["ConfigError", "GatewayConfig", "load_config"]
 
@@ -150,44 +154,6 @@ class RecordConfig(Strict):
     the file being written. None: kept however old."""
 
 
-def unwritable(directory: str) -> str | None:
-    """Why the recorder could not write files in ``directory`` as this user, or None.
-
-    Nothing is created: a missing directory is judged by its nearest existing ancestor
-    (the recorder makes the rest). Writing is tried rather than asked: ``os.access``
-    answers for the real, not the effective, user and knows nothing of AppArmor, quotas
-    or a full inode table. The probe is an unnamed temporary file (O_TMPFILE, or one
-    unlinked at once where the file system has no O_TMPFILE): nothing is left behind."""
-    target = Path(directory).absolute()
-    nearest = target
-    while True:
-        try:
-            mode = nearest.stat().st_mode
-            break
-        except (FileNotFoundError, NotADirectoryError):
-            nearest = nearest.parent
-        except OSError as error:
-            # a directory on the way that this user may not search
-            return f"cannot be reached by user {_user()} ({error.strerror})"
-    missing = "" if nearest == target else f"cannot be created: {nearest} "
-    if not stat.S_ISDIR(mode):
-        return f"{missing}is not a directory"
-    try:
-        with tempfile.TemporaryFile(dir=nearest):
-            pass
-    except OSError as error:
-        return f"{missing}is not writable by user {_user()} ({error.strerror})"
-    return None
-
-
-def _user() -> str:
-    uid = os.geteuid()
-    try:
-        return pwd.getpwuid(uid).pw_name
-    except KeyError:
-        return str(uid)
-
-
 class MetricsConfig(Strict):
     """Prometheus metrics (docs/interface.md, section 8)."""
 
@@ -207,17 +173,26 @@ class LiveConfig(Strict):
     tls_cert: Annotated[str, Field(min_length=1)] | None = None
     """A PEM certificate: the server then takes wss:// only (with tls_key)."""
     tls_key: Annotated[str, Field(min_length=1)] | None = None
-    """The PEM (PKCS#8) private key of tls_cert."""
+    """The PEM private key of tls_cert (PKCS#8, PKCS#1 or SEC1), not encrypted."""
 
-    @model_validator(mode="after")
-    def _both_or_neither(self) -> LiveConfig:
-        if (self.tls_cert is None) != (self.tls_key is None):
+    @model_validator(mode="before")
+    @classmethod
+    def _both_or_neither(cls, data: Any) -> Any:
+        # said before either file is read: the other one is the mistake
+        if isinstance(data, dict) and ((data.get("tls_cert") is None)
+                                       != (data.get("tls_key") is None)):
             raise ValueError("tls_cert and tls_key: give both, or neither")
-        for key in ("tls_cert", "tls_key"):
-            path = getattr(self, key)
-            if path is not None and not os.access(path, os.R_OK):
-                raise ValueError(f"{key}: cannot read {path}")
-        return self
+        return data
+
+    @field_validator("tls_cert")
+    @classmethod
+    def _cert(cls, path: str | None) -> str | None:
+        return tls.check_cert(path)
+
+    @field_validator("tls_key")
+    @classmethod
+    def _key(cls, path: str | None, info: ValidationInfo) -> str | None:
+        return tls.check_key(path, info.data.get("tls_cert"))
 
 
 class HealthConfig(Strict):
@@ -291,15 +266,13 @@ class GatewayConfig(Strict):
     @model_validator(mode="before")
     @classmethod
     def _one_form(cls, data: Any) -> Any:
-        # one form or the other, said before either is checked key by key
-        if isinstance(data, dict):
-            if "base_stations" in data and ("base_station" in data or "nodes" in data):
-                raise ValueError("base_stations: give either base_stations (each with its "
-                                 "nodes) or base_station and nodes, not both")
-            if "base_stations" not in data:
-                for key in ("base_station", "nodes"):
-                    if key not in data:
-                        raise ValueError(f"{key}: required (or base_stations)")
+        # one form or the other, said before either is checked key by key (a missing
+        # one is said after them, by _distinct: a key given under a typo'd name is
+        # missing, and the typo, an unknown key, is what to say first)
+        if isinstance(data, dict) and "base_stations" in data and (
+                "base_station" in data or "nodes" in data):
+            raise ValueError("base_stations: give either base_stations (each with its "
+                             "nodes) or base_station and nodes, not both")
         return data
 
     _stations: list[StationConfig] = PrivateAttr(default_factory=list)
@@ -333,6 +306,10 @@ class GatewayConfig(Strict):
 
     @model_validator(mode="after")
     def _distinct(self) -> GatewayConfig:
+        if self.base_stations is None:
+            for key in ("base_station", "nodes"):
+                if getattr(self, key) is None:
+                    raise ValueError(f"{key}: required (or base_stations)")
         self._name_stations()
         self._distinct_stations()
         seen: set[int] = set()

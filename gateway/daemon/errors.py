@@ -1,5 +1,5 @@
 """Why a control request failed: each exception carries the protocol's error kind, so
-the control server answers any of them the same way."""
+the control server answers any of them the same way; and why the gateway cannot start."""
 
 from __future__ import annotations
 
@@ -32,3 +32,7 @@ class LinkDown(OpError):
     """The base station is not connected."""
 
     kind = ErrorKind.LINK
+
+
+class StartupError(Exception):
+    """The gateway cannot start (an endpoint cannot be bound): one line, exit 1."""

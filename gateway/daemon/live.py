@@ -17,6 +17,7 @@ Imported only when ``live:`` is configured, as metrics.py is.
 from __future__ import annotations
 
 import logging
+import re
 import threading
 from pathlib import Path
 from typing import Any
@@ -31,8 +32,55 @@ from gateway.common.schemas import schema_for_topic
 from gateway.recording.files import JSON_ENCODING, message_times, ns
 
 from .config import LiveConfig
+from .errors import StartupError
 
 log = logging.getLogger("gx2.live")
+STOP_WAIT = 0.5
+"""Seconds a shutdown waits at most for the server to stop: with viewers connected
+(reading or not) the SDK's ``stop()`` took 0.2 ms here; what outlasts this waits on a
+connection that says nothing (:meth:`LiveServer.close`)."""
+
+
+BIND_FAILED = re.compile(r"Failed to bind port: (?P<why>.*?)(?: \(os error (?P<errno>\d+)\))?$")
+"""How the SDK says it could not bind (``FoxgloveError: Failed to bind port: Address
+already in use (os error 98)``), apart from its other errors (``Configuration error:
+TLS configuration: ...``)."""
+
+
+def _tls(config: LiveConfig) -> dict[str, bytes]:
+    """The SDK's TLS arguments: none, or the certificate's and key's bytes."""
+    if config.tls_cert is None or config.tls_key is None:
+        return {}
+    return {"tls_cert": Path(config.tls_cert).read_bytes(),
+            "tls_key": Path(config.tls_key).read_bytes()}
+
+
+def tls_refusal(config: LiveConfig) -> str | None:
+    """Why the SDK would not serve with ``config``'s certificate and key (None if it
+    would, or there are none), found by starting it on a free loopback port and
+    stopping it at once: what rustls refuses although OpenSSL (tls.py) took it, such as
+    a DSA or Ed448 key. For ``--check``; nothing is left running."""
+    tls = _tls(config)
+    if not tls:
+        return None
+    try:
+        foxglove.start_server(name="gx2-gateway --check", host="127.0.0.1", port=0,
+                              capabilities=[], context=foxglove.Context(), **tls).stop()
+    except RuntimeError as error:
+        if BIND_FAILED.search(str(error)):
+            return None  # (no loopback to try it on: the start will tell)
+        return str(error).removeprefix("FoxgloveError: ")
+    return None
+
+
+def refusal(endpoint: str, text: str) -> OSError | StartupError:
+    """The SDK's refusal to start, as the gateway says it: OSError for the port (the
+    gateway's "cannot bind"), StartupError in the SDK's words for anything else (a
+    certificate it could not use is no port in use)."""
+    bind = BIND_FAILED.search(text)
+    if bind is not None:
+        return OSError(int(bind["errno"] or 0), bind["why"])
+    return StartupError(f"live view on {endpoint}: {text.removeprefix('FoxgloveError: ')}")
 
 
 class Viewers(foxglove.ServerListener):
@@ -73,16 +121,14 @@ class LiveServer:
         self.endpoint = config.endpoint
         self.viewers = Viewers()
         self._context = foxglove.Context()
-        tls = ({"tls_cert": Path(config.tls_cert).read_bytes(),
-                "tls_key": Path(config.tls_key).read_bytes()}
-               if config.tls_cert and config.tls_key else {})
+        tls = _tls(config)
         try:
             self._server = foxglove.start_server(
                 name="gx2-gateway", host=host.strip("[]"), port=port, capabilities=[],
                 server_listener=self.viewers, context=self._context,
                 message_backlog_size=config.backlog, **tls)
-        except RuntimeError as error:  # the SDK's: a port in use, an address not ours
-            raise OSError(str(error)) from None
+        except RuntimeError as error:
+            raise refusal(config.endpoint, str(error)) from None
         self.url = f"{'wss' if tls else 'ws'}://{config.endpoint}"
         self.messages = 0
         """Messages given to a channel some viewer subscribed to."""
@@ -118,5 +164,22 @@ class LiveServer:
                 "channels": sum(1 for c in self._channels.values() if c is not None),
                 "messages": self.messages, **self.viewers.status()}
 
-    def close(self) -> None:
-        self._server.stop()
+    def close(self, seconds: float) -> None:
+        """Stop serving, waiting for it ``seconds`` at most (and STOP_WAIT).
+
+        The SDK's ``stop()`` waits for every connection to end, and a connection that
+        never completes its WebSocket handshake (a client that connects and says
+        nothing) is never ended by the server: a bare ``stop()`` waited 48 s, until the
+        client left, and the gateway's exit with it. So it runs in a daemon thread that
+        is waited for a while (it takes well under a millisecond when every connection
+        is a viewer), then left: blocked in the SDK, it ends with the process, as the
+        SDK's own runtime threads do (a daemon thread is not joined at exit, and the
+        runtime's threads are no Python threads; the process exited 0 at once so in
+        tests/e2e/test_live.py)."""
+        stopping = threading.Thread(target=self._server.stop, name="gx2-live-stop",
+                                    daemon=True)
+        stopping.start()
+        stopping.join(max(0.0, min(seconds, STOP_WAIT)))
+        if stopping.is_alive():
+            log.warning("live view: a connection that never completed its WebSocket "
+                        "handshake is still open: left to the process's exit")

@@ -142,7 +142,7 @@ def _validated(model: type[M], data: dict[str, Any], source: str) -> M:
     try:
         return model.model_validate(data)
     except ValidationError as error:
-        raise ConfigError(describe(error, source)) from None
+        raise ConfigError(describe(error, source, model=model)) from None
 
 
 def _check_out_of_range(args: Any, nodes: list[SimNodeEntry]) -> None:

@@ -221,7 +221,7 @@ def load_sim_config(path: str | Path) -> SimConfig | SimStationsConfig:
     try:
         return model.model_validate(data)
     except ValidationError as error:
-        raise ConfigError(describe(error, str(path))) from None
+        raise ConfigError(describe(error, str(path), model=model)) from None
 
 
 _URL_KEYS = {"line": {"garbage", "bad_checksum", "false_header", "glue_ack", "nack"},

@@ -8,13 +8,18 @@ import re
 import shutil
 import socket
 import subprocess
+import types
+import typing
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
+from pydantic import BaseModel
 
+from gateway.common import curve
+from gateway.daemon.config import GatewayConfig
 from tests.helpers.ports import free_port
 from tests.helpers.processes import script, spawn_run
 from tests.helpers.waiting import wait_for
@@ -174,12 +179,139 @@ def test_invalid_configuration_files(tmp_path):
     assert failures == {}, "\n".join(f"{k}: {v}" for k, v in failures.items())
 
     assert check_run.returncode == 0, check_run
-    assert len(check_run.stdout.splitlines()) == 1 and check_run.stderr == "", check_run
+    assert len(check_run.stdout.splitlines()) == 1, check_run
     assert str(valid) in check_run.stdout
+    # (its port, a device not plugged in: a warning, test_check_warns_of_...)
+    assert [line for line in check_run.stderr.splitlines()
+            if "warning" not in line] == [], check_run
 
     assert usage_run.returncode == 2, usage_run
     assert len(usage_run.stderr.splitlines()) == 1, usage_run
     assert "--config" in usage_run.stderr and "Traceback" not in usage_run.stderr
+
+
+# -- booleans: true or false, nothing else ---------------------------------------------------------
+# YAML 1.1 (PyYAML's) reads yes, no, on and off as booleans; the interface says `yes` is
+# not one (issue 31): each is refused where a boolean goes, naming the key.
+
+def boolean_keys(model: type[BaseModel], where: tuple[str, ...] = ()) -> list[tuple[str, ...]]:
+    """Every boolean key of ``model`` and of its sections, as paths."""
+    found = []
+    for name, field in model.model_fields.items():
+        kinds = (typing.get_args(field.annotation)
+                 if isinstance(field.annotation, types.UnionType) else (field.annotation,))
+        for kind in kinds:
+            if kind is bool:
+                found.append((*where, name))
+            elif isinstance(kind, type) and issubclass(kind, BaseModel):
+                found += boolean_keys(kind, (*where, name))
+    return found
+
+
+def with_word(config: dict[str, Any], key: tuple[str, ...], word: str) -> str:
+    """``config`` as YAML with ``word`` written bare (unquoted) at ``key``."""
+    section = config
+    for part in key[:-1]:
+        section = section.setdefault(part, {})
+    section[key[-1]] = "WORD-HERE"
+    return yaml.safe_dump(config).replace("WORD-HERE", word)
+
+
+def test_only_true_and_false_are_booleans(tmp_path):
+    curve.generate(tmp_path / "server")
+    curve.generate(tmp_path / "ops")
+    keys = boolean_keys(GatewayConfig)
+    assert {"control.allow_eeprom_write", "shutdown.stop_streams", "curve.publish"} <= \
+        {".".join(key) for key in keys}, keys
+
+    def config() -> dict[str, Any]:
+        return {**valid_config(), "curve": {"server_key": str(tmp_path / "server.key_secret"),
+                                             "clients": [str(tmp_path / "ops.key")]}}
+    runs = {}
+    with ThreadPoolExecutor(max_workers=8) as pool:
+        for key in keys:
+            for word in ("yes", "on", "No", "OFF", "true", "False"):
+                path = tmp_path / f"{'.'.join(key)}-{word}.yaml"
+                path.write_text(with_word(config(), key, word))
+                runs[key, word, path] = pool.submit(run_gateway, "--config", str(path),
+                                                    "--check")
+        sim = tmp_path / "sim.yaml"
+        sim.write_text("line: {glue_ack: yes}\nnodes: [{address: 76, radio: {in_range: on}}]\n")
+        sim_run = pool.submit(spawn_run, [script("gx2-sim"), "--config", str(sim), "--check"],
+                              capture_output=True, text=True, timeout=CLI_TIMEOUT)
+        failures = {}
+        for (key, word, path), future in runs.items():
+            run = future.result()
+            if word in ("true", "False"):
+                if run.returncode != 0:
+                    failures[key, word] = run.stderr
+                continue
+            problems = one_line_problems(run, path, [
+                re.escape(f"{'.'.join(key)}: "), r"write true or false",
+                re.escape(repr(word))])
+            if problems:
+                failures[key, word] = problems
+    assert failures == {}, "\n".join(f"{k}: {v}" for k, v in failures.items())
+    assert one_line_problems(sim_run.result(), sim, [r"line\.glue_ack: ",
+                                                     "write true or false, not 'yes'"]) == []
+
+
+# -- a typo is said first --------------------------------------------------------------------------
+# An unknown key is most often a typo, and the cause of the other problems near it (the
+# key it should have been is missing): it is said first, with the key it is close to
+# (issue 31: `node:` in a station said `base_stations[0].nodes: required key is missing
+# (and 1 more)`).
+
+def _stations_with(typo: str) -> Any:
+    def change(config: dict[str, Any]) -> None:
+        del config["base_station"], config["nodes"]
+        config["base_stations"] = [{"port": "sim://", "nodes": [{"address": 76}]},
+                                   {"port": "sim://", typo: [{"address": 77}]}]
+    return change
+
+
+def _renamed(section: str | None, old: str, new: str, index: int | None = None) -> Any:
+    def change(config: dict[str, Any]) -> None:
+        where = config if section is None else config[section]
+        where = where[index] if index is not None else where
+        where[new] = where.pop(old)
+    return change
+
+
+TYPOS: dict[str, tuple[Any, str]] = {
+    # (change to a valid config, what the one line must say right after the file)
+    "node for nodes in a station": (_stations_with("node"),
+                                    r"base_stations\[1\]\.node: unknown key \(did you mean "
+                                    r"nodes\?\) \(and 1 more\)$"),
+    "nodez for nodes": (_renamed(None, "nodes", "nodez"),
+                        r"nodez: unknown key \(did you mean nodes\?\)$"),
+    "base_staton": (_renamed(None, "base_station", "base_staton"),
+                    r"base_staton: unknown key \(did you mean base_station\?\)$"),
+    "adress in a node": (_renamed("nodes", "address", "adress", 0),
+                         r"nodes\[0\]\.adress: unknown key \(did you mean address\?\) "
+                         r"\(and 1 more\)$"),
+    "a key like no other": (lambda c: c["control"].update(zzz=1),
+                            r"control\.zzz: unknown key \(a typo\?\)$"),
+}
+
+
+def test_a_typo_is_said_first_with_the_key_it_may_be(tmp_path):
+    paths = {name: write_bad_config(tmp_path, name.replace(" ", "-"), change)
+             for name, (change, _) in TYPOS.items()}
+    sim = tmp_path / "sim.yaml"
+    sim.write_text("nodes: [{adress: 76}]\n")
+    with ThreadPoolExecutor(max_workers=6) as pool:
+        runs = {name: pool.submit(run_gateway, "--config", str(path), "--check")
+                for name, path in paths.items()}
+        sim_run = pool.submit(spawn_run, [script("gx2-sim"), "--config", str(sim), "--check"],
+                              capture_output=True, text=True, timeout=CLI_TIMEOUT)
+        failures = {name: problems for name, future in runs.items()
+                    if (problems := one_line_problems(
+                        future.result(), paths[name],
+                        [re.escape(f"{paths[name]}: ") + TYPOS[name][1]]))}
+    assert failures == {}, "\n".join(f"{k}: {v}" for k, v in failures.items())
+    assert one_line_problems(sim_run.result(), sim, [
+        r"nodes\[0\]\.adress: unknown key \(did you mean address\?\)"]) == []
 
 
 def test_check_rejects_a_bad_sim_port(tmp_path):
@@ -219,6 +351,75 @@ def test_a_metrics_port_in_use_stops_the_start_up_with_one_line(tmp_path):
     assert run.returncode == 1, run
     assert run.stderr.count("\n") == 1 and "Traceback" not in run.stderr, run
     assert f"cannot bind 127.0.0.1:{port}: " in run.stderr, run
+
+
+# -- what --check says of this host: warnings, exit 0 --------------------------------------------
+# A device not plugged in yet, an endpoint another process holds (most often the gateway
+# this file is about to replace): a start would meet them, so --check says so, one line
+# each on stderr; the file is valid all the same (issue 31).
+
+def check_warnings(run: subprocess.CompletedProcess, path: Path) -> list[str]:
+    """The warning lines of a --check that passed."""
+    assert run.returncode == 0 and run.stdout == f"{path}: valid (2 nodes)\n", run
+    lines = run.stderr.splitlines()
+    assert all(line.startswith(f"gx2-gateway: warning: {path}: ") for line in lines), run
+    assert "Traceback" not in run.stderr
+    return lines
+
+
+def test_check_warns_of_a_device_that_does_not_exist(tmp_path):
+    path = tmp_path / "nodes.yaml"
+    path.write_text(yaml.safe_dump(valid_config()))
+    [line] = check_warnings(run_gateway("--config", str(path), "--check"), path)
+    assert "base_station.port: /dev/gx2-test-no-such-port does not exist" in line, line
+
+    stations = {**valid_config(), "base_stations": [
+        {"port": "sim://", "nodes": [{"address": 76}]},
+        {"port": str(tmp_path / "unplugged"), "nodes": [{"address": 77}]}]}
+    del stations["base_station"], stations["nodes"]
+    path.write_text(yaml.safe_dump(stations))
+    run = run_gateway("--config", str(path), "--check")
+    assert run.returncode == 0 and "valid (2 nodes on 2 base stations)" in run.stdout, run
+    [line] = run.stderr.splitlines()
+    assert f"base_stations[1].port: {tmp_path / 'unplugged'} does not exist" in line, line
+
+
+def test_check_warns_of_endpoints_another_process_holds(tmp_path, zmq_context):
+    import zmq
+
+    ipc = tmp_path / "control"
+    holder = zmq_context.socket(zmq.ROUTER)
+    holder.setsockopt(zmq.LINGER, 0)
+    holder.bind(f"ipc://{ipc}")
+    listeners = []
+    for _ in range(3):
+        listener = socket.socket()
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        listeners.append(listener)
+    try:
+        publish, metrics, live = (f"127.0.0.1:{s.getsockname()[1]}" for s in listeners)
+        config = {**valid_config(), "base_station": {"port": "sim://"},
+                  "publish": {"endpoint": f"tcp://{publish}"},
+                  "control": {"endpoint": f"ipc://{ipc}"},
+                  "metrics": {"endpoint": metrics}, "live": {"endpoint": live}}
+        path = tmp_path / "nodes.yaml"
+        path.write_text(yaml.safe_dump(config))
+        lines = check_warnings(run_gateway("--config", str(path), "--check"), path)
+        held = {line.split(": ")[3]: line for line in lines}
+        assert sorted(held) == ["control.endpoint", "live.endpoint", "metrics.endpoint",
+                                "publish.endpoint"], lines
+        assert all("held by another process" in line for line in lines), lines
+        # the ipc:// endpoint was only looked at: still the holder's (ZeroMQ's bind would
+        # have taken its path)
+        with socket.socket(socket.AF_UNIX) as peer:
+            peer.connect(str(ipc))
+    finally:
+        for listener in listeners:
+            listener.close()
+        holder.close()
+    # let go (the ipc path left behind, stale): nothing to warn of
+    assert check_warnings(run_gateway("--config", str(path), "--check"), path) == []
 
 
 # -- the recording directory -----------------------------------------------------------------------

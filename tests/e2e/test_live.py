@@ -7,13 +7,16 @@ line; the gateway still stops within 2 s with a viewer connected."""
 from __future__ import annotations
 
 import json
+import shutil
 import signal
 import socket
 import subprocess
 import time
+from pathlib import Path
 
 import jsonschema
 import msgpack
+import pytest
 import zmq
 
 from gateway.common.jsontext import strict
@@ -124,6 +127,26 @@ def test_shutdown_within_its_promise_with_a_viewer_connected(simulator, gateway)
     assert seconds < EXIT + STARVED, seconds
 
 
+def test_shutdown_within_its_promise_with_a_connection_that_never_speaks(
+        simulator, gateway) -> None:
+    """A TCP connection to the live port that never starts the WebSocket handshake (a
+    port scanner, a client that hangs) does not hold the gateway's exit up (issue 31:
+    48 s, until it left)."""
+    gw, url = live_gateway(simulator, gateway)
+    host, port = gw.config["live"]["endpoint"].rsplit(":", 1)
+    with socket.create_connection((host, int(port)), timeout=5):
+        # a viewer connected after it is served once the server has taken the silent
+        # one (one listener, accepted in order): the silent one is then the server's
+        viewer = Viewer(url)
+        try:
+            viewer.until(lambda v: TOPICS <= set(v.topics()), 10, "the channels advertised")
+        finally:
+            viewer.close()
+        status, seconds = gw.terminate(signal.SIGTERM)
+    assert status == 0, gw.log()
+    assert seconds < EXIT + STARVED, seconds
+
+
 def check(tmp_path, live: str) -> subprocess.CompletedProcess:
     path = tmp_path / "live.yaml"
     path.write_text("base_station: {port: 'sim://'}\nnodes: [{address: 76}]\n"
@@ -160,3 +183,69 @@ def test_a_live_port_in_use_is_one_line_and_exit_1(tmp_path) -> None:
     lines = run.stderr.strip().splitlines()
     assert f"cannot bind 127.0.0.1:{port}" in lines[-1], run.stderr
     assert "Traceback" not in run.stderr
+
+
+# -- the certificate and key (issue 31): files the server cannot use fail --check ----------
+
+def key_pair(directory: Path, name: str, algorithm: str = "EC", *options: str) -> tuple[Path, Path]:
+    """A self-signed certificate and its unencrypted key, made by openssl(1)."""
+    openssl = shutil.which("openssl")
+    if openssl is None:
+        pytest.skip("openssl is not installed")
+    cert, key = directory / f"{name}.crt", directory / f"{name}.key"
+    subprocess.run([openssl, "req", "-x509", "-newkey", algorithm, *options, "-nodes",
+                    "-keyout", str(key), "-out", str(cert), "-days", "1", "-subj",
+                    "/CN=localhost"], check=True, capture_output=True, timeout=30)
+    return cert, key
+
+
+def tls_section(cert: Path, key: Path) -> str:
+    return f"live: {{endpoint: '127.0.0.1:{free_port()}', tls_cert: '{cert}', tls_key: '{key}'}}\n"
+
+
+def test_tls_files_the_live_view_cannot_use_fail_check_naming_the_key(tmp_path) -> None:
+    cert, key = key_pair(tmp_path, "good", "EC", "-pkeyopt", "ec_paramgen_curve:P-256")
+    other_cert, other_key = key_pair(tmp_path, "other", "EC", "-pkeyopt",
+                                     "ec_paramgen_curve:P-256")
+    # OpenSSL takes an Ed448 key, the SDK's rustls does not: the server itself is asked
+    ed448_cert, ed448_key = key_pair(tmp_path, "ed448", "ed448")
+    encrypted = tmp_path / "encrypted.key"
+    subprocess.run(["openssl", "pkcs8", "-topk8", "-in", str(key), "-passout", "pass:x",
+                    "-out", str(encrypted)], check=True, capture_output=True, timeout=30)
+    text = tmp_path / "notes.txt"
+    text.write_text("not PEM at all\n")
+    cases = {"cert not PEM": (text, key, "live.tls_cert", "no PEM certificate"),
+             "the key given as cert": (key, key, "live.tls_cert", "no PEM certificate"),
+             "key not PEM": (cert, text, "live.tls_key", "no PEM private key"),
+             "another certificate's key": (cert, other_key, "live.tls_key",
+                                           "key of another certificate"),
+             "encrypted key": (cert, encrypted, "live.tls_key", "encrypted"),
+             "a key rustls refuses": (ed448_cert, ed448_key, "live.tls_key", "refuses")}
+    failures = {}
+    for name, (given_cert, given_key, key_name, words) in cases.items():
+        run = check(tmp_path, tls_section(given_cert, given_key))
+        lines = run.stderr.splitlines()
+        if not (run.returncode == 2 and len(lines) == 1 and f"{key_name}: " in lines[0]
+                and words in lines[0] and "Traceback" not in run.stderr):
+            failures[name] = (run.returncode, run.stderr)
+    assert failures == {}, failures
+    good = check(tmp_path, tls_section(cert, key))
+    assert good.returncode == 0 and "valid" in good.stdout, good
+    assert check(tmp_path, tls_section(other_cert, other_key)).returncode == 0
+
+
+def test_a_key_the_server_refuses_at_start_is_not_said_to_be_a_port_in_use(tmp_path) -> None:
+    """What only the SDK refuses (no --check before this start) is said in the SDK's
+    words, exit 1: not as "cannot bind" (issue 31)."""
+    cert, key = key_pair(tmp_path, "ed448", "ed448")
+    path = tmp_path / "live.yaml"
+    path.write_text("base_station: {port: 'sim://'}\nnodes: [{address: 76}]\n"
+                    f"publish: {{endpoint: 'tcp://127.0.0.1:{free_port()}'}}\n"
+                    f"control: {{endpoint: 'tcp://127.0.0.1:{free_port()}'}}\n"
+                    + tls_section(cert, key))
+    run = subprocess.run([script("gx2-gateway"), "--config", str(path)],
+                         capture_output=True, text=True, timeout=30)
+    assert run.returncode == 1, run
+    last = run.stderr.strip().splitlines()[-1]
+    assert "cannot bind" not in run.stderr and "Traceback" not in run.stderr, run.stderr
+    assert "live view on 127.0.0.1:" in last and "private key" in last, last
