@@ -29,7 +29,7 @@ from gateway.common.endpoints import host_port, is_loopback
 from gateway.common.jsontext import compact
 from gateway.common.schemas import ENCODING as SCHEMA_ENCODING
 from gateway.common.schemas import schema_for_topic
-from gateway.recording.files import JSON_ENCODING, message_times, ns
+from gateway.recording.files import JSON_ENCODING, OutOfRange, message_times, ns
 
 from .config import LiveConfig
 from .errors import StartupError
@@ -132,6 +132,10 @@ class LiveServer:
         self.url = f"{'wss' if tls else 'ws'}://{config.endpoint}"
         self.messages = 0
         """Messages given to a channel some viewer subscribed to."""
+        self.refused = 0
+        """Messages no viewer could be given: a time no message time holds (a foreign
+        recording's ``time`` in nanoseconds, replayed), each said once a topic."""
+        self._refused_topics: set[bytes] = set()
         self._channels: dict[bytes, Channel | None] = {}
         if not is_loopback(f"tcp://{host}:{port}"):
             log.warning("live view on %s: any host that reaches it may watch (it is "
@@ -144,8 +148,20 @@ class LiveServer:
             channel = self._channels[topic] = self._open(topic)
         if channel is None or not channel.has_sinks():
             return
-        channel.log(compact(payload).encode(), log_time=ns(message_times(payload)[1]))
+        try:
+            log_time = ns(message_times(payload)[1])
+        except OutOfRange as error:  # (raised here, on the loop, it would end the replay)
+            self._refuse(topic, error)
+            return
+        channel.log(compact(payload).encode(), log_time=log_time)
         self.messages += 1
+
+    def _refuse(self, topic: bytes, error: OutOfRange) -> None:
+        self.refused += 1
+        if topic not in self._refused_topics:
+            self._refused_topics.add(topic)
+            log.warning("live view: a message of %s not shown: %s (counted in status "
+                        "live.refused; said once a topic)", topic.decode(), error)
 
     def _open(self, topic: bytes) -> Channel | None:
         """The channel of a topic the gateway publishes, with its schema (None for one
@@ -162,7 +178,8 @@ class LiveServer:
     def status(self) -> dict[str, Any]:
         return {"endpoint": self.endpoint, "url": self.url,
                 "channels": sum(1 for c in self._channels.values() if c is not None),
-                "messages": self.messages, **self.viewers.status()}
+                "messages": self.messages, "refused": self.refused,
+                **self.viewers.status()}
 
     def close(self, seconds: float) -> None:
         """Stop serving, waiting for it ``seconds`` at most (and STOP_WAIT).

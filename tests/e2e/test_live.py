@@ -249,3 +249,29 @@ def test_a_key_the_server_refuses_at_start_is_not_said_to_be_a_port_in_use(tmp_p
     last = run.stderr.strip().splitlines()[-1]
     assert "cannot bind" not in run.stderr and "Traceback" not in run.stderr, run.stderr
     assert "live view on 127.0.0.1:" in last and "private key" in last, last
+
+
+def test_a_replayed_message_no_viewer_can_be_given_is_counted_and_the_rest_shown(
+        gateway, tmp_path) -> None:
+    # A foreign recording whose message 400 gives its time in nanoseconds: shown to a
+    # viewer it was raised on the loop, and the replay ended there.
+    from tests.e2e.test_recording_failures import TOPIC, foreign_recording
+    source = tmp_path / "foreign.mcap"
+    foreign_recording(source, 600, absurd=400)
+    gw = gateway(f"replay://{source}", [{"address": 76, "stream": "accel_angrate"}],
+                 live={"endpoint": f"127.0.0.1:{free_port()}"})
+    viewer = Viewer(f"ws://{gw.config['live']['endpoint']}")
+    try:
+        viewer.until(lambda v: TOPIC in v.topics(), 10, "the replayed topic advertised")
+        viewer.subscribe(viewer.topics()[TOPIC])
+        viewer.until(lambda v: any(m.payload["seq"] == 600 for m in v.messages), 15,
+                     "the replay's last message")
+    finally:
+        viewer.close()
+    seqs = [m.payload["seq"] for m in viewer.messages]
+    assert 400 not in seqs and seqs[-1] == 600 and seqs[0] < 400, seqs
+    assert gw.status()["live"]["refused"] == 1
+    said = [line for line in gw.log().splitlines() if "not shown" in line]
+    assert len(said) == 1 and TOPIC in said[0], gw.log()
+    status, _ = gw.terminate()
+    assert status == 0, gw.log()
