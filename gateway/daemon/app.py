@@ -283,6 +283,15 @@ class Gateway:
     async def _sample(self) -> None:
         """Once a second: the counters each node's health is judged over, and a report
         for the metrics endpoint if none was made in that second (the heartbeat's)."""
+        # the ports open beside the loop (gateway.daemon.offloop), a few milliseconds
+        # after start: nothing is judged before each station's first open has been
+        # tried, so a port that opens at once never shows its nodes as ERROR ("base
+        # station not open yet") for the first second; one that hangs holds this up
+        # by SAMPLE_PERIOD at most
+        trying = [asyncio.ensure_future(station.first_try()) for station in self.stations]
+        await asyncio.wait(trying, timeout=SAMPLE_PERIOD)
+        for waiting in trying:
+            waiting.cancel()
         while True:
             now = time.monotonic()
             for station in self.stations:

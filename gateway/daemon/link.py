@@ -10,6 +10,10 @@ scheduling stall as a timeout even after every byte was written). A read or writ
 error, or end of file (the USB plug pulled), closes the port, and it is reopened with
 backoff in steps of at most 1 s until it comes back. What it opens comes from
 :mod:`gateway.daemon.ports`.
+
+Opening and closing never run on the loop: each runs in a daemon thread
+(:mod:`gateway.daemon.offloop`), the link ``opening`` meanwhile, so a network serial
+server that does not answer stalls no other base station, no request and no shutdown.
 """
 
 from __future__ import annotations
@@ -23,6 +27,9 @@ from collections.abc import Callable
 
 import serial
 
+from .offloop import in_thread
+from .ports import open_serial, why_not_open
+
 log = logging.getLogger("gx2.link")
 REOPEN_STEPS = (0.1, 0.2, 0.5, 1.0)
 """Backoff between reopen attempts; it stays at the last step (1 s) until the port returns."""
@@ -30,6 +37,10 @@ READ_SIZE = 65536
 MAX_UNSENT = 4096
 """Bytes the port may leave untaken before it is declared lost: the scheduler has one
 packet of at most 110 bytes in flight, so this many means the port stopped taking any."""
+OPEN_BOUND = 10.0
+"""Seconds an open (or the close before it) is waited for before the attempt is given
+up as hung: longer than pyserial's own 5 s connect timeout, so only an open that would
+never end (a driver stuck in the kernel) reaches it."""
 
 
 class SerialLink:
@@ -48,19 +59,23 @@ class SerialLink:
         self._unsent = bytearray()
         self._writer_added = False
         self._reopen_task: asyncio.Task[None] | None = None
+        self._opening: asyncio.Future[serial.SerialBase] | None = None
+        """The open in flight, until its result is taken: one that outlived OPEN_BOUND
+        is waited for again by the next attempt, never doubled."""
+        self._closed: asyncio.Future[None] | None = None
+        """The last close of the port, in its thread: a reopen waits for it (the
+        device's lock goes with it)."""
         self.up = False
         self.since = time.time()
         self.reconnects = 0
         self.bytes_read = 0
         self.last_error = ""
         self._closing = False
+        self.tried = asyncio.Event()
+        """Set once the first open has been tried (whether or not it opened)."""
 
-    def open(self) -> None:
-        """Open now; raise OSError/SerialException if the port cannot be opened."""
-        is_device = "://" not in self.port
-        # write_timeout applies only to URL handlers without an fd (loop://)
-        ser = serial.serial_for_url(self.port, self.baudrate, timeout=0, write_timeout=0.1,
-                                    exclusive=True if is_device else None)
+    def _attach(self, ser: serial.SerialBase) -> None:
+        """Read the port just opened on the loop from now on."""
         self._serial = ser
         loop = asyncio.get_running_loop()
         try:
@@ -70,6 +85,43 @@ class SerialLink:
             self._fd = None  # a URL handler without an fd (loop://): poll it instead
             self._poll_handle = loop.call_later(0.005, self._poll_url)
         self._set_up(True)
+
+    async def open(self) -> bool:
+        """One attempt to open the port, off the loop; whether it is open now (if not,
+        :attr:`last_error` says why)."""
+        # An attempt that outlives OPEN_BOUND is given up, but its thread cannot be
+        # stopped: it stays ``_opening``, and the next attempt waits for that one
+        # rather than starting another, so a hung open costs one thread, and an open
+        # that ends late is used (or closed, if the link closed meanwhile).
+        if self._closed is not None:
+            await asyncio.wait([self._closed], timeout=OPEN_BOUND)
+            self._closed = None
+        if self._opening is None:
+            self._opening = in_thread(lambda: open_serial(self.port, self.baudrate),
+                                      f"gx2-open {self.port}")
+        opening = self._opening
+        await asyncio.wait([opening], timeout=OPEN_BOUND)
+        if not opening.done():
+            self._cannot_open(f"the open did not end within {OPEN_BOUND:g} s; still waiting")
+            return False
+        self._opening = None
+        try:
+            ser = opening.result()
+        except Exception as error:  # (any failure to open is a reason to say, and retry)
+            self._cannot_open(why_not_open(error))
+            return False
+        if self._closing:
+            self._close_off_loop(ser)
+            return False
+        self._attach(ser)
+        return True
+
+    @property
+    def state(self) -> str:
+        """``up``, ``opening`` (an open is in flight, or hangs) or ``down``."""
+        if self.up:
+            return "up"
+        return "opening" if self._opening is not None else "down"
 
     @property
     def reopening(self) -> bool:
@@ -81,36 +133,35 @@ class SerialLink:
         """Bytes written that the port has not taken yet."""
         return len(self._unsent)
 
-    def start_reopening(self) -> None:
+    def start_reopening(self, first: bool = False) -> None:
         if self._reopen_task is None or self._reopen_task.done():
-            self._reopen_task = asyncio.get_running_loop().create_task(self._reopen())
+            self._reopen_task = asyncio.get_running_loop().create_task(self._reopen(first))
 
     def start(self) -> None:
-        """Open the port now if it can be, else keep trying (a service must: the adapter
-        may be plugged in, or the permission granted, later)."""
-        try:
-            self.open()
-        except (OSError, serial.SerialException) as error:
-            self._cannot_open(error)
-            self.start_reopening()
+        """Open the port as soon as it can be, and keep trying until it is (a service
+        must: the adapter may be plugged in, or the permission granted, later)."""
+        self.start_reopening(first=True)
 
-    def _cannot_open(self, error: Exception) -> None:
+    def _cannot_open(self, why: str) -> None:
         """Say why the port cannot be opened, once for each new reason."""
-        why = str(error) or type(error).__name__
         if why != self.last_error:
             log.warning("base station %s cannot be opened: %s; retrying every %g s",
                         self.port, why, REOPEN_STEPS[-1])
         self.last_error = why
 
-    async def _reopen(self) -> None:
+    async def _reopen(self, first: bool) -> None:
+        """Open the port again, with backoff, until it is; ``first``: the open at
+        start-up, tried at once (a reconnect only if that one fails)."""
+        if first:
+            opened = await self.open()
+            self.tried.set()
+            if opened:
+                return
         attempt = 0
         while not self._closing and not self.up:
             await asyncio.sleep(REOPEN_STEPS[min(attempt, len(REOPEN_STEPS) - 1)])
             attempt += 1
-            try:
-                self.open()
-            except (OSError, serial.SerialException) as error:
-                self._cannot_open(error)
+            if not await self.open():
                 continue
             self.reconnects += 1
             self.last_error = ""
@@ -205,9 +256,16 @@ class SerialLink:
             self._poll_handle.cancel()
             self._poll_handle = None
         if self._serial is not None:
-            with contextlib.suppress(OSError, serial.SerialException):
-                self._serial.close()
+            self._closed = self._close_off_loop(self._serial)
             self._serial = None
+
+    def _close_off_loop(self, ser: serial.SerialBase) -> asyncio.Future[None]:
+        """Close ``ser`` in a thread of its own (a tty drains its output first; rfc2217
+        joins its reader thread): the loop has let go of its fd already."""
+        def close() -> None:
+            with contextlib.suppress(Exception):  # (nothing to tell anyone: it is gone)
+                ser.close()
+        return in_thread(close, f"gx2-close {self.port}")
 
     def _set_up(self, up: bool) -> None:
         self.up = up
@@ -215,8 +273,17 @@ class SerialLink:
         self._on_state(up)
 
     def close(self) -> None:
+        """Let go of the port (its close, and an open still in flight, end in their
+        threads: at exit they are abandoned, never waited for)."""
         self._closing = True
         if self._reopen_task is not None:
             self._reopen_task.cancel()
+        if self._opening is not None:  # what it opens later is closed, not leaked
+            self._opening.add_done_callback(self._opened_too_late)
+            self._opening = None
         self._release()
         self.up = False
+
+    def _opened_too_late(self, opening: asyncio.Future[serial.SerialBase]) -> None:
+        if not opening.cancelled() and opening.exception() is None:
+            self._close_off_loop(opening.result())

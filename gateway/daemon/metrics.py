@@ -62,6 +62,8 @@ NODE = (
     ("gx2_node_received_total", COUNTER, "Records received from the node", "packets"),
     ("gx2_node_lost_radio_total", COUNTER, "Samples of its stream lost over the radio "
      "(from its timer's steps)", "lost_radio"),
+    ("gx2_node_lost_station_down_total", COUNTER, "Samples of its stream missed while "
+     "its base station was down (not the radio's)", "lost_station_down"),
     ("gx2_node_lost_gateway_total", COUNTER, "Its records the gateway could not publish",
      "lost_gateway"),
     ("gx2_node_reboots_total", COUNTER, "Its reboots (discovery packet or timer going "

@@ -115,6 +115,9 @@ class Node:
         self.seq = 0
         self.packets = 0
         self.lost_radio = 0
+        self.lost_station_down = 0
+        """Samples of its stream missed while its base station was down (unplugged, the
+        port lost): no radio's fault, so not ``lost_radio``."""
         self.lost_gateway = 0
         self.reboots = 0
         self.silences = 0
@@ -131,6 +134,11 @@ class Node:
         """A discovery packet said the node rebooted, and its timer has not shown it yet
         (see :meth:`TimerUnwrapper.expect_reset`): the reset to come is not counted."""
         self._last_stream_device: float | None = None
+        self._down_from: tuple[float, float] | None = None
+        """Its stream's last record before its base station went down, until the
+        stream's first record after: (device time, time.monotonic() it came)."""
+        self._back_at: float | None = None
+        """time.monotonic() when its base station came back, since it went down."""
         self._last_time = -math.inf
         """The last ``time`` published: each one after it is greater."""
         self._steps = 0
@@ -237,7 +245,8 @@ class Node:
             self.reboots += 1
             self.timer_reset = True
         self._reboot_announced = False
-        self._last_stream_device = None  # no gap across a power-up
+        # no gap across a power-up
+        self._last_stream_device = self._down_from = self._back_at = None
         self.clock.reset()
 
     def _after_last_time(self, sampled: float) -> float:
@@ -261,6 +270,8 @@ class Node:
         stream that never once stepped by one period does not run at it."""
         last, self._last_stream_device = self._last_stream_device, device
         if last is None:
+            if self._down_from is not None:  # the first record since the station was down
+                self._count_station_down(device)
             return
         step = round((device - last) * CLOCK_HZ)  # in periods of the 51,200 Hz clock
         if step < self._shortest_step:
@@ -273,6 +284,18 @@ class Node:
         missing = round(step / self._divider) - 1
         if missing > 0:
             self.lost_radio += missing
+
+    def _count_station_down(self, device: float) -> None:
+        """The samples missing between the stream's last record before its base station
+        went down and ``device``, its first since: those that fell due before the station
+        was back are ``lost_station_down``, any after it (a node that had gone out of
+        range meanwhile) ``lost_radio``."""
+        (before, seen), back = self._down_from, self._back_at  # type: ignore[misc]
+        self._down_from = self._back_at = None
+        missing = max(0, round((device - before) * CLOCK_HZ / self._divider) - 1)
+        down = missing if back is None else min(missing, math.ceil((back - seen) / self.period))
+        self.lost_station_down += down
+        self.lost_radio += missing - down
 
     def _close_rate_window(self, now: float) -> None:
         elapsed = now - self._window_start
@@ -310,6 +333,7 @@ class Node:
         self.record = None
         self._state = State.POLLED
         self.trouble = None
+        self._down_from = None  # (a stream started later has no gap to count)
         self._restart_stream()
 
     def _restart_stream(self) -> None:
@@ -351,7 +375,7 @@ class Node:
         self._reboot_announced = self._unwrapper.expect_reset()
         self.record = None
         self._state = State.REBOOTED
-        self._last_stream_device = None
+        self._last_stream_device = self._down_from = self._back_at = None
 
     def rebooted_quietly(self) -> None:
         """A reboot its timer showed (counted by :meth:`tally`): its stream is unknown."""
@@ -365,9 +389,21 @@ class Node:
         return reset
 
     def link_lost(self) -> None:
-        """The base station went away: what is missed now is not lost over the air."""
+        """The base station went away: what is missed now is not lost over the air.
+        A node streams on while its base station is unplugged, so the stream's first
+        record once it is back tells how many samples went by: ``lost_station_down``
+        (a stream started afresh in between, as the supervisor does when the station
+        returns, is the same stream on the same timer; a reboot meanwhile ends it)."""
         self._state = State.LINK_DOWN
+        if self._last_stream_device is not None:
+            self._down_from = (self._last_stream_device, self._stream_seen)
+            self._back_at = None
         self._last_stream_device = None
+
+    def link_back(self) -> None:
+        """Its base station is back: samples missed from now on are the radio's."""
+        if self._down_from is not None:
+            self._back_at = time.monotonic()
 
     def silent_at(self) -> float | None:
         """When (``time.monotonic()``) the stream falls silent if no record comes first;
@@ -411,7 +447,8 @@ class Node:
                 "record": self.record, "configured": self.config.stream,
                 "desired": self.desired, "rate_hz": round(self.rate_hz, 2),
                 "divider": self.divider, "packets": self.packets, "published": self.seq,
-                "lost_radio": self.lost_radio, "lost_gateway": self.lost_gateway,
+                "lost_radio": self.lost_radio, "lost_station_down": self.lost_station_down,
+                "lost_gateway": self.lost_gateway,
                 "reboots": self.reboots, "silences": self.silences, "lqi": self.lqi,
                 "rssi": self.rssi, "last_seen": self.last_seen, "seq": self.seq,
                 "clock": self.clock_status(now)}

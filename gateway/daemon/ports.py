@@ -13,6 +13,7 @@ plain serial device.
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import stat
@@ -25,6 +26,24 @@ from .replay import SCHEME as REPLAY_SCHEME
 from .replay import Replay
 
 SIM_SCHEME = "sim://"
+PLAIN_REASONS = {
+    errno.EAGAIN: "port held by another process (another gateway?)",
+    errno.EBUSY: "port busy (another program has it open)",
+    errno.ENOENT: "no such device (not plugged in?)",
+    errno.ENODEV: "no such device (unplugged?)",
+    errno.ENXIO: "no such device (unplugged?)",
+    errno.EACCES: "permission denied (is the gateway's user in the dialout group?)",
+    errno.EPERM: "permission denied (is the gateway's user in the dialout group?)",
+    errno.EISDIR: "a directory, not a serial port",
+    errno.ENOTTY: "not a serial port (inappropriate ioctl for device)",
+    errno.ECONNREFUSED: "connection refused (is the network serial server running?)",
+    errno.ETIMEDOUT: "no answer from the network serial server (timed out)",
+    errno.EHOSTUNREACH: "host unreachable",
+    errno.ENETUNREACH: "network unreachable",
+}
+"""What a user reads for the usual reasons a port cannot be opened, by errno: pyserial's
+own texts (``[Errno 11] Could not exclusively lock port /dev/ttyUSB0: [Errno 11]
+Resource temporarily unavailable``) say it twice and never say what to do."""
 
 
 def check_url(url: str, nodes: list[int]) -> str:
@@ -42,6 +61,35 @@ def check_url(url: str, nodes: list[int]) -> str:
             raise ValueError(f"{url!r} is not a device path, sim:// or a pyserial URL: "
                              f"{error}") from None
     return url
+
+
+def open_serial(path: str, baudrate: int) -> serial.SerialBase:
+    """Open the base station's port (a device path or a pyserial URL): a device
+    exclusively and raw. It may block for seconds (a network serial server that does not
+    answer): the link calls it off the loop (:mod:`gateway.daemon.offloop`)."""
+    is_device = "://" not in path
+    # write_timeout applies only to URL handlers without an fd (loop://)
+    return serial.serial_for_url(path, baudrate, timeout=0, write_timeout=0.1,
+                                 exclusive=True if is_device else None)
+
+
+def why_not_open(error: BaseException) -> str:
+    """Why a port could not be opened, in plain words: :data:`PLAIN_REASONS` for the
+    errno under pyserial's exception (its own, or the OS error it was raised from),
+    else the OS's text, else the exception's."""
+    cause = error.__context__
+    number = error.errno if isinstance(getattr(error, "errno", None), int) else None
+    if number is None and isinstance(cause, OSError):
+        number = cause.errno
+    elif number is None and cause is not None and cause.args and isinstance(cause.args[0], int):
+        number = cause.args[0]  # termios.error: (errno, text)
+    if isinstance(error, TimeoutError) or isinstance(cause, TimeoutError):
+        number = errno.ETIMEDOUT
+    if number in PLAIN_REASONS:
+        return PLAIN_REASONS[number]
+    if number is not None:
+        return os.strerror(number)
+    return str(error) or type(error).__name__
 
 
 def nothing_to_play(url: str) -> str | None:

@@ -158,6 +158,11 @@ class ReplayLink:
         self.partial = False
         """Something unreadable was skipped (a line says what)."""
 
+    @property
+    def state(self) -> str:
+        """``up`` while it plays (and after), ``down`` once closed: as a port's link."""
+        return "up" if self.up else "down"
+
     def start(self) -> None:
         self.up = True
         self.since = time.time()

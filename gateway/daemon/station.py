@@ -67,6 +67,8 @@ class Station:
         self.recorder: Recorder | None = None
         self.port: Port | None = None
         self.link: SerialLink | ReplayLink | None = None
+        self._opened = False
+        """Its port has been open once (later opens are the link's reconnects)."""
 
     def open(self, recorder: Recorder | None) -> None:
         """Make its port (an embedded simulator makes a directory: only once nothing of
@@ -85,8 +87,11 @@ class Station:
     def start(self) -> None:
         self.port.start()  # type: ignore[union-attr]
         self.link.start()  # type: ignore[union-attr]
-        if self.link.up:  # type: ignore[union-attr]
-            log.info("base station %s open on %s", self.name, self.config.port)
+
+    async def first_try(self) -> None:
+        """Until its port's first open has been tried (a replay: at once)."""
+        if isinstance(self.link, SerialLink):
+            await self.link.tried.wait()
 
     def sample(self, now: float) -> None:
         """Once a second: how full its line is; while it is over capacity, its nodes'
@@ -119,6 +124,9 @@ class Station:
         self.reader.on_data(data, host_time, monotonic)
 
     def _link_state(self, up: bool) -> None:
+        if up and not self._opened:
+            self._opened = True
+            log.info("base station %s open on %s", self.name, self.config.port)
         self.scheduler.link_up = up
         if not up:
             self.scheduler.on_link_down()

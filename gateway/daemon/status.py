@@ -54,7 +54,7 @@ def station_link(station: Station, monotonic: float) -> dict[str, Any]:
     assert link is not None
     stats = reader.decoder.stats
     return {"name": station.name, "port": station.config.port,
-            "state": "up" if link.up else "down", "since": link.since,
+            "state": link.state, "since": link.since,
             "reconnects": link.reconnects, "bytes_read": link.bytes_read,
             "bytes_per_s": round(station.line.bytes_per_s(monotonic, link.bytes_read), 1),
             "line_bytes_per_s": station.config.baudrate / BITS_PER_BYTE,

@@ -88,6 +88,7 @@ class Supervisor:
         self.link_up = up
         for node in self.nodes.values():
             if up:
+                node.link_back()
                 self._pursue(node)
             else:
                 self._abandon(node)

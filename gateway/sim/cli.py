@@ -23,6 +23,7 @@ from gateway.common.strict import describe
 from gateway.common.yamlfile import ConfigError
 
 from .config import SimConfig, SimNodeEntry, SimStationsConfig, load_sim_config
+from .control import ControlError, ControlServer, Handler, send
 from .node import GX2, INERTIA_LINK
 from .physics import MOTIONS
 from .server import LinkInUse, Simulator
@@ -37,7 +38,8 @@ def build_parser() -> ArgumentParser:
         "a pseudo-terminal (or several, each behind its own: base_stations: in --config). "
         "Prints the port to open (several: NAME: PORT a line) and serves until "
         "interrupted. While it runs, SIGUSR1 reboots every node and SIGUSR2 unplugs every "
-        f"base station for {UNPLUG_SECONDS:g} s.")
+        f"base station for {UNPLUG_SECONDS:g} s; 'gx2-sim unplug NAME' unplugs one "
+        "(gx2-sim unplug --help).")
     parser.add_argument("--nodes", type=node_list, default=[], metavar="76,77,95",
                         help="node addresses to simulate (added to those in --config; "
                         "not with base_stations:)")
@@ -81,6 +83,65 @@ def build_parser() -> ArgumentParser:
     parser.add_argument("--seed", type=int, default=None)
     parser.add_argument("-v", "--verbose", action="store_true")
     return parser
+
+
+CONTROL_COMMANDS = ("unplug", "replug")
+
+
+def build_control_parser(action: str) -> ArgumentParser:
+    """``gx2-sim unplug|replug [NAME]``: to one station of the running simulator."""
+    parser = ArgumentParser(
+        prog=f"{PROG} {action}",
+        description=("Unplug one base station of the running gx2-sim (its pty goes away "
+                     "and comes back behind the same link)." if action == "unplug" else
+                     "Plug an unplugged base station of the running gx2-sim back in."))
+    parser.add_argument("name", nargs="?", metavar="NAME",
+                        help="the station's name (base_stations:); omit it for a "
+                        "gx2-sim of one station")
+    if action == "unplug":
+        parser.add_argument("--seconds", type=bounded(float, 0.0, 86400.0),
+                            default=UNPLUG_SECONDS,
+                            help=f"plug it back in after this long (default "
+                            f"{UNPLUG_SECONDS:g}; 0: until 'gx2-sim replug NAME')")
+    parser.add_argument("--pid", type=bounded(int, 1, 1 << 22), metavar="PID",
+                        help="the gx2-sim to talk to, where several have that station")
+    return parser
+
+
+def control_main(action: str, argv: list[str]) -> int:
+    args = build_control_parser(action).parse_args(argv)
+    try:
+        print(send(action, args.name, getattr(args, "seconds", None), args.pid), flush=True)
+    except ControlError as error:
+        fail(PROG, str(error), 1)
+    return 0
+
+
+def control_handler(stations: list[Station], sims: list[Simulator]) -> Handler:
+    """What the running simulator does for ``gx2-sim unplug|replug`` (gateway.sim.
+    control): its stations by name (the one-station form's is ``-``)."""
+    by_name = {station.name or "-": sim for station, sim in zip(stations, sims, strict=True)}
+
+    def handle(words: list[str]) -> str:
+        if words == ["stations"]:
+            return "ok " + " ".join(by_name)
+        if len(words) not in (2, 3) or words[0] not in CONTROL_COMMANDS:
+            raise ControlError(f"not a command: {' '.join(words)!r}")
+        sim = by_name.get(words[1])
+        if sim is None:
+            raise ControlError(f"no station {words[1]} (stations: {', '.join(by_name)})")
+        label = "the base station" if words[1] == "-" else words[1]
+        if words[0] == "replug":
+            sim.replug()
+            return f"ok {label} plugged in"
+        try:
+            seconds = float(words[2]) if len(words) == 3 else UNPLUG_SECONDS
+        except ValueError:
+            raise ControlError(f"not a number of seconds: {words[2]!r}") from None
+        sim.unplug(duration=seconds or None)
+        return f"ok {label} unplugged" + (f" for {seconds:g} s" if seconds
+                                          else " until replugged")
+    return handle
 
 
 def merged_config(args: Any, base: SimConfig) -> SimConfig:
@@ -176,6 +237,9 @@ def simulator_from(config: SimConfig, link: str | None = None) -> Simulator:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv and argv[0] in CONTROL_COMMANDS:
+        return control_main(argv[0], argv[1:])
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
@@ -195,10 +259,17 @@ def main(argv: list[str] | None = None) -> int:
                                               for n in station.config.nodes])
     signal.signal(signal.SIGUSR2, lambda *_: [sim.unplug(duration=UNPLUG_SECONDS)
                                               for sim in sims])
+    try:
+        control = ControlServer(control_handler(stations, sims)).start()
+    except (ControlError, OSError) as error:
+        for sim in sims:
+            sim.stop()
+        fail(PROG, f"cannot listen for 'gx2-sim unplug': {error}", 1)
     announce(stations, sims)
     while not done.wait(0.5):
         if any(sim.error is not None for sim in sims):
             break
+    control.close()
     for sim in sims:
         sim.stop()
     return 1 if any(sim.error is not None for sim in sims) else 0

@@ -6,10 +6,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+import threading
 import tty
 from collections.abc import Iterator
 
 import pytest
+import serial
 
 from gateway.daemon import link as link_module
 from gateway.daemon.link import SerialLink
@@ -44,7 +46,7 @@ def test_a_port_that_does_not_take_bytes_yet_is_not_lost(pty_pair) -> None:
 
     async def scenario() -> bytes:
         link = SerialLink(path, 115200, lambda data, t, m: None, states.append)
-        link.open()
+        assert await link.open()
         sent = bytearray()
         packet = bytes(range(100))
         while not link.unsent:  # fill the pty until the fd refuses bytes
@@ -71,7 +73,7 @@ def test_a_port_that_takes_nothing_at_all_is_lost(pty_pair, monkeypatch) -> None
 
     async def scenario() -> None:
         link = SerialLink(path, 115200, lambda data, t, m: None, states.append)
-        link.open()
+        assert await link.open()
         with pytest.raises(OSError, match="stopped taking bytes"):
             while True:
                 link.write(bytes(100))
@@ -89,10 +91,72 @@ def test_the_master_closing_is_a_lost_port(pty_pair) -> None:
 
     async def scenario() -> None:
         link = SerialLink(path, 115200, lambda data, t, m: None, states.append)
-        link.open()
+        assert await link.open()
         os.close(master)
         await wait_for_async(lambda: not link.up, 5, "the link to go down")
         assert states == [True, False] and link.reopening
         link.close()
+
+    asyncio.run(scenario())
+
+
+def test_an_open_that_hangs_is_given_up_waited_for_once_and_used_when_it_ends(
+        pty_pair, monkeypatch) -> None:
+    """An open beyond OPEN_BOUND: the link says ``opening`` and why, the next attempt
+    waits for the same open rather than starting another thread, and when the open
+    ends at last the port is used."""
+    _master, path = pty_pair
+    monkeypatch.setattr(link_module, "OPEN_BOUND", 0.1)
+    release = threading.Event()
+    opens: list[str] = []
+
+    def hanging_open(port: str, baudrate: int):
+        opens.append(port)
+        release.wait(10)
+        return serial.serial_for_url(port, baudrate, timeout=0, exclusive=True)
+    monkeypatch.setattr(link_module, "open_serial", hanging_open)
+    states: list[bool] = []
+
+    async def scenario() -> None:
+        link = SerialLink(path, 115200, lambda data, t, m: None, states.append)
+        link.start()
+        await wait_for_async(lambda: "did not end within" in link.last_error, 5,
+                             "the open given up")
+        assert link.state == "opening" and not link.up
+        # several attempts' worth of time (each gives up after OPEN_BOUND): none of them
+        # may start a second open beside the hung one
+        await asyncio.sleep(5 * link_module.OPEN_BOUND)
+        assert link.reopening
+        assert opens == [path], "a second thread was started for the hung open"
+        release.set()
+        await wait_for_async(lambda: link.up, 5, "the port up once the open ended")
+        assert link.state == "up" and states == [True] and opens == [path]
+        link.close()
+
+    asyncio.run(scenario())
+
+
+def test_close_while_an_open_hangs_returns_at_once(pty_pair, monkeypatch) -> None:
+    """Shutdown during a hung open: close() returns at once, and the port the open
+    yields later is closed, not leaked."""
+    _master, path = pty_pair
+    release = threading.Event()
+    opened: list[serial.SerialBase] = []
+
+    def hanging_open(port: str, baudrate: int):
+        release.wait(10)
+        opened.append(serial.serial_for_url(port, baudrate, timeout=0))
+        return opened[-1]
+    monkeypatch.setattr(link_module, "open_serial", hanging_open)
+
+    async def scenario() -> None:
+        link = SerialLink(path, 115200, lambda data, t, m: None, lambda up: None)
+        link.start()
+        await wait_for_async(lambda: link.state == "opening", 5, "the open under way")
+        link.close()
+        assert link.state == "down"
+        release.set()
+        await wait_for_async(lambda: opened and not opened[0].is_open, 5,
+                             "the late port closed")
 
     asyncio.run(scenario())

@@ -23,6 +23,7 @@ CONTRACT = {
     "gx2_records_published": ("counter", ("node", "record")),
     "gx2_node_lost_radio": ("counter", ("node",)),
     "gx2_node_lost_gateway": ("counter", ("node",)),
+    "gx2_node_lost_station_down": ("counter", ("node",)),
     "gx2_node_reboots": ("counter", ("node",)),
     "gx2_node_rssi_dbm": ("gauge", ("node",)),
     "gx2_node_lqi": ("gauge", ("node",)),

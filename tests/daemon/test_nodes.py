@@ -202,3 +202,54 @@ def test_time_is_strictly_increasing_through_the_conversion_to_unix_seconds():
     stream.unix_minus_monotonic -= 5.0
     stepped = stream.send(40.0 + 3.0, 1003.0)
     assert stepped["time"] - times[-1] == pytest.approx(0.01 - 5.0, abs=1e-3)
+
+
+class Clock:
+    """time.monotonic() for the node, moved by the test."""
+
+    def __init__(self, now: float) -> None:
+        self.now = now
+
+    def monotonic(self) -> float:
+        return self.now
+
+
+@pytest.mark.parametrize("down_s, out_of_range_s", [(2.8, 0.0), (2.0, 1.5)])
+def test_samples_missed_while_the_station_was_down_are_not_radio_loss(
+        monkeypatch, down_s: float, out_of_range_s: float) -> None:
+    """Issue 31: what a stream missed while its base station was down is
+    ``lost_station_down``; what it missed after the station was back (the node out of
+    range meanwhile) is still ``lost_radio``."""
+    clock = Clock(1000.0)
+    monkeypatch.setattr("gateway.daemon.nodes.time", clock)
+    node = Node(NodeEntry(address=76))
+    node.streaming("accel_angrate", 512)  # 100 Hz
+    step = 512 * TICKS_PER_CLOCK
+    for i in range(50):
+        clock.now = 1000.0 + i * 0.01
+        stream_record(node, i * step, clock.now)
+    node.link_lost()
+    clock.now += down_s
+    node.link_back()
+    node.streaming("accel_angrate", 512)  # re-armed by the supervisor meanwhile
+    clock.now += out_of_range_s
+    resumed = 49 + round((down_s + out_of_range_s) * 100)
+    stream_record(node, resumed * step, clock.now)
+    stream_record(node, (resumed + 1) * step, clock.now + 0.01)
+    assert node.lost_station_down + node.lost_radio == resumed - 49 - 1
+    assert node.lost_station_down == pytest.approx(down_s * 100, abs=1)
+    assert node.lost_radio == pytest.approx(out_of_range_s * 100, abs=1)
+
+
+def test_no_station_down_gap_across_a_reboot_or_a_stop() -> None:
+    node = Node(NodeEntry(address=76))
+    node.streaming("accel_angrate", 512)
+    step = 512 * TICKS_PER_CLOCK
+    for i in range(10):
+        stream_record(node, i * step, 100.0 + i * 0.01)
+    node.link_lost()
+    node.link_back()
+    node.polled()  # stopped once back: a stream started later has no gap to count
+    node.streaming("accel_angrate", 512)
+    stream_record(node, 5000 * step, 200.0)
+    assert (node.lost_station_down, node.lost_radio) == (0, 0)

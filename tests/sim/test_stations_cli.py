@@ -14,7 +14,7 @@ import serial
 
 from aspp import Decoder, Event, Frame, Reply
 from gateway.sim.cli import UNPLUG_SECONDS
-from tests.helpers.processes import Running, script
+from tests.helpers.processes import Running, script, spawn_run
 from tests.helpers.waiting import wait_for
 from tests.sim.test_cli import DEADLINE, STARTUP, pointing, read_events, stops_cleanly
 
@@ -104,6 +104,56 @@ def test_an_unplug_reaches_every_station(
             port.close()
     stops_cleanly(running, signal.SIGTERM, links["north"])
     assert not links["south"].is_symlink()
+
+
+def sim_command(*args: str) -> subprocess.CompletedProcess:
+    return spawn_run([script("gx2-sim"), *args], capture_output=True, text=True,
+                     timeout=30, stdin=subprocess.DEVNULL)
+
+
+def test_gx2_sim_unplug_name_unplugs_that_station_alone_until_replugged(
+        two_stations: tuple[Running, dict[str, Path]]) -> None:
+    """``gx2-sim unplug north`` from another shell: north's port fails while south's
+    keeps streaming; ``gx2-sim replug north`` brings north back behind its link."""
+    running, links = two_stations
+    pid = str(running.proc.pid)
+    old = {name: pointing(link) for name, link in links.items()}
+    ports = {name: serial.Serial(str(link), 115200, timeout=0.05)
+             for name, link in links.items()}
+    try:
+        done = sim_command("unplug", "north", "--seconds", "0", "--pid", pid)
+        assert done.returncode == 0, done
+        assert done.stdout.strip() == "north unplugged until replugged", done
+        wait_for(lambda: unplugged(ports["north"]), DEADLINE, "north's port to fail")
+        events = read_events(ports["south"], Decoder(), lambda ev: len(
+            [e for e in ev if isinstance(e, Reply) and e.node == 78]) >= 20)
+        assert nodes_seen(events) == {78}, "south streams on"
+        assert not unplugged(ports["south"]) and pointing(links["south"]) == old["south"]
+        assert pointing(links["north"]) is None, "north stays unplugged (--seconds 0)"
+
+        done = sim_command("replug", "north", "--pid", pid)
+        assert done.returncode == 0 and done.stdout.strip() == "north plugged in", done
+        wait_for(lambda: pointing(links["north"]) not in (None, old["north"]), DEADLINE,
+                 "north's link to a new pty")
+    finally:
+        for port in ports.values():
+            port.close()
+    with serial.Serial(str(links["north"]), 115200, timeout=0.05) as north:
+        read_events(north, Decoder(), lambda ev: OWN_NODES["north"] <= nodes_seen(ev))
+    stops_cleanly(running, signal.SIGTERM, links["north"])
+
+
+def test_gx2_sim_unplug_of_a_name_no_station_has_says_which_there_are(
+        two_stations: tuple[Running, dict[str, Path]]) -> None:
+    running, _ = two_stations
+    done = sim_command("unplug", "west", "--pid", str(running.proc.pid))
+    assert done.returncode == 1, done
+    assert done.stderr.strip() == ("gx2-sim: no running gx2-sim has a station west "
+                                   "(stations: north, south)"), done
+    done = sim_command("unplug", "--pid", str(running.proc.pid))
+    assert done.returncode == 1 and "name a station" in done.stderr, done
+    done = sim_command("unplug", "north", "--seconds", "soon")
+    assert done.returncode == 2 and "'soon' is not a number" in done.stderr, done
 
 
 def unplugged(port: serial.Serial) -> bool:
