@@ -130,8 +130,11 @@ class SchedulerStats:
 
 class Scheduler:
     def __init__(self, write: Callable[[bytes], None],
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, station: str = "") -> None:
+        """``station``: the base station's name, which a request that fails because it
+        is down names (with several, the user must know which one to look at)."""
         self._write = write
+        self._station = f"base station {station}" if station else "the base station"
         self._clock = clock
         self._queues: dict[tuple[int, bool], deque[_Pending]] = {}
         self._served: dict[tuple[int, bool], int] = {}  # queue -> when it last sent
@@ -194,7 +197,7 @@ class Scheduler:
 
     async def _submit(self, pending: _Pending) -> Any:
         if not self.link_up:
-            raise LinkDown("the base station is not connected")
+            raise LinkDown(f"{self._station} is down (not connected)")
         self._enqueue(pending)
         pending.future.add_done_callback(lambda _: self._abandoned(pending))
         self.service()
@@ -286,7 +289,7 @@ class Scheduler:
         self._in_flight = None
         for pending in every:
             if not pending.future.done():
-                pending.future.set_exception(LinkDown("the base station was disconnected"))
+                pending.future.set_exception(LinkDown(f"{self._station} was disconnected"))
 
     # -- the engine --------------------------------------------------------------------------
 
