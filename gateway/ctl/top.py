@@ -53,6 +53,12 @@ QUIT = "q quits"
 BUSY_LINE, FULL_LINE = 90, 99
 """Shares of the serial line (%) from which it is shown busy (packets begin to queue
 behind each other) and full (the base station's buffer fills and drops them)."""
+MISSED = 1.25
+"""Heartbeat intervals of silence after which one heartbeat is taken as missed (a
+quarter of one allowed for its jitter on a busy host): from then on what is shown is
+stale, and said to be."""
+DEFAULT_HEARTBEAT = 1.0
+"""The interval taken when a status does not say its own (``gateway.heartbeat_s``)."""
 
 
 # --- the table -----------------------------------------------------------------------
@@ -73,11 +79,15 @@ def _lost(node: Mapping[str, Any], now: float) -> str:
 
 
 def _seen(node: Mapping[str, Any], now: float) -> str:
-    """How long ago, in at most five cells: ``0.3s``, ``42s``, ``12m``, ``5h``, ``3d``."""
     seen = number(node.get("last_seen"))
     if seen is None:
         return "never" if node.get("last_seen") is None else MISSING
-    age = max(0.0, now - seen)
+    return age_text(now - seen)
+
+
+def age_text(age: float) -> str:
+    """How long ago, in at most five cells: ``0.3s``, ``42s``, ``12m``, ``5h``, ``3d``."""
+    age = max(0.0, age)
     for unit, seconds in (("d", 86400), ("h", 3600), ("m", 60)):
         if age >= 2 * seconds:
             return f"{age / seconds:.0f}{unit}"
@@ -118,6 +128,7 @@ GIVE_WAY: tuple[tuple[str, int], ...] = (
 )
 """What gives way, in turn, while the table is wider than the terminal: a column cut to
 so many cells (with an ellipsis), or dropped (0). The node and its health stay."""
+HEALTH = next(i for i, column in enumerate(COLUMNS) if column.header == "health")
 
 
 def cut(line: Text, width: int, ellipsis: str = "…") -> Text:
@@ -129,9 +140,16 @@ def cut(line: Text, width: int, ellipsis: str = "…") -> Text:
 
 
 def table(nodes: Sequence[Mapping[str, Any]], now: float, width: int,
-          ellipsis: str = "…") -> list[Text]:
-    """The header and a row per node, each line at most ``width`` cells."""
+          ellipsis: str = "…", stale_for: float | None = None) -> list[Text]:
+    """The header and a row per node, each line at most ``width`` cells. ``stale_for``:
+    seconds since the status they come from, given once a heartbeat was missed; each
+    row is then grey, its health unknown (``stale 2.1s``), never a green OK that
+    nothing vouches for any more."""
     cells = [[column.cell(node, now) for column in COLUMNS] for node in nodes]
+    if stale_for is not None:
+        unknown = f"stale {age_text(stale_for)}"
+        for row in cells:
+            row[HEALTH] = unknown
     shown = fit(COLUMNS, cells, width, GIVE_WAY)
     header = Text(" " * GAP).join(Text(sized(COLUMNS[i].header, w, COLUMNS[i].right))
                                   for i, w in shown)
@@ -141,11 +159,13 @@ def table(nodes: Sequence[Mapping[str, Any]], now: float, width: int,
         parts = []
         for i, w in shown:
             text = Text(sized(row[i], w, COLUMNS[i].right, ellipsis))
-            if COLUMNS[i].header == "health":
+            if i == HEALTH and stale_for is None:
                 text.stylize(HEALTH_STYLE.get(str(node.get("health")), ""))
             parts.append(text)
         row_text = Text(" " * GAP).join(parts)
         row_text.rstrip()
+        if stale_for is not None:
+            row_text.stylize("dim")
         lines.append(row_text)
     return lines
 
@@ -182,6 +202,26 @@ class Watch:
         made, received = self._clock
         return made + time.monotonic() - received
 
+    def heartbeat(self) -> float:
+        """Seconds between the gateway's heartbeats, as its last status says."""
+        every = number(as_map((self.status or {}).get("gateway")).get("heartbeat_s"))
+        return every if every is not None and every > 0 else DEFAULT_HEARTBEAT
+
+    def stale_for(self, silent_for: float) -> float | None:
+        """``silent_for`` once a heartbeat was missed (what is shown is that old), else
+        None: nothing shown yet, or the last status still the latest."""
+        if self.status is None or silent_for <= MISSED * self.heartbeat():
+            return None
+        return silent_for
+
+    def freshness(self, silent_for: float) -> str:
+        """What the header says of the heartbeat: a change is worth a frame at once."""
+        if self.status is None:
+            return "waiting"
+        if silent_for > self.silence:
+            return "gone"
+        return "fresh" if self.stale_for(silent_for) is None else "stale"
+
     def shown(self) -> list[Mapping[str, Any]]:
         """The nodes of the last status that are shown."""
         return [n for n in node_maps(self.status or {})
@@ -200,9 +240,10 @@ def _clock_text(now: float) -> str:
         return "--:--:--"
 
 
-def link_text(label: str, link: Mapping[str, Any], now: float) -> Text:
+def link_text(label: str, link: Mapping[str, Any], now: float, stale: bool = False) -> Text:
     """A base station's line: its state and for how long, what its serial line carries
-    (the share of the baud rate: yellow when busy, red when full), reconnects, port."""
+    (the share of the baud rate: yellow when busy, red when full), reconnects, port;
+    ``stale``: all grey, as what no heartbeat vouches for any more."""
     state = cell(link.get("state"))
     text = Text(f"{label} ")
     text.append(state, "green" if state == "up" else "bold red")
@@ -221,6 +262,9 @@ def link_text(label: str, link: Mapping[str, Any], now: float) -> Text:
     error = link.get("error")
     if state != "up" and isinstance(error, str) and error:
         text.append(f" ({error})", "red")
+    if stale:
+        text.spans.clear()
+        text.stylize("dim")
     return text
 
 
@@ -230,22 +274,25 @@ def header(watch: Watch, now: float, silent_for: float) -> list[Text]:
     nodes = watch.shown()
     counts = {level: sum(1 for n in nodes if n.get("health") == level)
               for level in HEALTH_STYLE}
+    stale = watch.stale_for(silent_for) is not None
     first = Text(f"gx2-gateway {cell(gateway.get('version'))} up "
                  f"{duration(gateway.get('uptime'))}  nodes ")
     for level, style in HEALTH_STYLE.items():
-        first.append(f"{counts[level]} {level}", style if counts[level] else "")
+        first.append(f"{counts[level]} {level}",
+                     "dim" if stale else style if counts[level] else "")
         first.append(" ")
     first.append(f" {_clock_text(now)}", "dim")
 
     stations = station_maps(status)
     if len(stations) == 1:
-        second = link_text("link", link, now)
+        second = link_text("link", link, now, stale)
     else:
         up = sum(1 for s in stations if s.get("state") == "up")
         second = Text(f"base stations {len(stations)}: ")
-        second.append(f"{up} up", "green" if up == len(stations) else "")
+        second.append(f"{up} up", "dim" if stale else "green" if up == len(stations)
+                      else "")
         if up < len(stations):
-            second.append(f", {len(stations) - up} not up", "bold red")
+            second.append(f", {len(stations) - up} not up", "dim" if stale else "bold red")
     discarded: dict[str, float] = {}
     for station in stations:
         for kind, value in as_map(station.get("discarded")).items():
@@ -262,7 +309,12 @@ def header(watch: Watch, now: float, silent_for: float) -> list[Text]:
                           f"({silent_for:.0f} s)", "yellow"))
     elif silent_for > watch.silence:
         lines.append(Text(f"no heartbeat for {silent_for:.0f} s from {watch.endpoint}: is "
-                          "gx2-gateway running? (its last status is shown)", "bold red"))
+                          "gx2-gateway running? (its last status is shown, greyed)",
+                          "bold red"))
+    elif stale:
+        lines.append(Text(f"no heartbeat for {silent_for:.1f} s (one is due every "
+                          f"{watch.heartbeat():g} s) from {watch.endpoint}: what is shown "
+                          f"is {silent_for:.1f} s old", "bold yellow"))
     elif watch.restarted_at is not None and now - watch.restarted_at < 60:
         lines.append(Text(f"the gateway restarted {duration(now - watch.restarted_at)} "
                           "ago", "yellow"))
@@ -278,30 +330,28 @@ def frame(watch: Watch, now: float, silent_for: float, width: int,
     a last ``+N more`` row, before any reason is dropped; the nodes dimmed while the
     gateway is silent (what they show is its last word)."""
     nodes = watch.shown()
-    rows = table(nodes, now, width, ellipsis)
-    if watch.status is not None and silent_for > watch.silence:
-        for row in rows[1:]:
-            row.stylize("dim")
+    stale_for = watch.stale_for(silent_for)
+    rows = table(nodes, now, width, ellipsis, stale_for)
     head, body = [*header(watch, now, silent_for), *rows[:1]], grouped(
-        watch.status or {}, nodes, rows[1:], now)
+        watch.status or {}, nodes, rows[1:], now, stale_for is not None)
     notes: list[Text] = []
     gateway = as_map((watch.status or {}).get("gateway"))
     health = gateway.get("health")
+    def style(level: object) -> str:
+        return "dim" if stale_for is not None else HEALTH_STYLE.get(str(level), "")
     if health is not None and health != HealthLevel.OK and (why := reasons(gateway)):
-        notes.append(Text("gateway ").append(f"{cell(health)}: {why}",
-                                             HEALTH_STYLE.get(str(health), "")))
+        notes.append(Text("gateway ").append(f"{cell(health)}: {why}", style(health)))
     for node in nodes:
         if node.get("health") != HealthLevel.OK and (why := reasons(node)):
             notes.append(Text(f"{cell(node.get('node'))} ").append(
-                f"{cell(node.get('health'))}: {why}",
-                HEALTH_STYLE.get(str(node.get("health")), "")))
+                f"{cell(node.get('health'))}: {why}", style(node.get("health"))))
     if height is not None:
         body, notes = _within(height - 1 - len(head), body, notes)
     return [cut(line, width, ellipsis) for line in (*head, *body, *notes)]
 
 
 def grouped(status: Mapping[str, Any], nodes: Sequence[Mapping[str, Any]],
-            rows: list[Text], now: float) -> list[Text]:
+            rows: list[Text], now: float, stale: bool = False) -> list[Text]:
     """The node rows; with several base stations, under a line for each station (its
     link and its serial line's share), in the status's order of stations."""
     stations = station_maps(status)
@@ -310,7 +360,7 @@ def grouped(status: Mapping[str, Any], nodes: Sequence[Mapping[str, Any]],
     body: list[Text] = []
     names = [cell(s.get("name")) for s in stations]
     for name, station in zip(names, stations, strict=True):
-        heading = link_text(f"{name}:", station, now)
+        heading = link_text(f"{name}:", station, now, stale)
         heading.stylize("bold", 0, len(name) + 1)
         body.append(heading)
         body += [row for node, row in zip(nodes, rows, strict=True)
@@ -372,12 +422,16 @@ def run_top(nodes: list[int], where: Endpoints, timeout: float, as_json: bool) -
             return _print_frames(sub, watch, console.width, stop, as_json, ellipsis)
         with keyboard() as pressed, Live(console=console, screen=True,
                                          auto_refresh=False) as live:
-            drawn = 0.0
+            drawn, was = 0.0, watch.freshness(sub.silent_for())
             while not stop.requested and not pressed():
                 event = sub.receive(TICK)
                 if isinstance(event, Status):
                     watch.take(event)
-                if event is not None or time.monotonic() - drawn >= REDRAW:
+                # a heartbeat missed (or the gateway gone) is drawn at once, not at the
+                # next redraw: that is when the rows stop being news
+                now_is = watch.freshness(sub.silent_for())
+                if event is not None or now_is != was or time.monotonic() - drawn >= REDRAW:
+                    was = now_is
                     width = console.width
                     lines = frame(watch, watch.now(), sub.silent_for(), width, ellipsis,
                                   console.height)
@@ -390,16 +444,21 @@ def run_top(nodes: list[int], where: Endpoints, timeout: float, as_json: bool) -
 
 def _print_frames(sub: Any, watch: Watch, width: int, stop: Stop, as_json: bool,
                   ellipsis: str) -> int:
-    """One plain frame per heartbeat, one after the other (or the heartbeat as one JSON
-    line, of the nodes asked for)."""
+    """One plain frame per heartbeat, one after the other, and one when a heartbeat is
+    missed or the gateway is taken for gone (or each heartbeat as one JSON line, of the
+    nodes asked for: data, nothing else)."""
+    was = watch.freshness(sub.silent_for())
     while not stop.requested:
         event = sub.receive(TICK)
-        if not isinstance(event, Status):
-            continue
-        watch.take(event)
+        if isinstance(event, Status):
+            watch.take(event)
+        now_is = watch.freshness(sub.silent_for())
+        changed, was = now_is != was, now_is
         if as_json:
-            print(json_line({**event.payload, "nodes": watch.shown()}), flush=True)
+            if isinstance(event, Status):
+                print(json_line({**event.payload, "nodes": watch.shown()}), flush=True)
             continue
-        lines = frame(watch, watch.now(), sub.silent_for(), width, ellipsis)
-        print("\n".join(line.plain for line in lines), end="\n\n", flush=True)
+        if isinstance(event, Status) or changed:
+            lines = frame(watch, watch.now(), sub.silent_for(), width, ellipsis)
+            print("\n".join(line.plain for line in lines), end="\n\n", flush=True)
     return Exit.OK
