@@ -55,6 +55,9 @@ CLOSE_LINGER_MS = 100
 client on this host or its network takes well under a millisecond): the process's exit
 waits up to this long for them, within its 2 s."""
 SHUTTING_DOWN = "cut short: the gateway is shutting down"
+CANCEL_SHARE = 0.9
+"""Of the time a cancel may take to be answered, the share it waits for the request it
+cancels to wind down; then it says that it is winding down."""
 Key = tuple[bytes, object]
 """A request as the gateway remembers it: (the client's identity, the request's id)."""
 
@@ -118,7 +121,8 @@ class ControlServer:
         self._forget_old()
         remembered = self._seen.get(key)
         if remembered is None:
-            task = asyncio.get_running_loop().create_task(self._run(request, key))
+            task = asyncio.get_running_loop().create_task(self._run(request, key),
+                                                          name=_label(request))
             self._seen[key] = (time.monotonic(), task)
         else:
             task = remembered[1]
@@ -155,7 +159,8 @@ class ControlServer:
         try:
             async with asyncio.timeout(limit):
                 if request.op == CANCEL:  # type: ignore[attr-defined]
-                    return protocol.ok(request.id, await self._cancel(key[0], request))
+                    return protocol.ok(request.id, await self._cancel(
+                        key[0], request, None if limit is None else CANCEL_SHARE * limit))
                 return protocol.ok(request.id, await self.ops.run(request))
         except asyncio.CancelledError:
             if key not in self._cancelled:
@@ -181,9 +186,10 @@ class ControlServer:
             return protocol.error(request.id, ErrorKind.INTERNAL,
                                   f"{type(error).__name__}: {error}")
 
-    async def _cancel(self, identity: bytes, request: Any) -> dict[str, Any]:
+    async def _cancel(self, identity: bytes, request: Any,
+                      within: float | None) -> dict[str, Any]:
         """Cancel the client's own request ``request.request`` and wait for it to wind
-        down (within the cancel's own deadline): whether it stopped, and what it says."""
+        down (``within`` seconds at most): whether it stopped, and what it says."""
         key = (identity, request.request)
         remembered = self._seen.get(key)
         if remembered is None:
@@ -193,11 +199,15 @@ class ControlServer:
         if not task.done() and key not in self._cancelled:
             self._cancelled[key] = None
             task.cancel()
-        await asyncio.wait([task])
-        outcome = self._cancelled.get(key)
+        await asyncio.wait([task], timeout=within)
+        outcome = self._cancelled.get(key, None)
+        if not task.done():  # (switching BIT off, say, on a node slow to answer)
+            return {"request": request.request, "cancelled": True,
+                    "message": f"{task.get_name()} is being cancelled; the gateway logs "
+                    "when it is"}
         if outcome is None:  # it had ended before the cancel came
             return {"request": request.request, "cancelled": False,
-                    "message": "it had already ended"}
+                    "message": f"{task.get_name()} had already ended (its result stands)"}
         stopped, text = outcome
         return {"request": request.request, "cancelled": stopped, "message": text}
 
@@ -217,12 +227,18 @@ class ControlServer:
         self.socket.close(linger=CLOSE_LINGER_MS)
 
 
+def _label(request: Any) -> str:
+    """The request in words (``bias capture on 76``)."""
+    op = BY_NAME.get(request.op)
+    return request.op if op is None else op.label(request)
+
+
 def _cancelled(request: Any) -> str:
     """What a request cancelled by its client left: ``bias capture on 76 cancelled by
     the client; bias unchanged``."""
-    op = BY_NAME[request.op]
-    return f"{op.label(request)} cancelled by the client" + (
-        f"; {op.on_cancel}" if op.on_cancel else "")
+    on_cancel = BY_NAME[request.op].on_cancel
+    return f"{_label(request)} cancelled by the client" + (
+        f"; {on_cancel}" if on_cancel else "")
 
 
 def _shutting_down(request: Any) -> bytes:
