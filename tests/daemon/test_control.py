@@ -117,7 +117,6 @@ def test_a_client_cancels_its_own_request_and_no_other() -> None:
                          radio={95: RadioLink(in_range=False)}) as wired:
             async def body(client: zmq.asyncio.Socket) -> None:
                 other = client.context.socket(zmq.DEALER)  # another client
-
                 other.connect(f"inproc://control-{id(wired)}")
                 try:
                     await client.send_multipart([b"", msgpack.packb(
