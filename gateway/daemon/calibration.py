@@ -40,7 +40,7 @@ QUANTITY = {"accel": 1, "gyro": 2}
 # no command that stops a capture or reads a bias back (to write the old one again). So
 # from then on the capture runs to its end in the background, the node's stream is
 # started again after it, and the result is logged; the request is answered at once
-# with GoesOn, saying so.
+# with GoesOn, saying so. (Unless the gateway is shutting down: then it is cancelled.)
 @handles("bias_capture")
 async def bias_capture(gw: Operations, request: Any) -> Result:
     node = gw.node(request.node)
@@ -53,7 +53,7 @@ async def bias_capture(gw: Operations, request: Any) -> Result:
     except asyncio.CancelledError:
         if capture.done():  # it ended as it was cancelled: its result stands
             return capture.result()
-        if not sent_at:
+        if not sent_at or gw.supervisor(node).closed:  # (at shutdown nothing outlives)
             capture.cancel()
             await asyncio.wait([capture])  # (the stream is given back)
             raise
