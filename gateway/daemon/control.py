@@ -236,7 +236,8 @@ def _label(request: Any) -> str:
 def _cancelled(request: Any) -> str:
     """What a request cancelled by its client left: ``bias capture on 76 cancelled by
     the client; bias unchanged``."""
-    on_cancel = BY_NAME[request.op].on_cancel
+    op = BY_NAME.get(request.op)  # (None: a cancel, cancelled by another)
+    on_cancel = "" if op is None else op.on_cancel
     return f"{_label(request)} cancelled by the client" + (
         f"; {on_cancel}" if on_cancel else "")
 
