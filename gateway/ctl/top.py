@@ -327,8 +327,8 @@ def frame(watch: Watch, now: float, silent_for: float, width: int,
           ellipsis: str = "…", height: int | None = None) -> list[Text]:
     """Every line of one frame, none wider than ``width`` cells and, given a ``height``,
     no more lines than it less one (the footer's): nodes that do not fit are counted in
-    a last ``+N more`` row, before any reason is dropped; the nodes dimmed while the
-    gateway is silent (what they show is its last word)."""
+    a last ``+N more`` row, before any reason is dropped; everything it shows greyed
+    once a heartbeat is missed (it is the gateway's last word, of unknown worth now)."""
     nodes = watch.shown()
     stale_for = watch.stale_for(silent_for)
     rows = table(nodes, now, width, ellipsis, stale_for)
@@ -337,6 +337,7 @@ def frame(watch: Watch, now: float, silent_for: float, width: int,
     notes: list[Text] = []
     gateway = as_map((watch.status or {}).get("gateway"))
     health = gateway.get("health")
+
     def style(level: object) -> str:
         return "dim" if stale_for is not None else HEALTH_STYLE.get(str(level), "")
     if health is not None and health != HealthLevel.OK and (why := reasons(gateway)):
