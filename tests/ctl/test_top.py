@@ -11,7 +11,8 @@ from rich.cells import cell_len
 
 from gateway.client import Status
 from gateway.ctl.columns import fit, sized
-from gateway.ctl.top import COLUMNS, GIVE_WAY, Watch, frame, table
+from gateway.ctl.top import Watch, frame
+from gateway.ctl.toptable import COLUMNS, GIVE_WAY, table
 
 NOW = 1_800_000_000.0
 
