@@ -114,10 +114,26 @@ class Op:
     """What gx2ctl says (on stderr) before it sends the request; ``{field}`` is
     replaced by the request's field."""
     switches: tuple[Switch, ...] = ()
+    on_cancel: str = ""
+    """What stays, or goes on, when its client cancels it (Ctrl-C in gx2ctl) before it
+    ends: said to that client and logged by the gateway."""
     fields: tuple[str, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "fields", tuple(p.name for p in self.params))
+
+    def label(self, fields: Any) -> str:
+        """The request in words, for a log line or a message: ``bias capture on 76``,
+        ``ping of 76, 77``. ``fields``: the request (its attributes) or a map."""
+        def get(name: str) -> Any:
+            return fields.get(name) if isinstance(fields, dict) else getattr(fields, name,
+                                                                               None)
+        words = " ".join(self.command)
+        if get("node") is not None:
+            return f"{words} on {get('node')}"
+        if get("nodes"):
+            return f"{words} of {', '.join(map(str, get('nodes')))}"
+        return words
 
     def extra_time(self, fields: dict[str, Any]) -> float:
         """Seconds this request takes beyond a usual one."""
@@ -126,6 +142,9 @@ class Op:
 
 
 _NODE = Param("node", NODE, "the node's address")
+_PURSUED = ("the gateway goes on {doing} it in the background, as when it does not answer "
+            "(gx2ctl status shows it)")
+_SENT = "{what} already sent may have reached the node: check {check}"
 
 OPS: tuple[Op, ...] = (
     Op("ping", ("ping",), "wireless ping; exit 0 if every node answered",
@@ -138,24 +157,29 @@ OPS: tuple[Op, ...] = (
                         "it the table fits the terminal's width, dropping columns)"))),
     Op("start", ("start",), "continuous mode with RECORD (a name or 0xNN); the node keeps "
        "it through reboots until the next start or stop",
-       (_NODE, Param("record", STREAMABLE_RECORD, "the record to stream"))),
+       (_NODE, Param("record", STREAMABLE_RECORD, "the record to stream")),
+       on_cancel=_PURSUED.format(doing="starting")),
     Op("stop", ("stop",), "stop continuous mode, until the stream is silent; the node "
-       "stays stopped through reboots until the next start", (_NODE,)),
+       "stays stopped through reboots until the next start", (_NODE,),
+       on_cancel=_PURSUED.format(doing="stopping")),
     Op("poll", ("poll",), "one polled record, printed as one JSON line",
        (_NODE, Param("record", POLLABLE_RECORD, "the record to ask for"))),
     Op("eeprom_read", ("eeprom", "read"), "read the word at ADDRESS",
        (_NODE, Param("address", WORD, "EEPROM address (decimal or 0x hex)"))),
     Op("eeprom_write", ("eeprom", "write"), "write VALUE at ADDRESS, read back to verify",
        (_NODE, Param("address", WORD, "EEPROM address (decimal or 0x hex)"),
-        Param("value", WORD, "the word to write (decimal or 0x hex)"))),
+        Param("value", WORD, "the word to write (decimal or 0x hex)")),
+       on_cancel=_SENT.format(what="a write", check="with gx2ctl eeprom read")),
     Op("rate", ("rate",), "data rate via the divider at EEPROM 0xFCA2 (51200/HZ)",
-       (_NODE, Param("hz", RATE_HZ, "records per second, about 1..301"))),
+       (_NODE, Param("hz", RATE_HZ, "records per second, about 1..301")),
+       on_cancel=_SENT.format(what="a write", check="with gx2ctl eeprom read NODE 0xFCA2")),
     Op("info", ("info",), "firmware version and identifier strings", (_NODE,)),
     Op("bias_capture", ("bias", "capture"), "capture the gyro bias (0xCD): the node must "
        "stand still while it samples its sensors",
        (_NODE, Param("ms", SAMPLING_MS, "sampling time in ms (10000..30000 advised)",
                      default=10000)), extra_ms="ms",
        notice="node {node} samples its sensors for {ms} ms: keep it still until then",
+       on_cancel="bias unchanged",
        description="Capture gyro bias (0xCD): the node samples its sensors for --ms "
        "milliseconds and takes their mean as its gyro bias. It must stand still. A "
        "stream it is running is stopped first and started again afterwards. gx2ctl "
@@ -163,14 +187,18 @@ OPS: tuple[Op, ...] = (
     Op("bias_set", ("bias", "set"), "write the accel (0xC9) or gyro (0xCA) bias "
        "correction (needs allow_eeprom_write)",
        (_NODE, Param("sensor", SENSOR, "accel (g) or gyro (rad/s)"),
-        Param("x", FLOAT, "x"), Param("y", FLOAT, "y"), Param("z", FLOAT, "z"))),
+        Param("x", FLOAT, "x"), Param("y", FLOAT, "y"), Param("z", FLOAT, "z")),
+       on_cancel=_SENT.format(what="a correction", check="by setting it again")),
     Op("store", ("store",), "keep the accel or gyro bias through power cycles (0xD0; "
-       "needs allow_eeprom_write)", (_NODE, Param("sensor", SENSOR, "accel or gyro"))),
+       "needs allow_eeprom_write)", (_NODE, Param("sensor", SENSOR, "accel or gyro")),
+       on_cancel=_SENT.format(what="a store", check="by storing again")),
     Op("temperature", ("temperature",), "the four temperatures (0xD1) in degrees Celsius, "
        "with their codes", (_NODE,)),
     Op("selftest", ("selftest",), "built-in test (0xFB): each output checked against BIT "
        "on and off; exit 0 only if every check passed", (_NODE,), extra_seconds=10.0,
        notice="node {node}: built-in test; keep it still until it ends",
+       on_cancel="BIT switched off (the gateway keeps at it until the node confirms) and "
+       "any stream it ran started again",
        description="Built-in test: with the node standing still, its outputs are read "
        "with BIT off, with the positive accelerometer and rate sensor BIT (bit 4) and "
        "with the negative rate sensor BIT (bit 5); each output must step the way the "

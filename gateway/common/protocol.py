@@ -12,6 +12,12 @@ exactly one reply:
 
 A client that times out may send the same request again with the same id: the gateway
 runs each (client, id) once and answers a repeat with the first run's reply.
+
+A client that gives up on a request it sent (gx2ctl on Ctrl-C) says so with
+``{"id": ..., "op": "cancel", "request": <that request's id>}``: the gateway stops the
+request where it safely can, answers it with an error of kind ``cancelled``, and
+answers the cancel with ``{"request", "cancelled", "message"}``: whether it stopped,
+and what stays or goes on (a bias capture the node has begun cannot be stopped).
 """
 
 from __future__ import annotations
@@ -50,6 +56,8 @@ class ErrorKind(StrEnum):
     """The base station is not connected."""
     INTERNAL = "internal"
     """A bug, logged by the gateway."""
+    CANCELLED = "cancelled"
+    """Its client cancelled it (op ``cancel``); the message says what stays."""
 
 
 class Exit(IntEnum):
@@ -63,7 +71,10 @@ class Exit(IntEnum):
 
 EXIT_FOR_KIND = {ErrorKind.INVALID: Exit.USAGE, ErrorKind.REFUSED: Exit.NODE_FAILED,
                  ErrorKind.NODE: Exit.NODE_FAILED, ErrorKind.LINK: Exit.NODE_FAILED,
-                 ErrorKind.INTERNAL: Exit.NODE_FAILED}
+                 ErrorKind.INTERNAL: Exit.NODE_FAILED, ErrorKind.CANCELLED: Exit.NODE_FAILED}
+CANCEL = "cancel"
+"""The op that cancels an earlier request of the same client (not in the op table: it
+is about a request, not a node, and no gx2ctl command of its own)."""
 
 
 def exit_for(kind: object) -> Exit:

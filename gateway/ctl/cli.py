@@ -222,7 +222,8 @@ def run_op(op: Op, args: argparse.Namespace, where: Endpoints) -> int:
     if op.notice:
         print(f"{PROG}: {op.notice.format(**fields)}", file=sys.stderr, flush=True)
     with Client(where.control, args.timeout, where.keys) as client:
-        result = client.call(op.name, extra_time=op.extra_time(fields), **fields)
+        result = client.call(op.name, extra_time=op.extra_time(fields), cancel=True,
+                             **fields)
     switches = {switch.name: getattr(args, switch.name) for switch in op.switches}
     shown = show(op.name, {**fields, **switches}, result, args.json)
     emit(shown.lines)

@@ -1,6 +1,6 @@
 """gx2ctl's side of the control protocol (:mod:`gateway.common.protocol`): one DEALER,
 requests with an id and the time the client will wait, a deadline that is never
-overrun, one safe retry, and the exit status of each outcome.
+overrun, one safe retry, the exit status of each outcome, and a cancel on Ctrl-C.
 """
 
 from __future__ import annotations
@@ -16,7 +16,13 @@ import zmq
 
 from gateway.common import curve, protocol
 from gateway.common.endpoints import connectable
-from gateway.common.protocol import MAX_REPLY_BYTES, Exit
+from gateway.common.protocol import CANCEL, MAX_REPLY_BYTES, Exit
+
+INTERRUPTED = 130
+"""The exit status of a run interrupted by Ctrl-C (128 + SIGINT), as a shell gives it."""
+CANCEL_WAIT = 3.0
+"""Seconds gx2ctl waits, after Ctrl-C, for the gateway to say what became of the
+request (at most its --timeout): a request stops at its next safe point, well within."""
 
 
 class CtlError(Exception):
@@ -62,12 +68,49 @@ class Client:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def call(self, op: str, *, extra_time: float = 0.0, **fields: Any) -> dict[str, Any]:
+    def call(self, op: str, *, extra_time: float = 0.0, cancel: bool = False,
+             **fields: Any) -> dict[str, Any]:
         """The ``result`` of one request; CtlError for an error reply or no reply.
         ``extra_time``: seconds the op is known to take on top of the usual timeout
-        (a bias capture's sampling time)."""
+        (a bias capture's sampling time). ``cancel``: Ctrl-C (KeyboardInterrupt)
+        cancels the request on the gateway, and ends the run (CtlError, status 130)
+        with one line saying what the gateway made of it."""
         timeout = self.timeout + extra_time
         request_id = uuid.uuid4().hex
+        try:
+            reply = self._exchange(request_id, op, fields, timeout)
+        except KeyboardInterrupt:  # Ctrl-C: the gateway is told, and says what stays
+            if not cancel:
+                raise
+            raise CtlError(f"interrupted: {self._cancel(request_id, op)}",
+                           INTERRUPTED) from None
+        if reply is not None:
+            return _result(reply)
+        raise CtlError(f"no answer from the gateway at {self.control} within "
+                       f"{timeout:g} s (is gx2-gateway running"
+                       f"{', and is this key allowed' if self.secured else ''}?)",
+                       Exit.NO_ANSWER)
+
+    def _cancel(self, request_id: str, op: str) -> str:
+        """Ask the gateway to cancel our request; what it says became of it (stopped,
+        and what stays; or what goes on), or what is not known."""
+        wait = min(self.timeout, CANCEL_WAIT)
+        reply = self._exchange(uuid.uuid4().hex, CANCEL, {"request": request_id}, wait)
+        if reply is None:
+            return (f"the gateway did not answer the cancel within {wait:g} s: the {op} "
+                    "may go on (gx2ctl status shows the nodes)")
+        try:
+            result = _result(reply)
+        except CtlError as error:  # (a gateway too old to take a cancel)
+            return f"the gateway did not take the cancel ({error}): the {op} may go on"
+        message = result.get("message")
+        if not isinstance(message, str) or not message.strip():
+            return f"the gateway sent a malformed answer to the cancel: the {op} may go on"
+        return message
+
+    def _exchange(self, request_id: str, op: str, fields: dict[str, Any],
+                  timeout: float) -> dict[str, Any] | None:
+        """Send one request and wait for its reply (None if none came in time)."""
         payload = protocol.request(request_id, op, {**fields, "timeout": timeout})
         start = time.monotonic()
         deadline, resend_at = start + timeout, start + timeout / 2
@@ -80,11 +123,8 @@ class Client:
             if self.socket.poll(max(0, math.ceil(wait * 1000)), zmq.POLLIN):
                 reply = self._receive()
                 if reply is not None and reply.get("id") == request_id:
-                    return _result(reply)
-        raise CtlError(f"no answer from the gateway at {self.control} within "
-                       f"{timeout:g} s (is gx2-gateway running"
-                       f"{', and is this key allowed' if self.secured else ''}?)",
-                       Exit.NO_ANSWER)
+                    return reply
+        return None
 
     def _send(self, payload: bytes) -> None:
         with contextlib.suppress(zmq.Again):  # nowhere to send yet: the deadline decides

@@ -76,14 +76,26 @@ def _status(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
 
 @prints("ping")
 def _ping(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
-    """One line per node asked about, in the order asked (missing: no answer)."""
+    """One line per node asked about, in the order asked (missing: no answer; a node
+    whose base station is down: why it was not pinged)."""
     requested = fields["nodes"]
     replies = answered(result)
+    errors = ping_errors(result)
     silent = [str(node) for node in requested if not replies.get(node)]
     failure = (f"{len(silent)} of {len(requested)} nodes did not answer: "
                f"{', '.join(silent)}") if silent else None
-    return Shown([f"{node} {'answered' if replies.get(node) else 'no answer'}"
+    return Shown([f"{node} not pinged: {errors[node]}" if node in errors
+                  else f"{node} {'answered' if replies.get(node) else 'no answer'}"
                   for node in requested], failure)
+
+
+def ping_errors(result: Mapping[str, Any]) -> dict[Any, str]:
+    """node -> why it could not be pinged (its base station down), from a ping result."""
+    nodes = result.get("nodes")
+    return {entry.get("node"): " ".join(entry["error"].split())
+            for entry in (nodes if isinstance(nodes, list) else [])
+            if isinstance(entry, Mapping) and isinstance(entry.get("error"), str)
+            and entry["error"].strip()}
 
 
 def _word(value: Any) -> str:

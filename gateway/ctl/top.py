@@ -24,7 +24,6 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from rich.cells import cell_len
 from rich.console import Console, Group
 from rich.live import Live
 from rich.text import Text
@@ -34,10 +33,10 @@ from gateway.common.jsontext import json_line
 from gateway.common.protocol import Exit, HealthLevel
 from gateway.common.reading import as_map, number
 
-from .cells import MISSING, cell, clock_cell, duration, node_maps, reasons
-from .columns import GAP, Column, fit, sized
+from .cells import MISSING, cell, duration, node_maps, reasons
 from .statusview import station_maps
 from .tail import Stop, subscribe
+from .toptable import HEALTH_STYLE, cut, table
 
 if TYPE_CHECKING:
     from .cli import Endpoints
@@ -46,108 +45,17 @@ TICK = 0.2
 """Seconds between looks at the keyboard (and at the clock, for the ages shown)."""
 REDRAW = 1.0
 """A frame is drawn on each heartbeat, and at least this often (ages move on)."""
-HEALTH_STYLE = {HealthLevel.OK: "green", HealthLevel.WARN: "bold yellow",
-                HealthLevel.ERROR: "bold red"}
 QUIT = "q quits"
 """The last line on a terminal."""
 BUSY_LINE, FULL_LINE = 90, 99
 """Shares of the serial line (%) from which it is shown busy (packets begin to queue
 behind each other) and full (the base station's buffer fills and drops them)."""
-
-
-# --- the table -----------------------------------------------------------------------
-
-def _hz(node: Mapping[str, Any], now: float) -> str:
-    rate, expected = number(node.get("rate_hz")), number(node.get("expected_hz"))
-    shown = MISSING if rate is None else f"{rate:.1f}"
-    return f"{shown}/{expected:.4g}" if expected else shown
-
-
-def _lost(node: Mapping[str, Any], now: float) -> str:
-    """Lost over the radio in the recent window: the count and its share."""
-    recent = as_map(node.get("recent"))
-    count, share = number(recent.get("lost_radio")), number(recent.get("lost_radio_percent"))
-    if count is None:
-        return MISSING
-    return f"{count:.0f} {share:.1f}%" if share is not None else f"{count:.0f}"
-
-
-def _seen(node: Mapping[str, Any], now: float) -> str:
-    """How long ago, in at most five cells: ``0.3s``, ``42s``, ``12m``, ``5h``, ``3d``."""
-    seen = number(node.get("last_seen"))
-    if seen is None:
-        return "never" if node.get("last_seen") is None else MISSING
-    age = max(0.0, now - seen)
-    for unit, seconds in (("d", 86400), ("h", 3600), ("m", 60)):
-        if age >= 2 * seconds:
-            return f"{age / seconds:.0f}{unit}"
-    return f"{age:.1f}s" if age < 10 else f"{age:.0f}s"
-
-
-def _clock(node: Mapping[str, Any], now: float) -> str:
-    return clock_cell(node.get("clock")).removesuffix(" ppm")
-
-
-def _name(node: Mapping[str, Any], now: float) -> str:
-    name = node.get("name")
-    return f"{cell(node.get('node'))} {cell(name)}" if name else cell(node.get("node"))
-
-
-def _key(key: str) -> Callable[[Mapping[str, Any], float], str]:
-    return lambda node, now: cell(node.get(key))
-
-
-COLUMNS = (
-    Column("node", _name),
-    Column("state", _key("state")),
-    Column("record", _key("record")),
-    Column("Hz", _hz, right=True),
-    Column("lost", _lost, right=True),
-    Column("gw", _key("lost_gateway"), right=True),
-    Column("boots", _key("reboots"), right=True),
-    Column("LQI", _key("lqi"), right=True),
-    Column("RSSI", _key("rssi"), right=True),
-    Column("clock", _clock, right=True),
-    Column("seen", _seen, right=True),
-    Column("health", _key("health")),
-)
-GIVE_WAY: tuple[tuple[str, int], ...] = (
-    ("record", 10), ("LQI", 0), ("gw", 0), ("boots", 0), ("node", 10), ("clock", 0),
-    ("node", 7), ("record", 7), ("seen", 0), ("lost", 0), ("RSSI", 0), ("Hz", 0),
-    ("record", 0), ("state", 0),
-)
-"""What gives way, in turn, while the table is wider than the terminal: a column cut to
-so many cells (with an ellipsis), or dropped (0). The node and its health stay."""
-
-
-def cut(line: Text, width: int, ellipsis: str = "…") -> Text:
-    """``line`` cut to ``width`` cells, its last one an ellipsis if anything was cut."""
-    if cell_len(line.plain) > width:
-        line.truncate(max(0, width - 1), overflow="crop")
-        line.append(ellipsis[:width])
-    return line
-
-
-def table(nodes: Sequence[Mapping[str, Any]], now: float, width: int,
-          ellipsis: str = "…") -> list[Text]:
-    """The header and a row per node, each line at most ``width`` cells."""
-    cells = [[column.cell(node, now) for column in COLUMNS] for node in nodes]
-    shown = fit(COLUMNS, cells, width, GIVE_WAY)
-    header = Text(" " * GAP).join(Text(sized(COLUMNS[i].header, w, COLUMNS[i].right))
-                                  for i, w in shown)
-    header.stylize("bold")
-    lines = [header]
-    for node, row in zip(nodes, cells, strict=True):
-        parts = []
-        for i, w in shown:
-            text = Text(sized(row[i], w, COLUMNS[i].right, ellipsis))
-            if COLUMNS[i].header == "health":
-                text.stylize(HEALTH_STYLE.get(str(node.get("health")), ""))
-            parts.append(text)
-        row_text = Text(" " * GAP).join(parts)
-        row_text.rstrip()
-        lines.append(row_text)
-    return lines
+MISSED = 1.25
+"""Heartbeat intervals of silence after which one heartbeat is taken as missed (a
+quarter of one allowed for its jitter on a busy host): from then on what is shown is
+stale, and said to be."""
+DEFAULT_HEARTBEAT = 1.0
+"""The interval taken when a status does not say its own (``gateway.heartbeat_s``)."""
 
 
 # --- the frame -----------------------------------------------------------------------
@@ -182,6 +90,26 @@ class Watch:
         made, received = self._clock
         return made + time.monotonic() - received
 
+    def heartbeat(self) -> float:
+        """Seconds between the gateway's heartbeats, as its last status says."""
+        every = number(as_map((self.status or {}).get("gateway")).get("heartbeat_s"))
+        return every if every is not None and every > 0 else DEFAULT_HEARTBEAT
+
+    def stale_for(self, silent_for: float) -> float | None:
+        """``silent_for`` once a heartbeat was missed (what is shown is that old), else
+        None: nothing shown yet, or the last status still the latest."""
+        if self.status is None or silent_for <= MISSED * self.heartbeat():
+            return None
+        return silent_for
+
+    def freshness(self, silent_for: float) -> str:
+        """What the header says of the heartbeat: a change is worth a frame at once."""
+        if self.status is None:
+            return "waiting"
+        if silent_for > self.silence:
+            return "gone"
+        return "fresh" if self.stale_for(silent_for) is None else "stale"
+
     def shown(self) -> list[Mapping[str, Any]]:
         """The nodes of the last status that are shown."""
         return [n for n in node_maps(self.status or {})
@@ -200,9 +128,10 @@ def _clock_text(now: float) -> str:
         return "--:--:--"
 
 
-def link_text(label: str, link: Mapping[str, Any], now: float) -> Text:
+def link_text(label: str, link: Mapping[str, Any], now: float, stale: bool = False) -> Text:
     """A base station's line: its state and for how long, what its serial line carries
-    (the share of the baud rate: yellow when busy, red when full), reconnects, port."""
+    (the share of the baud rate: yellow when busy, red when full), reconnects, port;
+    ``stale``: all grey, as what no heartbeat vouches for any more."""
     state = cell(link.get("state"))
     text = Text(f"{label} ")
     text.append(state, "green" if state == "up" else "bold red")
@@ -221,6 +150,9 @@ def link_text(label: str, link: Mapping[str, Any], now: float) -> Text:
     error = link.get("error")
     if state != "up" and isinstance(error, str) and error:
         text.append(f" ({error})", "red")
+    if stale:
+        text.spans.clear()
+        text.stylize("dim")
     return text
 
 
@@ -230,22 +162,25 @@ def header(watch: Watch, now: float, silent_for: float) -> list[Text]:
     nodes = watch.shown()
     counts = {level: sum(1 for n in nodes if n.get("health") == level)
               for level in HEALTH_STYLE}
+    stale = watch.stale_for(silent_for) is not None
     first = Text(f"gx2-gateway {cell(gateway.get('version'))} up "
                  f"{duration(gateway.get('uptime'))}  nodes ")
     for level, style in HEALTH_STYLE.items():
-        first.append(f"{counts[level]} {level}", style if counts[level] else "")
+        first.append(f"{counts[level]} {level}",
+                     "dim" if stale else style if counts[level] else "")
         first.append(" ")
     first.append(f" {_clock_text(now)}", "dim")
 
     stations = station_maps(status)
     if len(stations) == 1:
-        second = link_text("link", link, now)
+        second = link_text("link", link, now, stale)
     else:
         up = sum(1 for s in stations if s.get("state") == "up")
         second = Text(f"base stations {len(stations)}: ")
-        second.append(f"{up} up", "green" if up == len(stations) else "")
+        second.append(f"{up} up", "dim" if stale else "green" if up == len(stations)
+                      else "")
         if up < len(stations):
-            second.append(f", {len(stations) - up} not up", "bold red")
+            second.append(f", {len(stations) - up} not up", "dim" if stale else "bold red")
     discarded: dict[str, float] = {}
     for station in stations:
         for kind, value in as_map(station.get("discarded")).items():
@@ -262,7 +197,12 @@ def header(watch: Watch, now: float, silent_for: float) -> list[Text]:
                           f"({silent_for:.0f} s)", "yellow"))
     elif silent_for > watch.silence:
         lines.append(Text(f"no heartbeat for {silent_for:.0f} s from {watch.endpoint}: is "
-                          "gx2-gateway running? (its last status is shown)", "bold red"))
+                          "gx2-gateway running? (its last status is shown, greyed)",
+                          "bold red"))
+    elif stale:
+        lines.append(Text(f"no heartbeat for {silent_for:.1f} s (one is due every "
+                          f"{watch.heartbeat():g} s) from {watch.endpoint}: what is shown "
+                          f"is {silent_for:.1f} s old", "bold yellow"))
     elif watch.restarted_at is not None and now - watch.restarted_at < 60:
         lines.append(Text(f"the gateway restarted {duration(now - watch.restarted_at)} "
                           "ago", "yellow"))
@@ -275,33 +215,32 @@ def frame(watch: Watch, now: float, silent_for: float, width: int,
           ellipsis: str = "…", height: int | None = None) -> list[Text]:
     """Every line of one frame, none wider than ``width`` cells and, given a ``height``,
     no more lines than it less one (the footer's): nodes that do not fit are counted in
-    a last ``+N more`` row, before any reason is dropped; the nodes dimmed while the
-    gateway is silent (what they show is its last word)."""
+    a last ``+N more`` row, before any reason is dropped; everything it shows greyed
+    once a heartbeat is missed (it is the gateway's last word, of unknown worth now)."""
     nodes = watch.shown()
-    rows = table(nodes, now, width, ellipsis)
-    if watch.status is not None and silent_for > watch.silence:
-        for row in rows[1:]:
-            row.stylize("dim")
+    stale_for = watch.stale_for(silent_for)
+    rows = table(nodes, now, width, ellipsis, stale_for)
     head, body = [*header(watch, now, silent_for), *rows[:1]], grouped(
-        watch.status or {}, nodes, rows[1:], now)
+        watch.status or {}, nodes, rows[1:], now, stale_for is not None)
     notes: list[Text] = []
     gateway = as_map((watch.status or {}).get("gateway"))
     health = gateway.get("health")
+
+    def style(level: object) -> str:
+        return "dim" if stale_for is not None else HEALTH_STYLE.get(str(level), "")
     if health is not None and health != HealthLevel.OK and (why := reasons(gateway)):
-        notes.append(Text("gateway ").append(f"{cell(health)}: {why}",
-                                             HEALTH_STYLE.get(str(health), "")))
+        notes.append(Text("gateway ").append(f"{cell(health)}: {why}", style(health)))
     for node in nodes:
         if node.get("health") != HealthLevel.OK and (why := reasons(node)):
             notes.append(Text(f"{cell(node.get('node'))} ").append(
-                f"{cell(node.get('health'))}: {why}",
-                HEALTH_STYLE.get(str(node.get("health")), "")))
+                f"{cell(node.get('health'))}: {why}", style(node.get("health"))))
     if height is not None:
         body, notes = _within(height - 1 - len(head), body, notes)
     return [cut(line, width, ellipsis) for line in (*head, *body, *notes)]
 
 
 def grouped(status: Mapping[str, Any], nodes: Sequence[Mapping[str, Any]],
-            rows: list[Text], now: float) -> list[Text]:
+            rows: list[Text], now: float, stale: bool = False) -> list[Text]:
     """The node rows; with several base stations, under a line for each station (its
     link and its serial line's share), in the status's order of stations."""
     stations = station_maps(status)
@@ -310,7 +249,7 @@ def grouped(status: Mapping[str, Any], nodes: Sequence[Mapping[str, Any]],
     body: list[Text] = []
     names = [cell(s.get("name")) for s in stations]
     for name, station in zip(names, stations, strict=True):
-        heading = link_text(f"{name}:", station, now)
+        heading = link_text(f"{name}:", station, now, stale)
         heading.stylize("bold", 0, len(name) + 1)
         body.append(heading)
         body += [row for node, row in zip(nodes, rows, strict=True)
@@ -372,12 +311,16 @@ def run_top(nodes: list[int], where: Endpoints, timeout: float, as_json: bool) -
             return _print_frames(sub, watch, console.width, stop, as_json, ellipsis)
         with keyboard() as pressed, Live(console=console, screen=True,
                                          auto_refresh=False) as live:
-            drawn = 0.0
+            drawn, was = 0.0, watch.freshness(sub.silent_for())
             while not stop.requested and not pressed():
                 event = sub.receive(TICK)
                 if isinstance(event, Status):
                     watch.take(event)
-                if event is not None or time.monotonic() - drawn >= REDRAW:
+                # a heartbeat missed (or the gateway gone) is drawn at once, not at the
+                # next redraw: that is when the rows stop being news
+                now_is = watch.freshness(sub.silent_for())
+                if event is not None or now_is != was or time.monotonic() - drawn >= REDRAW:
+                    was = now_is
                     width = console.width
                     lines = frame(watch, watch.now(), sub.silent_for(), width, ellipsis,
                                   console.height)
@@ -390,16 +333,21 @@ def run_top(nodes: list[int], where: Endpoints, timeout: float, as_json: bool) -
 
 def _print_frames(sub: Any, watch: Watch, width: int, stop: Stop, as_json: bool,
                   ellipsis: str) -> int:
-    """One plain frame per heartbeat, one after the other (or the heartbeat as one JSON
-    line, of the nodes asked for)."""
+    """One plain frame per heartbeat, one after the other, and one when a heartbeat is
+    missed or the gateway is taken for gone (or each heartbeat as one JSON line, of the
+    nodes asked for: data, nothing else)."""
+    was = watch.freshness(sub.silent_for())
     while not stop.requested:
         event = sub.receive(TICK)
-        if not isinstance(event, Status):
-            continue
-        watch.take(event)
+        if isinstance(event, Status):
+            watch.take(event)
+        now_is = watch.freshness(sub.silent_for())
+        changed, was = now_is != was, now_is
         if as_json:
-            print(json_line({**event.payload, "nodes": watch.shown()}), flush=True)
+            if isinstance(event, Status):
+                print(json_line({**event.payload, "nodes": watch.shown()}), flush=True)
             continue
-        lines = frame(watch, watch.now(), sub.silent_for(), width, ellipsis)
-        print("\n".join(line.plain for line in lines), end="\n\n", flush=True)
+        if isinstance(event, Status) or changed:
+            lines = frame(watch, watch.now(), sub.silent_for(), width, ellipsis)
+            print("\n".join(line.plain for line in lines), end="\n\n", flush=True)
     return Exit.OK

@@ -13,13 +13,14 @@ from __future__ import annotations
 import asyncio
 import itertools
 import logging
+from collections.abc import Callable
 from typing import Any
 
 from aspp import commands
 from aspp.selftest import BIT_OFF, NEGATIVE_RATE_BIT, POSITIVE_BIT, Sample, judge
 from aspp.temperature import accel_celsius, gyro_celsius
 
-from .errors import NodeError, OpError
+from .errors import GoesOn, NodeError, OpError
 from .nodes import Node
 from .operations import Operations, Result, handles
 from .scheduler import Priority
@@ -33,19 +34,62 @@ QUANTITY = {"accel": 1, "gyro": 2}
 """0xD0's Transfer Quantity for each bias."""
 
 
+# A capture cancelled (by its client, or its deadline) before 0xCD is written has sent
+# the node nothing: it is dropped, and the node keeps its bias. Once 0xCD is written the
+# node samples and then takes the new bias whatever the gateway does: the reference has
+# no command that stops a capture or reads a bias back (to write the old one again). So
+# from then on the capture runs to its end in the background, the node's stream is
+# started again after it, and the result is logged; the request is answered at once
+# with GoesOn, saying so. (Unless the gateway is shutting down: then it is cancelled.)
 @handles("bias_capture")
 async def bias_capture(gw: Operations, request: Any) -> Result:
     node = gw.node(request.node)
-    seconds = request.ms / 1000
+    loop = asyncio.get_running_loop()
+    sent_at: list[float] = []
+    capture = loop.create_task(_capture(gw, node, request.ms,
+                                        lambda: sent_at.append(loop.time())))
+    try:
+        return await asyncio.shield(capture)
+    except asyncio.CancelledError:
+        if capture.done():  # it ended as it was cancelled: its result stands
+            return capture.result()
+        if not sent_at or gw.supervisor(node).closed:  # (at shutdown nothing outlives)
+            capture.cancel()
+            await asyncio.wait([capture])  # (the stream is given back)
+            raise
+        gw.spawn(_log_failure(capture, node))
+        left = max(0.0, request.ms / 1000 - (loop.time() - sent_at[0]))
+        raise GoesOn(f"bias capture on {node.address} goes on: the node is already "
+                     f"sampling (a capture cannot be stopped) and takes its new gyro bias "
+                     f"in {left:.1f} s; the gateway logs it") from None
+
+
+async def _capture(gw: Operations, node: Node, ms: int,
+                   on_sent: Callable[[], None]) -> Result:
+    seconds = ms / 1000
     async with gw.supervisor(node).quiet(node) as held:
         # the reply comes only after the sampling time, and a capture is never sent
         # twice: the node would start sampling again
-        answer = await gw.scheduler(node).send(node, commands.capture_gyro_bias(request.ms),
-                                         takes=seconds, resend_unanswered=False,
-                                         what=f"capture gyro bias ({seconds:g} s)")
+        answer = await gw.scheduler(node).send(node, commands.capture_gyro_bias(ms),
+                                               takes=seconds, resend_unanswered=False,
+                                               what=f"capture gyro bias ({seconds:g} s)",
+                                               on_sent=on_sent)
     bias = answer.reply.record["gyro_bias"]
-    return {"node": node.address, "ms": request.ms, "gyro_bias": list(bias),
+    log.info("node %s: gyro bias captured over %g s: %s rad/s%s", node.label, seconds,
+             " ".join(f"{axis} {value:+.6f}" for axis, value in zip("xyz", bias, strict=True)),
+             f"; {held.restored} started again" if held.restored else "")
+    return {"node": node.address, "ms": ms, "gyro_bias": list(bias),
             "stream": held.streamed, "restored": held.restored}
+
+
+async def _log_failure(capture: asyncio.Task[Result], node: Node) -> None:
+    """A capture left to finish on its own: its success is logged by itself, a failure
+    here (nobody else is waiting for it)."""
+    try:
+        await capture
+    except OpError as error:
+        log.warning("bias capture on %s, cancelled by its client while the node sampled, "
+                    "failed: %s", node.label, error)
 
 
 @handles("bias_set")

@@ -12,6 +12,12 @@ when its time is up is cancelled and answered as a node that did not answer in t
 A request still running when the gateway shuts down is answered too (``link``: the
 gateway is shutting down) before the socket closes, so its client learns at once why
 rather than waiting out its own timeout.
+
+A client that gives up on its request (gx2ctl on Ctrl-C) sends ``cancel`` naming it:
+the request is cancelled as its deadline would cancel it (each op leaves its node as it
+would then, and says what stays: :attr:`~gateway.common.ops.Op.on_cancel`), or, past a
+point where it cannot be stopped, goes on (:class:`~.errors.GoesOn`). Either way the
+gateway logs it, and the cancel's answer says which.
 """
 
 from __future__ import annotations
@@ -28,9 +34,10 @@ import zmq
 import zmq.asyncio
 
 from gateway.common import curve, protocol
-from gateway.common.protocol import ErrorKind
+from gateway.common.ops import BY_NAME
+from gateway.common.protocol import CANCEL, ErrorKind
 
-from .errors import OpError
+from .errors import GoesOn, OpError
 from .operations import Operations
 from .requests import RequestBase, RequestError, parse_request
 
@@ -48,6 +55,11 @@ CLOSE_LINGER_MS = 100
 client on this host or its network takes well under a millisecond): the process's exit
 waits up to this long for them, within its 2 s."""
 SHUTTING_DOWN = "cut short: the gateway is shutting down"
+CANCEL_SHARE = 0.9
+"""Of the time a cancel may take to be answered, the share it waits for the request it
+cancels to wind down; then it says that it is winding down."""
+Key = tuple[bytes, object]
+"""A request as the gateway remembers it: (the client's identity, the request's id)."""
 
 
 def answer_within(timeout: float) -> float:
@@ -71,8 +83,10 @@ class ControlServer:
                 os.chmod(endpoint[len("ipc://"):], IPC_MODE)
         self.endpoint = endpoint
         self.ops = ops
-        self._seen: OrderedDict[tuple[bytes, object], tuple[float, asyncio.Task[bytes]]] = \
-            OrderedDict()
+        self._seen: OrderedDict[Key, tuple[float, asyncio.Task[bytes]]] = OrderedDict()
+        self._cancelled: dict[Key, tuple[bool, str] | None] = {}
+        """Requests their client cancelled: whether each stopped and what it says (None
+        while it winds down)."""
         self._answering: dict[asyncio.Task[None], tuple[list[bytes], RequestBase,
                                                         asyncio.Task[bytes]]] = {}
         """Each task waiting to answer a request: the request's envelope, the request,
@@ -107,7 +121,8 @@ class ControlServer:
         self._forget_old()
         remembered = self._seen.get(key)
         if remembered is None:
-            task = asyncio.get_running_loop().create_task(self._run(request))
+            task = asyncio.get_running_loop().create_task(self._run(request, key),
+                                                          name=_label(request))
             self._seen[key] = (time.monotonic(), task)
         else:
             task = remembered[1]
@@ -133,16 +148,34 @@ class ControlServer:
         while self._seen:
             when, task = next(iter(self._seen.values()))
             if (when < cutoff and task.done()) or len(self._seen) > REMEMBER_MAX:
-                self._seen.popitem(last=False)
+                key, _ = self._seen.popitem(last=False)
+                self._cancelled.pop(key, None)
             else:
                 break
 
-    async def _run(self, request: RequestBase) -> bytes:
+    async def _run(self, request: RequestBase, key: Key) -> bytes:
         """Run one validated request; always returns the one reply it gets."""
         limit = None if request.timeout is None else answer_within(request.timeout)
         try:
             async with asyncio.timeout(limit):
+                if request.op == CANCEL:  # type: ignore[attr-defined]
+                    return protocol.ok(request.id, await self._cancel(
+                        key[0], request, None if limit is None else CANCEL_SHARE * limit))
                 return protocol.ok(request.id, await self.ops.run(request))
+        except asyncio.CancelledError:
+            if key not in self._cancelled:
+                raise  # (the gateway is shutting down)
+            asyncio.current_task().uncancel()  # type: ignore[union-attr]  # (answered)
+            text = _cancelled(request)
+            log.info("%s", text)
+            self._cancelled[key] = (True, text)
+            return protocol.error(request.id, ErrorKind.CANCELLED, text)
+        except GoesOn as error:
+            if key in self._cancelled:
+                log.warning("%s (cancelled by the client)", error)
+                self._cancelled[key] = (False, str(error))
+                return protocol.error(request.id, ErrorKind.CANCELLED, str(error))
+            return protocol.error(request.id, error.kind, str(error))
         except TimeoutError:
             self.late += 1
             return protocol.error(request.id, ErrorKind.NODE, _too_late(request, limit))
@@ -152,6 +185,31 @@ class ControlServer:
             log.exception("request %r failed", request)
             return protocol.error(request.id, ErrorKind.INTERNAL,
                                   f"{type(error).__name__}: {error}")
+
+    async def _cancel(self, identity: bytes, request: Any,
+                      within: float | None) -> dict[str, Any]:
+        """Cancel the client's own request ``request.request`` and wait for it to wind
+        down (``within`` seconds at most): whether it stopped, and what it says."""
+        key = (identity, request.request)
+        remembered = self._seen.get(key)
+        if remembered is None:
+            return {"request": request.request, "cancelled": False,
+                    "message": f"no request {request.request!r} of this client is running"}
+        task = remembered[1]
+        if not task.done() and key not in self._cancelled:
+            self._cancelled[key] = None
+            task.cancel()
+        await asyncio.wait([task], timeout=within)
+        outcome = self._cancelled.get(key, None)
+        if not task.done():  # (switching BIT off, say, on a node slow to answer)
+            return {"request": request.request, "cancelled": True,
+                    "message": f"{task.get_name()} is being cancelled; the gateway logs "
+                    "when it is"}
+        if outcome is None:  # it had ended before the cancel came
+            return {"request": request.request, "cancelled": False,
+                    "message": f"{task.get_name()} had already ended (its result stands)"}
+        stopped, text = outcome
+        return {"request": request.request, "cancelled": stopped, "message": text}
 
     def close(self) -> None:
         """Answer every request still waiting for its answer (its own if it has just
@@ -167,6 +225,21 @@ class ControlServer:
         for _, task in self._seen.values():
             task.cancel()
         self.socket.close(linger=CLOSE_LINGER_MS)
+
+
+def _label(request: Any) -> str:
+    """The request in words (``bias capture on 76``)."""
+    op = BY_NAME.get(request.op)
+    return request.op if op is None else op.label(request)
+
+
+def _cancelled(request: Any) -> str:
+    """What a request cancelled by its client left: ``bias capture on 76 cancelled by
+    the client; bias unchanged``."""
+    op = BY_NAME.get(request.op)  # (None: a cancel, cancelled by another)
+    on_cancel = "" if op is None else op.on_cancel
+    return f"{_label(request)} cancelled by the client" + (
+        f"; {on_cancel}" if on_cancel else "")
 
 
 def _shutting_down(request: Any) -> bytes:

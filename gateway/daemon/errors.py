@@ -28,6 +28,14 @@ class NodeError(OpError):
     kind = ErrorKind.NODE
 
 
+class GoesOn(OpError):
+    """The request was cancelled (by its client, or its deadline) past the point where
+    what it started can be stopped: that goes on, and the gateway logs its result; the
+    message says what goes on and where its result will be seen."""
+
+    kind = ErrorKind.NODE
+
+
 class LinkDown(OpError):
     """The base station is not connected."""
 

@@ -118,6 +118,8 @@ async def status(gw: Operations, request: Any) -> Result:
 
 @handles("ping")
 async def ping(gw: Operations, request: Any) -> Result:
+    """Each node its own answer: a node whose base station is down is reported as such
+    (``error``) beside the others' answers, never the whole request failed for it."""
     addresses = request.nodes
     # a configured node is pinged through its own base station, any other address
     # through the first (one wireless ping reaches only its station's channel)
@@ -125,11 +127,16 @@ async def ping(gw: Operations, request: Any) -> Result:
     results = await asyncio.gather(*(station.scheduler.ping(a, encode_ping(a))
                                      for station, a in zip(stations, addresses, strict=True)),
                                    return_exceptions=True)
-    for result in results:  # a lost base station fails the request; a ping that got
-        if isinstance(result, BaseException) and not isinstance(result, NodeError):
-            raise result    # no answer byte at all is a node that did not answer
-    return {"nodes": [{"node": a, "answered": result is True}
-                      for a, result in zip(addresses, results, strict=True)]}
+    nodes = []
+    for address, result in zip(addresses, results, strict=True):
+        entry: Result = {"node": address, "answered": result is True}
+        if isinstance(result, BaseException):
+            if not isinstance(result, OpError):
+                raise result  # a bug: the control server answers and logs it
+            if not isinstance(result, NodeError):  # (no answer byte at all: not answered)
+                entry["error"] = str(result)  # its base station is down
+        nodes.append(entry)
+    return {"nodes": nodes}
 
 
 @handles("start")

@@ -15,7 +15,7 @@ import msgpack
 from pydantic import AfterValidator, Field, TypeAdapter, ValidationError, create_model
 
 from gateway.common.ops import OPS, Op, Param
-from gateway.common.protocol import MAX_REQUEST_BYTES
+from gateway.common.protocol import CANCEL, MAX_REQUEST_BYTES
 from gateway.common.strict import Strict, describe
 
 RequestId = Annotated[str, Field(min_length=1, max_length=64)] | int
@@ -44,9 +44,20 @@ def _model(op: Op) -> type[RequestBase]:
     return create_model(name, __base__=RequestBase, **fields)  # type: ignore[call-overload,no-any-return]
 
 
+class CancelRequest(RequestBase):
+    """Cancel the request ``request`` (an id) that the same client sent earlier."""
+
+    op: Literal["cancel"]
+    request: RequestId
+
+
 MODELS: dict[str, type[RequestBase]] = {op.name: _model(op) for op in OPS}
+"""One per row of the op table: what :class:`~.operations.Operations` runs."""
+ACCEPTED: dict[str, type[RequestBase]] = {**MODELS, CANCEL: CancelRequest}
+"""Every request the control endpoint takes: the ops, and ``cancel``, which it answers
+itself (it concerns a client's own earlier request)."""
 _REQUEST: TypeAdapter[RequestBase] = TypeAdapter(
-    Annotated[reduce(operator.or_, MODELS.values()), Field(discriminator="op")])
+    Annotated[reduce(operator.or_, ACCEPTED.values()), Field(discriminator="op")])
 
 
 class RequestError(Exception):
@@ -76,8 +87,8 @@ def parse_request(payload: bytes) -> RequestBase:
     """Validate one control message; raises RequestError naming the bad field."""
     data = unpack(payload)
     request_id = data.get("id") if isinstance(data.get("id"), (str, int)) else None
-    if data.get("op") not in MODELS:
-        raise RequestError(f"op: must be one of {', '.join(MODELS)}", request_id)
+    if data.get("op") not in ACCEPTED:
+        raise RequestError(f"op: must be one of {', '.join(ACCEPTED)}", request_id)
     try:
         return _REQUEST.validate_python(data)
     except ValidationError as error:

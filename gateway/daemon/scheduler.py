@@ -99,6 +99,9 @@ class _Pending:
     resend_unanswered: bool = True
     """False: a command the base station took (ACKed) and the node did not answer fails
     at once, never sent twice (a bias capture); a NACK is still sent again."""
+    on_sent: Callable[[], None] | None = None
+    """Called when the packet is first written to the port: from then on the node may
+    act on it, whatever becomes of the request."""
     attempts: int = 0
     not_before: float = 0.0
     deadline: float = 0.0
@@ -130,8 +133,11 @@ class SchedulerStats:
 
 class Scheduler:
     def __init__(self, write: Callable[[bytes], None],
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, station: str = "") -> None:
+        """``station``: the base station's name, which a request that fails because it
+        is down names (with several, the user must know which one to look at)."""
         self._write = write
+        self._station = f"base station {station}" if station else "the base station"
         self._clock = clock
         self._queues: dict[tuple[int, bool], deque[_Pending]] = {}
         self._served: dict[tuple[int, bool], int] = {}  # queue -> when it last sent
@@ -148,28 +154,31 @@ class Scheduler:
     async def command(self, node: int, packet: bytes, expect: int | None, what: str, *,
                       reply_timeout: float = REPLY_TIMEOUT, attempts: int = MAX_ATTEMPTS,
                       priority: Priority = Priority.OPERATOR,
-                      resend_unanswered: bool = True) -> Answer:
+                      resend_unanswered: bool = True,
+                      on_sent: Callable[[], None] | None = None) -> Answer:
         """Send a command packet; the answer holds what :meth:`on_reply` was given for
         the matching reply (None if ``expect`` is None: done at the ACK)."""
         pending = _Pending(node, packet, expect, False, what, priority, reply_timeout,
                            attempts, asyncio.get_running_loop().create_future(),
-                           resend_unanswered)
+                           resend_unanswered, on_sent)
         return Answer(await self._submit(pending), pending.attempts)
 
     async def send(self, node: Addressee, command: Command, *,
                    priority: Priority = Priority.OPERATOR, wait_for_reply: bool = True,
                    what: str | None = None, takes: float = 0.0,
-                   resend_unanswered: bool = True) -> Answer:
+                   resend_unanswered: bool = True,
+                   on_sent: Callable[[], None] | None = None) -> Answer:
         """One GX2 command to one node; the reply's :class:`Delivery` is in
         ``answer.reply``. Without ``wait_for_reply`` it is done once the base station
         ACKs it. The reply may trail a record of the node's own stream by two periods,
         and ``takes`` seconds more for a command that works that long (a bias capture).
-        ``what`` names the command in an error (default: the record's name)."""
+        ``what`` names the command in an error (default: the record's name);
+        ``on_sent`` is called when it is first written (:class:`_Pending`)."""
         expect = command.code if command.expects_reply and wait_for_reply else None
         return await self.command(node.address, command.packet(node.address), expect,
                                   what or command.name, priority=priority,
                                   reply_timeout=REPLY_TIMEOUT + 2 * node.period + takes,
-                                  resend_unanswered=resend_unanswered)
+                                  resend_unanswered=resend_unanswered, on_sent=on_sent)
 
     async def ask(self, node: Addressee, command: Command, *,
                   priority: Priority = Priority.OPERATOR, what: str | None = None) -> Delivery:
@@ -194,7 +203,7 @@ class Scheduler:
 
     async def _submit(self, pending: _Pending) -> Any:
         if not self.link_up:
-            raise LinkDown("the base station is not connected")
+            raise LinkDown(f"{self._station} is down (not connected)")
         self._enqueue(pending)
         pending.future.add_done_callback(lambda _: self._abandoned(pending))
         self.service()
@@ -286,7 +295,7 @@ class Scheduler:
         self._in_flight = None
         for pending in every:
             if not pending.future.done():
-                pending.future.set_exception(LinkDown("the base station was disconnected"))
+                pending.future.set_exception(LinkDown(f"{self._station} was disconnected"))
 
     # -- the engine --------------------------------------------------------------------------
 
@@ -340,6 +349,10 @@ class Scheduler:
             self._write(head.packet)
         except OSError as error:
             log.warning("write failed: %s", error)
+            return
+        if head.on_sent is not None:
+            head.on_sent()
+            head.on_sent = None
 
     # The one rule for both sending (_send_next) and waking (_arm_timer). Issue 19: the
     # timer took the not_before of a head held back behind its node's awaited reply

@@ -55,7 +55,7 @@ class Station:
         self.line = LineLoad(config.baudrate / BITS_PER_BYTE)
         self.replay = Port.replay_of(config.port)
         self.replaying = self.replay is not None
-        self.scheduler = Scheduler(self._write)
+        self.scheduler = Scheduler(self._write, station=self.name)
         self.supervisor = Supervisor(self.scheduler, self.nodes, passive=self.replaying)
         self.reader = Reader(self.nodes, publisher, self.supervisor, self.scheduler,
                              config.idle_ms / 1000, idle_timer=not self.replaying,

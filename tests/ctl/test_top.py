@@ -11,7 +11,8 @@ from rich.cells import cell_len
 
 from gateway.client import Status
 from gateway.ctl.columns import fit, sized
-from gateway.ctl.top import COLUMNS, GIVE_WAY, Watch, frame, table
+from gateway.ctl.top import Watch, frame
+from gateway.ctl.toptable import COLUMNS, GIVE_WAY, table
 
 NOW = 1_800_000_000.0
 
@@ -120,6 +121,37 @@ def test_a_quiet_gateway_is_shown_as_gone_and_a_restart_is_noticed() -> None:
     watch.take(Status("tcp://gw:5555", status(node()), restarted=True))
     assert frame(watch, watch.now() + 5, 0.5, 100)[3].plain == \
         "the gateway restarted 5.0 s ago"
+
+
+def test_a_missed_heartbeat_greys_every_row_and_says_how_old_it_is() -> None:
+    """Issue 31, defect 17: a stopped gateway's rows stayed green OK until it was taken
+    for gone (5 s), and then too."""
+    watch = Watch("tcp://gw:5555", silence=5.0)
+    watch.take(Status("tcp://gw:5555", status(node(), node(77, health="WARN",
+                                                        reasons=["1 reboot in 60 s"]))))
+    fresh = frame(watch, NOW, 1.2, 100)  # (within a quarter of an interval: jitter)
+    assert fresh[3].plain == "" and " OK" in fresh[5].plain
+    stale = frame(watch, NOW, 1.3, 100)
+    assert stale[3].plain == ("no heartbeat for 1.3 s (one is due every 1 s) from "
+                              "tcp://gw:5555: what is shown is 1.3 s old"), stale[3].plain
+    for address in (76, 77):
+        row = next(line for line in stale if line.plain.startswith(f"{address} "))
+        assert row.plain.endswith(" stale 1.3s"), row.plain
+        assert [str(span.style) for span in row.spans] == ["dim"], row.spans  # grey
+    assert "green" not in {str(span.style) for line in stale for span in line.spans}
+    assert "77 WARN: 1 reboot in 60 s" in [line.plain for line in stale]
+    gone = frame(watch, NOW, 6.0, 100)
+    assert gone[3].plain.startswith("no heartbeat for 6 s from tcp://gw:5555: is "
+                                    "gx2-gateway running?")
+    assert next(line.plain for line in gone if line.plain.startswith("76 ")).endswith(
+        " stale 6.0s")
+    # the interval is the gateway's own: one every 5 s is not missed after 1.3 s
+    slow = status(node())
+    slow["gateway"]["heartbeat_s"] = 5.0
+    watch = Watch("tcp://gw:5555", silence=15.0)  # (three of them: gone)
+    watch.take(Status("tcp://gw:5555", slow))
+    assert lines(watch, 100, 1.3)[3] == "" and lines(watch, 100, 6.3)[3].startswith(
+        "no heartbeat for 6.3 s (one is due every 5 s)")
 
 
 def test_ages_are_on_the_gateways_clock_not_this_hosts() -> None:

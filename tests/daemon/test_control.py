@@ -107,3 +107,41 @@ def test_a_request_is_answered_before_its_timeout(monkeypatch) -> None:
                 assert answer_within(1.0) <= took < 1.0, took
             await serving(wired, body)
     run(scenario)
+
+
+def test_a_client_cancels_its_own_request_and_no_other() -> None:
+    """Issue 31, defect 11: the op ``cancel``; the request it cancels is answered
+    ``cancelled``, the cancel with what stays."""
+    async def scenario() -> None:
+        async with Wired([NodeSettings(95)], [{"address": 95}],
+                         radio={95: RadioLink(in_range=False)}) as wired:
+            async def body(client: zmq.asyncio.Socket) -> None:
+                other = client.context.socket(zmq.DEALER)  # another client
+                other.connect(f"inproc://control-{id(wired)}")
+                try:
+                    await client.send_multipart([b"", msgpack.packb(
+                        {"id": "r", "op": "eeprom_read", "node": 95, "address": 1})])
+                    await other.send_multipart([b"", msgpack.packb(
+                        {"id": "c", "op": "cancel", "request": "r"})])
+                    refused = await answer(other)
+                    assert refused["result"] == {
+                        "request": "r", "cancelled": False,
+                        "message": "no request 'r' of this client is running"}, refused
+                finally:
+                    other.close(0)
+                await client.send_multipart([b"", msgpack.packb(
+                    {"id": "c", "op": "cancel", "request": "r", "timeout": 2.0})])
+                replies = {reply["id"]: reply for reply in
+                           [await answer(client), await answer(client)]}
+                assert replies["r"]["error"] == {
+                    "kind": "cancelled", "message": "eeprom read on 95 cancelled by the "
+                    "client"}, replies
+                assert replies["c"]["result"] == {
+                    "request": "r", "cancelled": True,
+                    "message": "eeprom read on 95 cancelled by the client"}, replies
+                await client.send_multipart([b"", msgpack.packb(
+                    {"id": "c2", "op": "cancel", "request": "r"})])
+                again = await answer(client)
+                assert again["result"]["cancelled"] is True, again  # (what it did stands)
+            await serving(wired, body)
+    run(scenario)

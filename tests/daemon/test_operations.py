@@ -112,6 +112,17 @@ def test_ping_reports_each_node() -> None:
     run(scenario)
 
 
+def test_a_ping_with_the_base_station_down_says_so_for_each_node() -> None:
+    async def scenario() -> None:
+        async with Wired([NodeSettings(76)], [{"address": 76}]) as gw:
+            gw.link(False)
+            result = await gw.run("ping", nodes=[76, 300])
+            down = "the base station is down (not connected)"
+            assert result["nodes"] == [{"node": 76, "answered": False, "error": down},
+                                       {"node": 300, "answered": False, "error": down}]
+    run(scenario)
+
+
 def test_a_node_out_of_range_fails_with_the_reason(monkeypatch) -> None:
     monkeypatch.setattr(scheduling, "REPLY_TIMEOUT", 0.1)
 

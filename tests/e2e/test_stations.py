@@ -18,7 +18,7 @@ from gateway.sim.base_station import RADIO_LATENCY
 from gateway.sim.node import NodeSettings
 from tests.e2e.test_recording import payloads, recorded
 from tests.e2e.test_sample_time import errors
-from tests.helpers.processes import script
+from tests.helpers.processes import gx2ctl, script
 from tests.helpers.waiting import wait_for
 
 DIVIDER = 512
@@ -78,6 +78,28 @@ def test_each_station_shows_everywhere_and_one_unplugged_never_delays_another(
     assert gw.control.result("poll", node=78, record="euler")["station"] == "south"
     nodes = {n["node"]: n for n in gw.status()["nodes"]}
     assert nodes[76]["state"] == "link down" and nodes[78]["state"] == "streaming"
+
+
+def test_a_ping_of_nodes_on_two_stations_one_down_answers_for_each_node(simulator, gateway):
+    """Issue 31, defect 10: node 78's station down made `ping 76 78` print nothing for
+    76 and only "the base station is not connected"."""
+    _, south, gw = two_stations(simulator, gateway)
+    south.unplug()
+    wait_for(lambda: gw.status()["stations"][1]["state"] == "down", 5, "south's link down")
+    ran = gx2ctl("--config", str(gw.path), "ping", "76", "78")
+    assert ran.status == 1, ran
+    assert ran.stdout.splitlines() == [
+        "76 answered", "78 not pinged: base station south is down (not connected)"], ran
+    assert ran.stderr.strip() == "gx2ctl: 1 of 2 nodes did not answer: 78", ran
+    nodes = json.loads(gx2ctl("--config", str(gw.path), "--json", "ping", "76", "78")
+                       .stdout.splitlines()[0])["nodes"]
+    assert nodes == [{"node": 76, "answered": True},
+                     {"node": 78, "answered": False,
+                      "error": "base station south is down (not connected)"}]
+    # any other op on a node of the station that is down names the station too
+    ran = gx2ctl("--config", str(gw.path), "poll", "78", "euler")
+    assert (ran.status, ran.stderr.strip()) == (
+        1, "gx2ctl: base station south is down (not connected)"), ran
 
 
 def test_nodes_on_different_stations_share_one_clock(simulator, gateway):

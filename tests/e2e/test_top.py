@@ -10,6 +10,7 @@ import re
 import shlex
 import shutil
 import subprocess
+import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -156,6 +157,38 @@ def test_top_keeps_working_when_the_gateway_restarts(simulator, gateway, termina
     terminal.keys("C-c")
     wait_for(lambda: terminal.exit_status() is not None, 5, "top to quit on Ctrl-C")
     assert terminal.exit_status() == 0
+
+
+def test_top_greys_every_row_once_a_heartbeat_is_missed(simulator, gateway, terminals,
+                                                        tmp_path) -> None:
+    """Issue 31, defect 17: a killed gateway's rows stayed green OK, and the header said
+    nothing until three heartbeats (or --timeout) had passed."""
+    heartbeat = 2.0
+    sim = simulator(NodeSettings(76), NodeSettings(77))
+    gw = gateway(sim.path, [{"address": 76, "stream": "accel_angrate"},
+                            {"address": 77, "stream": "euler"}],
+                 publish={"heartbeat_s": heartbeat})
+    terminal = Terminal(f"{shlex.quote(script('gx2ctl'))} --config "
+                        f"{shlex.quote(str(gw.path))} top", tmp_path)
+    terminals.append(terminal)
+    wait_for(lambda: shows_both_streams(terminal.screen()), STARTUP, "both streams")
+
+    def stale(screen: list[str]) -> bool:
+        rows = [row(screen, 76) or "", row(screen, 77) or ""]
+        return (any(line.startswith("no heartbeat for ") and f"one is due every "
+                    f"{heartbeat:g} s" in line for line in screen)
+                and all(re.search(r" stale \d+\.\ds$", line) for line in rows))
+    gw.proc.kill()
+    killed = time.monotonic()
+    wait_for(lambda: stale(terminal.screen()), 1.5 * heartbeat,
+             "the header to say a heartbeat was missed and the rows to turn stale")
+    assert time.monotonic() - killed <= 1.5 * heartbeat
+    screen = terminal.screen(escapes=True)
+    rows = [line for line in screen if ESCAPE.sub("", line).startswith(("76 ", "77 "))]
+    # grey and no colour (no green OK); tmux writes an attribute where it changes, so
+    # the dim is at the start of the first row and carries on
+    assert not any(COLOUR.search(line) for line in rows), rows
+    assert re.match(r"(\x1b\[[0-9;]*m)*\x1b\[(\d*;)*2m", rows[0]), rows
 
 
 def test_top_without_a_terminal_prints_plain_frames(simulator, gateway) -> None:
