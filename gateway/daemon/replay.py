@@ -35,7 +35,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import parse_qs
 
 from mcap.records import Header, Metadata
@@ -53,6 +53,9 @@ from gateway.recording.files import (
 )
 from gateway.recording.reader import Entry, read
 from gateway.recording.reports import FileReport, Reading
+
+if TYPE_CHECKING:
+    from .replaystart import RecordedStart
 
 log = logging.getLogger("gx2.replay")
 SCHEME = "replay://"
@@ -165,8 +168,14 @@ class ReplayLink:
     def __init__(self, replay: Replay, on_data: Callable[[bytes, float, float], None],
                  on_state: Callable[[bool], None], on_end: Callable[[], None],
                  on_message: Callable[[str, dict[str, Any]], object], *,
-                 station: str = "", marks: bool = True) -> None:
+                 station: str = "", marks: bool = True,
+                 start: RecordedStart | None = None) -> None:
         self.replay = replay
+        self.start_at = start
+        """Given the recorded records, to start each node's seq and device time at the
+        recorded ones."""
+        self._origin: tuple[float, float] | None = None
+        """(recorded, loop) time of the first thing played: the pace's origin."""
         self.station = station
         """The name of the base station it plays: a file of several stations' reads is
         played from that one's channel (``serial/<station>``), a file of one station's
@@ -207,10 +216,8 @@ class ReplayLink:
         raise OSError("replaying a recording: nothing is sent to the base station")
 
     async def _play(self) -> None:
-        loop = asyncio.get_running_loop()
         speed = self.replay.speed
         reading = Reading(self._read_file)
-        origin: tuple[float, float] | None = None
         seen = 0
         await asyncio.sleep(self.replay.delay)
         for path in self.replay.files:
@@ -222,6 +229,9 @@ class ReplayLink:
                 continue
             # the channel of reads it plays: with one station's, the first one found
             channel = serial_channels(self.station)[0] if several else None
+            ahead: list[tuple[Entry, bool]] = []
+            """A read, and the marks after it, played once its records have been seen:
+            the next read of the channel (see :mod:`.replaystart`)."""
             for entry in read(path, reading):
                 seen += 1
                 if speed == 0 and seen % YIELD_EVERY == 0:
@@ -234,18 +244,17 @@ class ReplayLink:
                 if kind is None and (record or is_serial_reads(topic)):
                     # (a gateway's recording of several stations: any station's reads)
                     kind = SERIAL if is_serial_reads(topic) else PUBLISHED
+                start = self.start_at
+                if record and kind == SERIAL and start is not None and start.waiting:
+                    start.recorded(entry)
                 played = ((topic == MARK and self.marks) or (serial and kind == SERIAL)
                           or (record and kind == PUBLISHED and self.marks))
                 if not played:
                     continue
-                if speed > 0:
-                    host_time = entry.log_time / 1e9
-                    if origin is None:
-                        origin = (host_time, loop.time())
-                    delay = origin[1] + (host_time - origin[0]) / speed - loop.time()
-                    if delay > 0:
-                        await asyncio.sleep(delay)
-                self._play_one(entry, serial)
+                if serial or kind != SERIAL:
+                    await self._play_paced(ahead)
+                ahead.append((entry, serial))
+            await self._play_paced(ahead)
         self.partial = self.partial or reading.partial or self.unreadable > 0
         self.finished = True
         if self.unreadable:
@@ -256,6 +265,21 @@ class ReplayLink:
                  len(self.replay.files), "" if len(self.replay.files) == 1 else "s",
                  " (partial: what could not be read was skipped)" if self.partial else "")
         self._on_end()
+
+    async def _play_paced(self, entries: list[tuple[Entry, bool]]) -> None:
+        """Play ``entries`` (and empty the list), each at its recorded time over speed."""
+        speed = self.replay.speed
+        for entry, serial in entries:
+            if speed > 0:
+                loop = asyncio.get_running_loop()
+                host_time = entry.log_time / 1e9
+                if self._origin is None:
+                    self._origin = (host_time, loop.time())
+                delay = self._origin[1] + (host_time - self._origin[0]) / speed - loop.time()
+                if delay > 0:
+                    await asyncio.sleep(delay)
+            self._play_one(entry, serial)
+        entries.clear()
 
     def _play_one(self, entry: Entry, serial: bool) -> None:
         if serial:

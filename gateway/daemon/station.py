@@ -28,6 +28,7 @@ from .ports import Port
 from .publisher import Publisher
 from .reader import Reader
 from .replay import ReplayLink
+from .replaystart import RecordedStart
 from .scheduler import Scheduler
 from .supervisor import Supervisor
 
@@ -58,7 +59,11 @@ class Station:
         self.replaying = self.replay is not None
         self.scheduler = Scheduler(self._write)
         self.supervisor = Supervisor(self.scheduler, self.nodes, passive=self.replaying)
-        self.reader = Reader(self.nodes, publisher, self.supervisor, self.scheduler,
+        self.recorded = RecordedStart(publisher, self.nodes) if self.replaying else None
+        """A replay's seq and device time, started at the recorded ones
+        (:mod:`.replaystart`)."""
+        self.reader = Reader(self.nodes, self.recorded or publisher,  # type: ignore[arg-type]
+                             self.supervisor, self.scheduler,
                              config.idle_ms / 1000, idle_timer=not self.replaying,
                              byte_time=line_byte)
         self.channels = serial_channels(None if only else self.name)
@@ -80,7 +85,8 @@ class Station:
         if self.replay is not None:
             self.link = ReplayLink(self.replay, self._replayed, self._link_state,
                                    self._replay_ended, self._publisher.replayed,
-                                   station=self.name, marks=self._first)
+                                   station=self.name, marks=self._first,
+                                   start=self.recorded)
         else:
             self.link = SerialLink(self.port.path, self.config.baudrate, on_data,
                                    self._link_state)
