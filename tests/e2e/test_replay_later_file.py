@@ -51,12 +51,15 @@ def test_a_later_file_replays_the_recorded_seq_and_times(simulator, gateway, tmp
     sub.drain(0.3)
     played = {(p["node"], p["seq"]): strict(p) for t, p in sub.messages if t[4].isdigit()}
     # every record, under its recorded seq, with the recorded device_time, host_time
-    # and fields
-    assert played.keys() == want.keys()
+    # and fields; but one whose packet began in the file deleted, if the file's first
+    # read holds its end (a read of the pty is usually a packet or more, but not always)
+    missing = want.keys() - played.keys()
+    assert played.keys() <= want.keys() and len(missing) <= 1, sorted(missing)[:5]
+    assert all(seq == min(s for n, s in want if n == node) for node, seq in missing)
     first = min(p["host_time"] for p in want.values())
     settled = 0
-    for key, payload in want.items():
-        again = played[key]
+    for key, again in played.items():
+        payload = want[key]
         assert {**again, "time": None} == {**payload, "time": None}, key
         if payload["host_time"] - first >= SETTLED_S:
             assert abs(again["time"] - payload["time"]) <= TIME_S, key
