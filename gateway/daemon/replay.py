@@ -20,6 +20,15 @@ takes it, letting the loop run other work every YIELD_EVERY reads. Playing start
 publishes before a subscriber has connected, and a subscriber started with the gateway
 needs a moment to.
 
+Which reads a base station plays: a file of several stations' reads (its
+``gx2-gateway`` metadata names them) the channel of the station's own name, and a
+station whose name it does not hold is refused at start (:meth:`Replay.nothing_to_play`);
+a file of one station's reads its only channel, whatever the station replaying it is
+called. Each read is played once the records the recording gateway published from it
+have been read (the file holds them after it), so that a later file of a recording
+starts each node's ``seq`` and ``device_time`` at the recorded ones
+(:mod:`.replaystart`).
+
 What cannot be read is skipped, with a line logged for each file not read whole (a
 file among the others that is empty or not MCAP, a damaged chunk, a file cut short),
 and the rest is played; a replay that skipped something is ``partial``, and a gateway
@@ -229,9 +238,9 @@ class ReplayLink:
                 continue
             # the channel of reads it plays: with one station's, the first one found
             channel = serial_channels(self.station)[0] if several else None
+            # a read, and the marks after it, are played once the records recorded
+            # after it have been seen: at the next read of the channel (.replaystart)
             ahead: list[tuple[Entry, bool]] = []
-            """A read, and the marks after it, played once its records have been seen:
-            the next read of the channel (see :mod:`.replaystart`)."""
             for entry in read(path, reading):
                 seen += 1
                 if speed == 0 and seen % YIELD_EVERY == 0:

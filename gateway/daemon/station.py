@@ -101,8 +101,9 @@ class Station:
         """Once a second: how full its line is; while it is over capacity, its nodes'
         clocks learn nothing from the backlog (:meth:`aspp.clock.NodeClock.hold`). A
         replay's line is judged on the recording's clock instead (:meth:`_replayed`)."""
-        link = self.link
-        if not self.replaying and self.line.sample(now, link.bytes_read):  # type: ignore[union-attr]
+        if self.replaying:
+            return
+        if self.line.sample(now, self.link.bytes_read):  # type: ignore[union-attr]
             self._line_changed()
 
     def _replayed(self, data: bytes, host_time: float, monotonic: float) -> None:
