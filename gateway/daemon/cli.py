@@ -55,12 +55,12 @@ def main(argv: list[str] | None = None) -> int:
     # a recording with nothing the gateway can play is refused as the configuration is:
     # at --check, and at start rather than as a replay that ends at once having done nothing
     from .ports import never_serial, nothing_to_play
-    checks = (nothing_to_play, never_serial) if args.check else (nothing_to_play,)
     for where, station in config.placed_stations():
-        for check in checks:
-            problem = check(station.port)
-            if problem:
-                fail(parser.prog, f"{args.config}: {where}.port: {problem}", 2)
+        problem = nothing_to_play(station.port, station.name or "")
+        if args.check:
+            problem = problem or never_serial(station.port)
+        if problem:
+            fail(parser.prog, f"{args.config}: {where}.port: {problem}", 2)
     if args.check:
         # the unit runs --check as its user, in its sandbox, before the gateway: a
         # directory it cannot write fails there, not as a recorder that keeps nothing

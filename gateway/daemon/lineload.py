@@ -14,10 +14,17 @@ it is over capacity from AT_CAPACITY of the line over SPAN, and has room again b
 ROOM. A line at 90% (two or three nodes streaming at a rate a little under what it
 carries, as ``bench/timesync.py`` runs it, stalls included) is under both: a stall
 holds bytes back, it does not add any, and SPAN averages the catching up.
+
+A replay judges its line on the recording's own clock (:meth:`LineLoad.replayed`): the
+reads' recorded times, not the wall clock it plays them by. At ``speed=5`` the wall
+clock sees five times the bytes a second, at ``speed=0`` all of them at once, and a
+line the recording shows at 90% would be judged over capacity: its nodes' clocks held
+where the live gateway's were not, and ``time`` no longer the recorded one.
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 SPAN = 5.0
@@ -40,6 +47,8 @@ class LineLoad:
         self.share = 0.0
         """What the line carried over SPAN at the last sample, as a share of its
         capacity."""
+        self._next: float | None = None
+        """A replay's next sample, on the recording's clock (:meth:`replayed`)."""
 
     def sample(self, now: float, bytes_read: int) -> bool:
         """Add a sample (``now`` on the monotonic clock, ``bytes_read`` the link's
@@ -54,6 +63,32 @@ class LineLoad:
         over = share >= AT_CAPACITY if not self.over else share >= ROOM
         changed, self.over = over != self.over, over
         return changed
+
+    def replayed(self, now: float, bytes_read: int, period: float) -> bool:
+        """A replay's read, recorded at ``now`` (the recording's monotonic clock), after
+        ``bytes_read`` bytes: the samples the live gateway took every ``period`` up to
+        it, taken now on the recording's clock (each with the bytes read before it).
+        True when :attr:`over` changed."""
+        following = self._next
+        if following is not None and now < following:
+            if now >= following - period:
+                return False  # (the per-read path of a replay: nothing due)
+            # the recording's clock went back: another run of the gateway, whose line
+            # is judged afresh, as that gateway's was
+            self._samples.clear()
+            changed, self.over = self.over, False
+            self._next = now + period
+            return changed
+        if following is None:
+            following = now
+        elif now - following > SPAN:  # a silence: only its last SPAN is measured
+            following += math.floor((now - SPAN - following) / period) * period
+        was = self.over
+        while following <= now:
+            self.sample(following, bytes_read)
+            following += period
+        self._next = following
+        return self.over != was
 
     def bytes_per_s(self, now: float, bytes_read: int) -> float:
         """Bytes read per second over the last SPAN."""

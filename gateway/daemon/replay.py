@@ -20,6 +20,15 @@ takes it, letting the loop run other work every YIELD_EVERY reads. Playing start
 publishes before a subscriber has connected, and a subscriber started with the gateway
 needs a moment to.
 
+Which reads a base station plays: a file of several stations' reads (its
+``gx2-gateway`` metadata names them) the channel of the station's own name, and a
+station whose name it does not hold is refused at start (:meth:`Replay.nothing_to_play`);
+a file of one station's reads its only channel, whatever the station replaying it is
+called. Each read is played once the records the recording gateway published from it
+have been read (the file holds them after it), so that a later file of a recording
+starts each node's ``seq`` and ``device_time`` at the recorded ones
+(:mod:`.replaystart`).
+
 What cannot be read is skipped, with a line logged for each file not read whole (a
 file among the others that is empty or not MCAP, a damaged chunk, a file cut short),
 and the rest is played; a replay that skipped something is ``partial``, and a gateway
@@ -29,18 +38,33 @@ that exits when it is done (``exit=true``) then exits with status PARTIAL.
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import parse_qs
 
+from mcap.records import Header, Metadata
+from mcap.stream_reader import StreamReader
+
 from gateway.common.topics import parse
-from gateway.recording.files import MARK, SERIAL, RecordingError, is_serial_reads, usable_files
+from gateway.recording.files import (
+    MARK,
+    METADATA,
+    SERIAL,
+    RecordingError,
+    is_serial_reads,
+    serial_channels,
+    usable_files,
+)
 from gateway.recording.reader import Entry, read
 from gateway.recording.reports import FileReport, Reading
+
+if TYPE_CHECKING:
+    from .replaystart import RecordedStart
 
 log = logging.getLogger("gx2.replay")
 SCHEME = "replay://"
@@ -89,16 +113,42 @@ class Replay:
             raise ValueError(str(error)) from None
         return cls(tuple(files), speed, leave, delay)
 
-    def nothing_to_play(self) -> str:
-        """Why the recording has nothing to play (empty if it has): no file holds a
-        serial read, a node's record or a mark. Files are read only up to the first such
-        message, so a gateway's recording is judged by its first chunk."""
+    def nothing_to_play(self, station: str) -> str:
+        """Why the recording has nothing to play for the base station named ``station``
+        (empty if it has): a file of several stations' reads holds none of its name, or
+        no file holds a serial read, a node's record or a mark. Files are read only up
+        to the first such message, so a gateway's recording is judged by its first
+        chunk (and each file's head, where its stations are named)."""
+        for path in self.files:
+            several = recorded_stations(path)
+            if several and station not in several:
+                return (f"{path} holds the reads of base stations {', '.join(several)}, "
+                        f"none named {station!r}: name the base station that replays it "
+                        "as one of them")
         for path in self.files:
             if any(_playable(entry.topic) for entry in read(path, Reading())):
                 return ""
         where = self.files[0] if len(self.files) == 1 else f"{len(self.files)} files"
         return (f"{where}: nothing to replay: no serial reads (a gateway's recording) and no "
                 "published records or marks (gx2ctl record's)")
+
+
+def recorded_stations(path: Path) -> tuple[str, ...]:
+    """The names of the base stations whose reads a file of several holds, each on its
+    own channel (``serial/<name>``), as the gateway that wrote it said in the file's
+    head (its ``gx2-gateway`` metadata); none for a file of one station's reads
+    (``serial``, whatever that station was called), of none, or of another program."""
+    try:
+        with path.open("rb") as stream:
+            for record in StreamReader(stream, emit_chunks=True).records:
+                if isinstance(record, Metadata) and record.name == METADATA:
+                    names = json.loads(record.metadata.get("stations", "[]"))
+                    return tuple(str(station["name"]) for station in names)
+                if not isinstance(record, Header):
+                    break  # (the gateway writes its metadata first)
+    except Exception:  # a head that does not read names no stations: what cannot be
+        pass  # read is said when the file is played
+    return ()
 
 
 def _playable(topic: str) -> bool:
@@ -127,11 +177,18 @@ class ReplayLink:
     def __init__(self, replay: Replay, on_data: Callable[[bytes, float, float], None],
                  on_state: Callable[[bool], None], on_end: Callable[[], None],
                  on_message: Callable[[str, dict[str, Any]], object], *,
-                 channel: str = SERIAL, marks: bool = True) -> None:
+                 station: str = "", marks: bool = True,
+                 start: RecordedStart | None = None) -> None:
         self.replay = replay
-        self.channel = channel
-        """The serial channel this base station plays: ``serial``, or with several
-        stations its own (``serial/<station>``)."""
+        self.start_at = start
+        """Given the recorded records, to start each node's seq and device time at the
+        recorded ones."""
+        self._origin: tuple[float, float] | None = None
+        """(recorded, loop) time of the first thing played: the pace's origin."""
+        self.station = station
+        """The name of the base station it plays: a file of several stations' reads is
+        played from that one's channel (``serial/<station>``), a file of one station's
+        from its only one, whatever that station was called."""
         self.marks = marks
         """Whether it publishes the recording's marks again (one station of several)."""
         self.port = f"{SCHEME}{replay.files[0]}"
@@ -173,38 +230,46 @@ class ReplayLink:
         raise OSError("replaying a recording: nothing is sent to the base station")
 
     async def _play(self) -> None:
-        loop = asyncio.get_running_loop()
         speed = self.replay.speed
         reading = Reading(self._read_file)
-        origin: tuple[float, float] | None = None
         seen = 0
         await asyncio.sleep(self.replay.delay)
         for path in self.replay.files:
             # SERIAL (a gateway's recording) or PUBLISHED, once the file has shown which
             kind: str | None = None
+            several = recorded_stations(path)
+            if several and self.station not in several:
+                self._not_its_own(path, several)
+                continue
+            # the channel of reads it plays: with one station's, the first one found
+            channel = serial_channels(self.station)[0] if several else None
+            # a read, and the marks after it, are played once the records recorded
+            # after it have been seen: at the next read of the channel (.replaystart)
+            ahead: list[tuple[Entry, bool]] = []
             for entry in read(path, reading):
                 seen += 1
                 if speed == 0 and seen % YIELD_EVERY == 0:
                     await asyncio.sleep(0)
                 topic = entry.topic
-                serial = topic == self.channel
+                if channel is None and is_serial_reads(topic):
+                    channel = topic
+                serial = topic == channel
                 record = not serial and parse(topic) is not None
                 if kind is None and (record or is_serial_reads(topic)):
                     # (a gateway's recording of several stations: any station's reads)
                     kind = SERIAL if is_serial_reads(topic) else PUBLISHED
+                start = self.start_at
+                if record and kind == SERIAL and start is not None and start.waiting:
+                    start.recorded(entry)
                 played = ((topic == MARK and self.marks) or (serial and kind == SERIAL)
                           or (record and kind == PUBLISHED and self.marks))
                 if not played:
                     continue
-                if speed > 0:
-                    host_time = entry.log_time / 1e9
-                    if origin is None:
-                        origin = (host_time, loop.time())
-                    delay = origin[1] + (host_time - origin[0]) / speed - loop.time()
-                    if delay > 0:
-                        await asyncio.sleep(delay)
-                self._play_one(entry)
-        self.partial = reading.partial or self.unreadable > 0
+                if serial or kind != SERIAL:
+                    await self._play_paced(ahead)
+                ahead.append((entry, serial))
+            await self._play_paced(ahead)
+        self.partial = self.partial or reading.partial or self.unreadable > 0
         self.finished = True
         if self.unreadable:
             log.warning("replay: skipped %d messages that are not JSON objects",
@@ -215,8 +280,23 @@ class ReplayLink:
                  " (partial: what could not be read was skipped)" if self.partial else "")
         self._on_end()
 
-    def _play_one(self, entry: Entry) -> None:
-        if entry.topic == self.channel:
+    async def _play_paced(self, entries: list[tuple[Entry, bool]]) -> None:
+        """Play ``entries`` (and empty the list), each at its recorded time over speed."""
+        speed = self.replay.speed
+        for entry, serial in entries:
+            if speed > 0:
+                loop = asyncio.get_running_loop()
+                host_time = entry.log_time / 1e9
+                if self._origin is None:
+                    self._origin = (host_time, loop.time())
+                delay = self._origin[1] + (host_time - self._origin[0]) / speed - loop.time()
+                if delay > 0:
+                    await asyncio.sleep(delay)
+            self._play_one(entry, serial)
+        entries.clear()
+
+    def _play_one(self, entry: Entry, serial: bool) -> None:
+        if serial:
             self.reads += 1
             self.bytes_read += len(entry.data)
             self._on_data(entry.data, entry.log_time / 1e9,
@@ -230,6 +310,15 @@ class ReplayLink:
         self.reads += 1
         self.messages += 1
         self._on_message(entry.topic, payload)
+
+    def _not_its_own(self, path: Path, several: tuple[str, ...]) -> None:
+        """A file of other stations' reads among the recording's (one that came after
+        the gateway's check): skipped, as a file that cannot be read is."""
+        line = (f"{path}: skipped: it holds the reads of base stations "
+                f"{', '.join(several)}, none named {self.station!r}")
+        log.warning("replay: %s", line)
+        self.partial = True
+        self.last_error = line
 
     def _read_file(self, report: FileReport) -> None:
         """A line as each file is done, if it was not read whole."""

@@ -20,6 +20,7 @@ from aspp.timing import BITS_PER_BYTE, byte_time
 from gateway.recording.files import serial_channels
 
 from .config import StationConfig
+from .health import SAMPLE_PERIOD
 from .lineload import LineLoad
 from .link import SerialLink
 from .nodes import Node
@@ -27,6 +28,7 @@ from .ports import Port
 from .publisher import Publisher
 from .reader import Reader
 from .replay import ReplayLink
+from .replaystart import RecordedStart
 from .scheduler import Scheduler
 from .supervisor import Supervisor
 
@@ -57,7 +59,11 @@ class Station:
         self.replaying = self.replay is not None
         self.scheduler = Scheduler(self._write, station=self.name)
         self.supervisor = Supervisor(self.scheduler, self.nodes, passive=self.replaying)
-        self.reader = Reader(self.nodes, publisher, self.supervisor, self.scheduler,
+        self.recorded = RecordedStart(publisher, self.nodes) if self.replaying else None
+        """A replay's seq and device time, started at the recorded ones
+        (:mod:`.replaystart`)."""
+        self.reader = Reader(self.nodes, self.recorded or publisher,  # type: ignore[arg-type]
+                             self.supervisor, self.scheduler,
                              config.idle_ms / 1000, idle_timer=not self.replaying,
                              byte_time=line_byte)
         self.channels = serial_channels(None if only else self.name)
@@ -69,17 +75,20 @@ class Station:
         self.link: SerialLink | ReplayLink | None = None
         self._opened = False
         """Its port has been open once (later opens are the link's reconnects)."""
+        self._on_data: Callable[[bytes, float, float], None] = self.reader.on_data
 
     def open(self, recorder: Recorder | None) -> None:
         """Make its port (an embedded simulator makes a directory: only once nothing of
         the gateway can fail any more) and its link."""
         self.recorder = recorder
-        on_data = self.reader.on_data if recorder is None else self._read_and_record
+        self._on_data = on_data = (self.reader.on_data if recorder is None
+                                   else self._read_and_record)
         self.port = Port(self.config.port, list(self.nodes))
         if self.replay is not None:
-            self.link = ReplayLink(self.replay, on_data, self._link_state, self._replay_ended,
-                                   self._publisher.replayed, channel=self.channels[0],
-                                   marks=self._first)
+            self.link = ReplayLink(self.replay, self._replayed, self._link_state,
+                                   self._replay_ended, self._publisher.replayed,
+                                   station=self.name, marks=self._first,
+                                   start=self.recorded)
         else:
             self.link = SerialLink(self.port.path, self.config.baudrate, on_data,
                                    self._link_state)
@@ -95,15 +104,30 @@ class Station:
 
     def sample(self, now: float) -> None:
         """Once a second: how full its line is; while it is over capacity, its nodes'
-        clocks learn nothing from the backlog (:meth:`aspp.clock.NodeClock.hold`)."""
+        clocks learn nothing from the backlog (:meth:`aspp.clock.NodeClock.hold`). A
+        replay's line is judged on the recording's clock instead (:meth:`_replayed`)."""
+        if self.replaying:
+            return
         if self.line.sample(now, self.link.bytes_read):  # type: ignore[union-attr]
-            log.warning("base station %s: %s", self.name, self.line.reason()
-                        if self.line.over else "line has room again")
-            for node in self.nodes.values():
-                if self.line.over:
-                    node.clock.hold()
-                else:
-                    node.clock.release()
+            self._line_changed()
+
+    def _replayed(self, data: bytes, host_time: float, monotonic: float) -> None:
+        """A replayed read: its line judged at the recorded seconds before it, as the
+        live gateway judged it between its reads (:meth:`.LineLoad.replayed`)."""
+        before = self.link.bytes_read - len(data)  # type: ignore[union-attr]
+        if self.line.replayed(monotonic, before, SAMPLE_PERIOD):
+            self._line_changed()
+        self._on_data(data, host_time, monotonic)
+
+    def _line_changed(self) -> None:
+        """Its line went over capacity, or has room again: its nodes' clocks told."""
+        log.warning("base station %s: %s", self.name, self.line.reason()
+                    if self.line.over else "line has room again")
+        for node in self.nodes.values():
+            if self.line.over:
+                node.clock.hold()
+            else:
+                node.clock.release()
 
     def close(self) -> None:
         """Close its link (a request still running fails as with the base station gone,

@@ -47,6 +47,9 @@ def is_serial_reads(topic: str) -> bool:
     """Whether ``topic`` is a channel of serial reads (one station's or the only one's)."""
     return topic == SERIAL or (topic.startswith(SERIAL + "/") and topic != WRITTEN
                                and not topic.endswith("/written"))
+METADATA = "gx2-gateway"
+"""The name of the metadata record a file opens with: what wrote it (the gateway's
+says its version, port and nodes, and with several base stations their names)."""
 RAW_ENCODING = "octets"
 """The serial channels' message encoding: the bytes themselves, no schema."""
 JSON_ENCODING = "json"

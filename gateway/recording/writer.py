@@ -21,6 +21,7 @@ from .files import (
     CHUNK_BYTES,
     END,
     JSON_ENCODING,
+    METADATA,
     PROFILE,
     RAW_ENCODING,
     SERIAL,
@@ -38,7 +39,7 @@ class RecordingWriter:
                               compression=CompressionType.ZSTD)
         self._writer.start(profile=PROFILE, library=f"gx2-gateway {VERSION}")
         if metadata:
-            self._writer.add_metadata("gx2-gateway", dict(metadata))
+            self._writer.add_metadata(METADATA, dict(metadata))
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}
         self.messages = 0

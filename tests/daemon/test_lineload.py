@@ -51,3 +51,41 @@ def test_the_bytes_per_second_are_over_the_last_span() -> None:
     for second in range(10):
         line.sample(float(second), second * 1000)
     assert line.bytes_per_s(10.0, 10_000) == 1000.0
+
+
+def replayed(line: LineLoad, reads: list[tuple[float, int]]) -> list[bool]:
+    """Feed a replay's reads, (recorded time, bytes); ``over`` after each."""
+    said, read = [], 0
+    for at, size in reads:
+        line.replayed(at, read, 1.0)
+        read += size
+        said.append(line.over)
+    return said
+
+
+def test_a_replay_is_judged_on_its_recorded_times_however_fast_it_is_played() -> None:
+    # 90% of the line for 20 recorded seconds, in reads of 100 bytes: the wall clock a
+    # replay plays them by is not asked at all
+    size = 100
+    step = size / (0.9 * CAPACITY)
+    reads = [(1000.0 + i * step, size) for i in range(int(20 / step))]
+    line = LineLoad(CAPACITY)
+    assert not any(replayed(line, reads))
+    assert 0.85 < line.share < 0.95
+    # at 135% it is over capacity, from four fifths of a span on, as live
+    line = LineLoad(CAPACITY)
+    said = replayed(line, [(at / 1.5, size) for at, size in reads])
+    first = said.index(True)
+    assert 0.8 * SPAN <= reads[first][0] / 1.5 - reads[0][0] / 1.5 <= 0.8 * SPAN + 1.0
+
+
+def test_a_replay_whose_recorded_clock_goes_back_judges_the_next_run_afresh() -> None:
+    line = LineLoad(CAPACITY)
+    full = [(float(i) / 10, int(CAPACITY / 10)) for i in range(100)]
+    assert replayed(line, full)[-1]
+    # another run of the gateway (its host rebooted): its clock starts again lower
+    assert line.replayed(3.0, 0, 1.0)  # changed: it has room until judged again
+    assert not line.over
+    # a silence of an hour: only its last span is sampled
+    assert not line.replayed(3603.0, 0, 1.0)
+    assert len(line._samples) <= SPAN + 2
