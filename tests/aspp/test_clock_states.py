@@ -160,17 +160,36 @@ class SimulatedNode:
         self.unwrapper.expect_reset()
 
 
-PREPARED: dict[ClockState, tuple[float, Callable[[SimulatedNode], object]]] = {
+def fitted(node: SimulatedNode) -> None:
+    node.run(15.0)  # (a drift settled: fitted over more than SETTLE_SPAN)
+
+
+def held(node: SimulatedNode) -> None:
+    fitted(node)
+    node.line_full()
+    node.clock.hold()
+    node.run(2.0)
+
+
+def held_fresh(node: SimulatedNode) -> None:
+    node.line_full()
+    node.clock.hold()
+
+
+def released(node: SimulatedNode) -> None:
+    held(node)
+    node.clock.release()
+    node.line_free()
+
+
+PREPARED: dict[ClockState, tuple[float, Callable[[SimulatedNode], None]]] = {
     FRESH: (0.0, lambda node: None),
-    FITTED: (15.0, lambda node: node.run(15.0)),
-    HELD: (17.0, lambda node: (node.run(15.0), node.line_full(), node.clock.hold(),
-                               node.run(2.0))),
-    HELD_FRESH: (0.0, lambda node: (node.line_full(), node.clock.hold())),
-    RELEASED: (17.0, lambda node: (node.run(15.0), node.line_full(), node.clock.hold(),
-                                   node.run(2.0), node.clock.release(), node.line_free())),
+    FITTED: (15.0, fitted),
+    HELD: (17.0, held),
+    HELD_FRESH: (0.0, held_fresh),
+    RELEASED: (17.0, released),
 }
-"""How a node's clock is brought to each state: the seconds it streams to get there,
-and what happens meanwhile."""
+"""How a node's clock is brought to each state, and the seconds it streams meanwhile."""
 
 
 def prepared(state: ClockState, event: str) -> SimulatedNode:
