@@ -31,7 +31,9 @@ is full, so the lowest points rise with the queue (a drift of hundreds of ppm) a
 window later, the floor under them leaves and the line jumps by the queue's length
 (issue 21: 306-314 ms). The gateway, which sees the line's load, :meth:`~NodeClock.hold`s
 the estimate for as long as it lasts; and whatever moves the line, ``time`` follows it
-at a bounded rate (SLEW), never by a step.
+at a bounded rate (SLEW), never by a step. What a hold, a release, a reboot, a packet
+and an outage do to the estimate, in each state it can be in, is one table:
+:mod:`aspp.clockstate`.
 """
 
 from __future__ import annotations
@@ -40,6 +42,21 @@ import bisect
 import math
 from collections import deque
 from dataclasses import dataclass
+
+from .clockstate import (
+    FITTED,
+    FRESH,
+    HELD_FRESH,
+    HELD_STATES,
+    HOLD,
+    OUTAGE,
+    POINT,
+    RELEASE,
+    RESET,
+    ClockEvent,
+    ClockState,
+    after,
+)
 
 # The drift the estimate may take. The reference gives the node's clock: "The system
 # clock has an accuracy of +/- 0.01%" (3DM-GX2 Data Communications Protocol, the
@@ -137,7 +154,8 @@ def _push(hull: list[Point], x: float, y: float) -> None:
 
 
 class NodeClock:
-    """The estimate for one node; :meth:`reset` when its timer restarts."""
+    """The estimate for one node; :meth:`reset` when its timer restarts, :meth:`hold`
+    and :meth:`release` as its serial line fills and has room again."""
 
     __slots__ = (
         "_block_start",
@@ -148,12 +166,12 @@ class NodeClock:
         "_fitted",
         "_fitted_at",
         "_given",
-        "_held",
         "_last",
         "_locked_since",
         "_offset",
         "_points",
         "_residuals",
+        "_state",
     )
 
     def __init__(self) -> None:
@@ -161,13 +179,54 @@ class NodeClock:
         self._fitted = 0.0
         """Device seconds over which the drift has been fitted (kept through a reset:
         the drift is the crystal's)."""
-        self._held = False
-        """Whether the line is over capacity (:meth:`hold`); kept through a reset."""
-        self.reset()
+        self._state = FRESH
+        self._start_over()
+        self._given: tuple[float, float] | None = None
+        """The last (device, host) time given: times are strictly increasing (until a
+        reset: a new power-up starts a new line)."""
+
+    # -- the state machine: every change of state goes through _event -------------------
 
     def reset(self) -> None:
         """The node rebooted: its timer started again. The drift is kept (it is the
-        crystal's); everything else starts over."""
+        crystal's); the line and the times given start over (held or not: a hold
+        then places the new power-up at its packets' arrival, HELD_FRESH)."""
+        self._event(RESET)
+
+    def hold(self) -> None:
+        """The serial line is over capacity: every packet from now on waits behind a
+        backlog, and its delay says how long the queue is, not where the clock is. The
+        line is kept as it is (extrapolated at its drift) and learns nothing until
+        :meth:`release`; the estimate shows unlocked meanwhile. A drift fitted over too
+        short a base line to be settled may already be the backlog's growth (it came
+        with the first packets): it is dropped for the crystal's nominal rate."""
+        self._event(HOLD)
+
+    def release(self) -> None:
+        """The line has room again: the estimate starts over from fresh packets (the
+        drift, a settled one, kept), and ``time`` slews to it (SLEW)."""
+        self._event(RELEASE)
+
+    def _event(self, event: ClockEvent) -> None:
+        """The one place the state changes: to what :func:`aspp.clockstate.after` says
+        (which raises for an event the state does not take), with what the event does
+        to the line. A hold keeps the line (and drops a drift not yet settled); a
+        release or an outage starts the line over, its drift and the times given kept;
+        a reset starts both over."""
+        self._state = after(self._state, event)
+        if event is HOLD:
+            if self._fitted < SETTLE_SPAN:  # (no line yet: _last is 0, nothing moves)
+                self._offset += self._drift * self._last  # the same line where it is now
+                self._drift = self._fitted = 0.0
+        elif event is RESET:
+            self._start_over()
+            self._given = None
+        elif event is not POINT:  # RELEASE, OUTAGE
+            self._start_over()
+
+    def _start_over(self) -> None:
+        """No points: the line, its blocks and its lock are gone (drift and times given
+        are the caller's to keep)."""
         self._blocks: deque[tuple[float, list[Point]]] = deque()
         self._current: list[Point] = []
         self._block_start = 0.0
@@ -178,8 +237,8 @@ class NodeClock:
         self._last = 0.0
         self._locked_since: float | None = None
         self._residuals: deque[float] = deque(maxlen=RESIDUALS)
-        self._given: tuple[float, float] | None = None
-        """The last (device, host) time given: times are strictly increasing."""
+
+    # -- packets ---------------------------------------------------------------------------
 
     def update(self, device: float, host: float) -> float:
         """Add one packet: its device time and when it reached the host (seconds on a
@@ -187,20 +246,18 @@ class NodeClock:
         ``device`` arrives with the least delay seen (the line evaluated there), or,
         if the line has just dropped below the last time given, a time advancing from
         that one at SLEW of the device's rate."""
-        if self._held:  # (hold(): the packets' delay is a backlog's)
-            return self._give(device, device + self._offset + self._drift * device)
-        if self._points and (device < self._last or device - self._last > WINDOW):
+        if self._state is not FITTED:
+            return self._unfitted(device, host)
+        if device < self._last or device - self._last > WINDOW:
             if device < self._last:  # not in order (a reset missed): it says nothing
                 return self._give(device, device + self._offset + self._drift * device)
-            self._restart()  # after a long outage: the old points no longer bound
+            self._event(OUTAGE)  # after a long outage: the old points no longer bound
+            return self._unfitted(device, host)
         y = host - device
         _push(self._current, device, y)
         self._points += 1
         self._last = device
-        if self._points == 1:
-            self._first = self._block_start = device
-            self._offset = y - self._drift * device
-        elif device - self._block_start >= BLOCK:
+        if device - self._block_start >= BLOCK:
             self._close_block(device)
         elif device - self._first < EARLY and (device - (self._fitted_at or 0.0) >= EARLY_STEP
                                                or y < self._offset + self._drift * device):
@@ -213,6 +270,27 @@ class NodeClock:
                 and device - self._first >= LOCK_SPAN:
             self._locked_since = host
         return self._give(device, device + line)
+
+    def _unfitted(self, device: float, host: float) -> float:
+        """A packet with no line learning from it: the first of one (FRESH, RELEASED:
+        it anchors the line at its arrival), or one while held (HELD: the line kept
+        says; HELD_FRESH: the arrivals' floor, lowered to this one if it came faster)."""
+        state = self._state
+        y = host - device - self._drift * device
+        if state in HELD_STATES:
+            self._event(POINT)
+            if state is HELD_FRESH:
+                if not self._points or y < self._offset:
+                    self._offset = y
+                self._points += 1
+            return self._give(device, device + self._offset + self._drift * device)
+        self._event(POINT)  # -> FITTED
+        _push(self._current, device, host - device)
+        self._points = 1
+        self._first = self._block_start = self._last = device
+        self._offset = y
+        self._residuals.append(0.0)
+        return self._give(device, host)
 
     def _give(self, device: float, time: float) -> float:
         given = self._given
@@ -229,32 +307,6 @@ class NodeClock:
                 time = max(given[1] + (1 + SLEW) * elapsed, math.nextafter(floor, math.inf))
         self._given = (device, time)
         return time
-
-    def hold(self) -> None:
-        """The serial line is over capacity: every packet from now on waits behind a
-        backlog, and its delay says how long the queue is, not where the clock is. The
-        line is kept as it is (extrapolated at its drift) and learns nothing until
-        :meth:`release`; the estimate shows unlocked meanwhile. A drift fitted over too
-        short a base line to be settled may already be the backlog's growth (it came
-        with the first packets): it is dropped for the crystal's nominal rate."""
-        if self._held:
-            return
-        self._held = True
-        if self._fitted < SETTLE_SPAN and self._points:
-            self._offset += self._drift * self._last  # the same line where it is now
-            self._drift = self._fitted = 0.0
-
-    def release(self) -> None:
-        """The line has room again: the estimate starts over from fresh packets (the
-        drift, a settled one, kept), and ``time`` slews to it (SLEW)."""
-        if self._held:
-            self._held = False
-            self._restart()
-
-    def _restart(self) -> None:
-        drift, given = self._drift, self._given
-        self.reset()
-        self._drift, self._given = drift, given
 
     def _close_block(self, device: float) -> None:
         self._blocks.append((self._block_start, self._current))
@@ -299,28 +351,33 @@ class NodeClock:
         """The device time of a packet that reaches the host at ``host`` with the least
         delay seen (the line there), or None before the estimate is locked: what the
         timer unwrapper judges a reading by (:class:`aspp.timing.TimerUnwrapper`)."""
-        if self._locked_since is None or self._held:
+        if self._locked_since is None or self._state is not FITTED:
             return None
         return (host - self._offset) / (1 + self._drift)
 
     @property
     def points(self) -> int:
-        """Packets since the last reset (or restart after an outage)."""
+        """Packets the line (or, held with none, the arrivals' floor) stands on: since
+        the last reset, release or outage."""
         return self._points
+
+    @property
+    def state(self) -> ClockState:
+        return self._state
 
     @property
     def locked(self) -> bool:
         """Whether a second of packets has been fitted since the last reset, and the
         line is not held (:meth:`hold`)."""
-        return self._locked_since is not None and not self._held
+        return self._locked_since is not None and self._state is FITTED
 
     @property
     def held(self) -> bool:
-        return self._held
+        return self._state in HELD_STATES
 
     def estimate(self) -> Estimate:
         """The current estimate (for status)."""
         ordered = sorted(self._residuals)
         spread = ordered[int(0.9 * (len(ordered) - 1))] if ordered else 0.0
         return Estimate(self._offset, self._drift, spread, self.locked,
-                        None if self._held else self._locked_since)
+                        None if self.held else self._locked_since)

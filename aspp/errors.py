@@ -19,3 +19,8 @@ class CommandError(AsppError):
 class RecordError(AsppError):
     """Reply bytes are not a record this library can decode (unknown command, or a
     length that does not match the record's layout)."""
+
+
+class ClockStateError(AsppError):
+    """An event a node's clock estimate does not take in its state (a release with no
+    hold, a hold on a hold): the caller's bug (:mod:`aspp.clockstate`)."""

@@ -257,7 +257,9 @@ class Node:
         less the monotonic one, read one after the other at each read, moves by a
         fraction of a microsecond between reads: such a fall is moved to just above the
         last time. A fall of TIME_NOISE or more is the host's clock stepped back (NTP),
-        and ``time`` moves by the step (docs/interface.md, Sample time)."""
+        and ``time`` moves by the step (docs/interface.md, Sample time), or a reboot's
+        new line: the clock never gives a time below one it gave before except across a
+        reset (:mod:`aspp.clockstate`), so nothing here is slewed back afterwards."""
         last = self._last_time
         return math.nextafter(last, math.inf) if last - sampled < TIME_NOISE else sampled
 

@@ -9,10 +9,11 @@ meanwhile, and be back on the truth within 10 s of the line having room."""
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from itertools import pairwise
 
-from aspp.timing import sample_period
-from gateway.sim.base_station import RADIO_LATENCY
+from aspp.timing import TICKS_PER_SECOND, sample_period
+from gateway.sim.base_station import RADIO_LATENCY, RadioLink
 from gateway.sim.node import NodeSettings
 from tests.e2e.test_sample_time import errors
 from tests.helpers.waiting import wait_for
@@ -70,3 +71,61 @@ def test_an_overloaded_line_is_said_and_time_stays_smooth(simulator, gateway):
         assert abs(nodes[node]["clock"]["drift_ppm"]) <= 200
         assert OVER not in nodes[node]["reasons"]
     assert not any(r.startswith("line over capacity") for r in status["gateway"]["reasons"])
+
+
+SANE = 1.0
+"""Seconds ``time`` may be from ``host_time`` whatever the line: a full base station's
+queue (0.36 s) and the radio, no more."""
+NEW_TIMER = 150.0
+"""Seconds on the rebooted nodes' timers at their new power-up: past any reading of the
+old one, so each reading's true instant is the new power-up's."""
+
+
+def test_a_reboot_or_a_first_record_while_over_capacity_keeps_time_near_the_truth(
+        simulator, gateway):
+    """Issue 31, defect 1: nodes rebooted while their line is over capacity (and a node
+    whose first timed record comes then, switched on late) had ``time`` off by the
+    host's uptime, climbing back at 0.5 s a second once the line had room. It stays
+    within SANE of ``host_time`` throughout, and is back within 1 ms of the true sample
+    instants ROOM_S after the line has room."""
+    sim = simulator(NodeSettings(76, divider=DIVIDER, stream="accel_angrate", ppm=30.0),
+                    NodeSettings(77, divider=DIVIDER, stream="accel_angrate", ppm=-20.0),
+                    NodeSettings(78, divider=DIVIDER, stream="accel_angrate_orientation"),
+                    # 10.24 Hz: a rate apart from the others', so that its samples do
+                    # not wait behind theirs, packet after packet (docs/gateway.md)
+                    NodeSettings(79, divider=5000, stream="accel_angrate", ppm=10.0),
+                    radio={79: RadioLink(in_range=False)})
+    gw = gateway(sim.path, [{"address": a} for a in (76, 77, 78, 79)],
+                 base_station={"latency_ms": RADIO_LATENCY * 1000})
+    sub = gw.subscribe("gx2/76/accel_angrate", "gx2/77/accel_angrate", "gx2/79/accel_angrate")
+    wait_for(lambda: gw.status()["link"].get("over_capacity") is True, 15,
+             "the line said to be over capacity")
+
+    def switch_on_79_and_reboot(station, now: float) -> None:
+        station.radio[79].in_range = True  # its first timed record: held
+        for address in (76, 77, 78):  # (gx2-sim's SIGUSR1, with the timers moved on)
+            node = station.nodes[address]
+            node.settings = replace(node.settings, timer_start=NEW_TIMER)
+            station.reboot(address, now)
+    sim.call(switch_on_79_and_reboot)
+
+    def rebooted(messages) -> bool:
+        return sum(1 for t, p in messages if t == "gx2/76/accel_angrate"
+                   and p["timer"] >= NEW_TIMER * TICKS_PER_SECOND) >= 50 \
+            and any(t == "gx2/79/accel_angrate" for t, _ in messages)
+    sub.until(rebooted, 10, "records of the new power-up, and node 79's")
+    assert gw.status()["link"].get("over_capacity") is True, "the line had room already"
+    gw.control.result("stop", timeout=30, node=78)
+    wait_for(lambda: not gw.status()["link"].get("over_capacity"), 10, "the line to have room")
+    room = time.time()
+    sub.drain(room + ROOM_S + 2.0 - time.time())
+
+    worst, off = {}, {}
+    for node in (76, 77, 79):
+        records = [p for t, p in sub.messages if t == f"gx2/{node}/accel_angrate"]
+        worst[node] = max((r["time"] - r["host_time"] for r in records), key=abs)
+        settled = [r for r in records if r["host_time"] >= room + ROOM_S]
+        assert len(settled) >= 10
+        off[node] = max(abs(e) for e in errors(sim, node, settled, "time"))
+    assert all(abs(w) < SANE for w in worst.values()), f"time - host_time, s: {worst}"
+    assert all(e <= 1e-3 for e in off.values()), f"off the truth ROOM_S after, s: {off}"
