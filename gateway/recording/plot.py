@@ -38,7 +38,7 @@ from aspp.records import BY_NAME
 from gateway.common.topics import parse
 
 from .export import MissingExtra
-from .files import MARK
+from .files import MARK, STATUS
 from .losses import Counted, Losses, Stream, Summary
 from .reader import Mark, read_all
 from .reports import Reading
@@ -117,8 +117,10 @@ def records_of(paths: list[Path], node: int, record: str | None,
     for entry in read_all(paths, reading):
         if entry.after_damage:
             losses.unread()
-        if entry.topic == "gx2/gateway/status":
-            for listed in entry.payload().get("nodes") or []:
+        if entry.topic == STATUS:
+            status = entry.payload()
+            losses.status(status)
+            for listed in status.get("nodes") or []:
                 if isinstance(listed, dict) and listed.get("node") == node and listed.get(
                         "name"):
                     name = str(listed["name"])
