@@ -45,7 +45,8 @@ class Outages:
         self._up: dict[Station, _Seen] = {}
 
     def status(self, payload: Mapping[str, Any]) -> None:
-        """A status message (anything else that is not one changes nothing)."""
+        """A status message (anything in it that is not as a status has it is passed
+        over: a foreign or damaged one tells nothing)."""
         gateway = payload.get("gateway")
         now = _number(gateway.get("time")) if isinstance(gateway, Mapping) else None
         stations = payload.get("stations")
@@ -55,7 +56,8 @@ class Outages:
         for name, link in links:
             if isinstance(link, Mapping) and (name is None or isinstance(name, str)):
                 self._link(name, link.get("state"), _number(link.get("since")), now)
-        for node in payload.get("nodes") or ():
+        nodes = payload.get("nodes")
+        for node in nodes if isinstance(nodes, list) else ():
             if isinstance(node, Mapping) and isinstance(node.get("node"), int):
                 station = node.get("station") if several else None
                 if station is None or isinstance(station, str):

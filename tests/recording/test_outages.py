@@ -137,6 +137,7 @@ def test_a_gateway_of_one_station_says_its_outages_in_its_link():
 
 def test_without_statuses_or_with_broken_ones_losses_are_the_radios():
     broken = {50: {"gateway": "x", "stations": [{"name": 3}, "north"], "nodes": [7, {}]},
+              60: {"stations": 5, "link": [], "nodes": 9},
               101: {"stations": [{"name": "north", "state": "down", "since": "soon"}],
                     "nodes": [{"node": 76, "station": 5}]}}
     for statuses in ({}, broken):
