@@ -141,6 +141,9 @@ class Stream(Generic[T]):
         """The stream's last row, or the node's continuous-mode reply since."""
         self._unknown = False
         """The timer restarted before a continuous-mode reply: the next row says so."""
+        self._replied = False
+        """The node sent a continuous-mode reply amid its stream since the last row (a
+        stop's, it may be)."""
         self._unread = False
         """A stretch of the recording was skipped unread: the next row's losses lie in it."""
         self._pending: deque[_Row[T]] = deque()
@@ -154,7 +157,10 @@ class Stream(Generic[T]):
         next row is counted from there, not from the last one: nothing was lost in
         between. Amid the stream (a start retried, its first reply lost) it changes
         nothing. A timer that restarted before it (a reboot, then a start) is still
-        said by the next row."""
+        said by the next row. A silence across an outage of its station is no stop
+        unless a reply (a stop's) came before it: a node streams on while its base
+        station is down, and the gateway starts it again when it is back, whose reply
+        may come before the stream's first record (a slow stream)."""
         start = _last(payload, count)
         if start is None:
             return
@@ -162,6 +168,9 @@ class Stream(Generic[T]):
         if last is not None and _restarted(last, start.ticks, start.timer, start.seq):
             self._unknown = True
         elif last is not None and not self._silent(last, start):
+            self._replied = True
+            return
+        elif last is not None and not self._replied and self._spans_outage(last, start):
             return
         self._last = start
 
@@ -172,6 +181,11 @@ class Stream(Generic[T]):
         return period is None or (
             start.ticks - last.ticks >= STOPPED_PERIODS * period * TICKS_PER_CLOCK)
 
+    def _spans_outage(self, last: _Last, start: _Last) -> bool:
+        """Whether its node's station was down between ``last`` and ``start``."""
+        return (self._outage is not None and last.time is not None
+                and start.time is not None and self._outage(last.time, start.time) is not None)
+
     def add(self, payload: Mapping[str, Any], item: T, count: int = 0) -> list[Counted[T]]:
         """Add the next row (``count``: the node's messages so far, this one included);
         return the rows decided now, in order."""
@@ -180,6 +194,7 @@ class Stream(Generic[T]):
             return [Counted(item, None, 0)]
         ticks, timer, seq = new.ticks, new.timer, new.seq
         last, self._last = self._last, new
+        self._replied = False
         unread, self._unread = self._unread, False
         restarted = self._unknown or (last is not None and _restarted(last, ticks, timer, seq))
         self._unknown = False

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.recording.losses import WINDOW, Counted, Losses, Summary
-from tests.recording.test_losses import sample
+from gateway.recording.losses import STARTED, WINDOW, Counted, Losses, Summary
+from tests.recording.test_losses import STEP, sample
 
 START = 1_780_000_000.0
 """UNIX time of sample 0."""
@@ -38,7 +38,7 @@ def status(i: float, north: tuple[str, float], south: tuple[str, float] = ("up",
 
 def run(events: list[tuple[int, int, dict] | dict], ahead: int) -> dict[int, list[Counted]]:
     """Each node's rows, counted from ``events`` (a record: (node, i, payload); a
-    status: its payload), in order."""
+    status: its payload), in order; a continuous-mode reply's row is left out."""
     losses: Losses[tuple[int, int]] = Losses(ahead)
     out: list[Counted] = []
     for event in events:
@@ -46,23 +46,32 @@ def run(events: list[tuple[int, int, dict] | dict], ahead: int) -> dict[int, lis
             losses.status(event)
         else:
             node, i, payload = event
-            out += losses.add(node, "accel_angrate", payload, (node, i))
+            out += losses.add(node, payload["record"], payload, (node, i))
     out += losses.finish()
     rows: dict[int, list[Counted]] = {}
     for row in sorted(out, key=lambda c: c.item):
+        if row.item[1] < 0:
+            continue
         rows.setdefault(row.item[0], []).append(row)
     return rows
 
 
 def streams(missing: dict[int, set[int]], statuses: dict[int, dict],
-            end: int = 600) -> list[tuple[int, int, dict] | dict]:
+            end: int = 600, replies: dict[int, float] | None = None,
+            ) -> list[tuple[int, int, dict] | dict]:
     """Nodes 76 and 78 at 100 Hz, without their ``missing`` samples, a status before
-    the samples given in ``statuses``."""
+    the samples given in ``statuses``, and node 76's continuous-mode reply (a start or
+    a stop) at each time given in ``replies`` (in sample periods) before that sample."""
     events: list[tuple[int, int, dict] | dict] = []
     seq = {76: 0, 78: 0}
     for i in range(end):
         if i in statuses:
             events.append(statuses[i])
+        if i in (replies or {}):
+            seq[76] += 1
+            when = replies[i]  # type: ignore[index]
+            reply = {**sample(0, seq[76], STARTED, round(when * STEP)), "time": at(when)}
+            events.append((76, -i, reply))
         for node in (76, 78):
             if i not in missing.get(node, set()):
                 seq[node] += 1
@@ -143,3 +152,22 @@ def test_without_statuses_or_with_broken_ones_losses_are_the_radios():
     for statuses in ({}, broken):
         rows = run(streams({76: set(range(101, 331))}, statuses), WINDOW)
         assert (after(rows[76], 331).down, after(rows[76], 331).radio) == (0, 230)
+
+
+@pytest.mark.parametrize("ahead", [WINDOW, 0])
+def test_a_start_answered_before_the_stream_is_back_does_not_hide_the_outage(ahead):
+    # north is back at 300.5 and the gateway starts node 76 again; its reply comes
+    # (at 305.3) before its stream's first record (331): the node streamed on while
+    # its station was down, so the silence was no stop and the gap is still counted
+    rows = run(streams({76: set(range(101, 331))}, OUTAGE, replies={306: 305.3}), ahead)
+    back = after(rows[76], 331)
+    assert (back.lost, back.down, back.radio) == (230, 200, 30)
+
+
+def test_a_stream_stopped_before_an_outage_and_started_after_it_lost_nothing():
+    # a stop answered just after sample 100, north down from 100.5 to 300.5, the stream
+    # started again at 330 (its reply in that cycle)
+    rows = run(streams({76: set(range(101, 331))}, OUTAGE,
+                       replies={101: 100.2, 331: 330.0}), WINDOW)
+    back = after(rows[76], 331)
+    assert (back.lost, back.down, back.radio) == (0, 0, 0)
