@@ -33,7 +33,8 @@ from gateway.common import curve
 from gateway.common.protocol import MAX_REPLY_BYTES, Exit
 from gateway.common.topics import MARK_TOPIC, topic
 from gateway.recording.files import MARK, STATUS, SUFFIX
-from gateway.recording.losses import Losses, Summary
+from gateway.recording.losses import Losses
+from gateway.recording.summary import Summary
 from gateway.recording.writer import RecordingWriter
 
 from . import PROG

@@ -38,9 +38,10 @@ from aspp.records import BY_NAME
 from gateway.common.topics import parse
 
 from .files import MARK, STATUS, RecordingError
-from .losses import Counted, Losses, Summary
+from .losses import Counted, Losses
 from .reader import Entry, Mark, read_all
 from .reports import Reading
+from .summary import Summary
 
 LEADING = ("time", "host_time", "device_time", "seq", "lost_before", "lqi", "rssi")
 LOST_BEFORE = LEADING.index("lost_before")

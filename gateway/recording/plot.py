@@ -40,9 +40,10 @@ from gateway.common.topics import parse
 
 from .export import MissingExtra
 from .files import MARK, STATUS
-from .losses import Counted, Losses, Stream, Summary
+from .losses import Counted, Losses, Stream
 from .reader import Mark, read_all
 from .reports import Reading
+from .summary import Summary
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.recording.losses import STARTED, WINDOW, Counted, Losses, Summary
+from gateway.recording.losses import STARTED, WINDOW, Counted, Losses
+from gateway.recording.summary import Summary
 from tests.recording.test_losses import STEP, sample
 
 START = 1_780_000_000.0
