@@ -93,8 +93,8 @@ def run_export(args: argparse.Namespace) -> int:
     if not tables and not marks:
         raise CtlError(f"no node records in {', '.join(args.files)}", Exit.USAGE)
     for path, table in tables:
-        damage = table.losses.damage()
-        print(f"{path}  {table.rows:,} rows" + (f" ({damage})" if damage else ""))
+        apart = table.losses.apart()
+        print(f"{path}  {table.rows:,} rows" + (f" ({apart})" if apart else ""))
     if marks:
         print(f"{Path(args.out) / f'{MARKS}.{args.form}'}  {marks:,} marks")
     return status

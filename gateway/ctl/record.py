@@ -31,9 +31,10 @@ import zmq
 from gateway.client import Message, Status, Subscriber
 from gateway.common import curve
 from gateway.common.protocol import MAX_REPLY_BYTES, Exit
-from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC, topic
-from gateway.recording.files import SUFFIX
-from gateway.recording.losses import Losses, Summary
+from gateway.common.topics import MARK_TOPIC, topic
+from gateway.recording.files import MARK, STATUS, SUFFIX
+from gateway.recording.losses import Losses
+from gateway.recording.summary import Summary
 from gateway.recording.writer import RecordingWriter
 
 from . import PROG
@@ -48,8 +49,6 @@ PROGRESS_S = 0.5
 PROGRESS_PIPE_S = 10.0
 WAIT_S = 0.1
 """The longest a mark waits to be written while nothing else arrives."""
-STATUS_CHANNEL = STATUS_TOPIC.decode()
-MARK_CHANNEL = MARK_TOPIC.decode()
 
 
 def run_record(path: str, nodes: list[int], seconds: float | None, where: Endpoints,
@@ -227,9 +226,10 @@ class Capture:
                 self.writer.message(topic(event.node, event.record).decode(), event.payload)
                 progress.count(event)
             elif isinstance(event, Marked):
-                self.writer.message(MARK_CHANNEL, event.payload)
+                self.writer.message(MARK, event.payload)
             else:
-                self.writer.message(STATUS_CHANNEL, event.payload)
+                self.writer.message(STATUS, event.payload)
+                progress.status(event)
 
     def flush(self) -> None:
         with self._guarded():
@@ -257,7 +257,8 @@ class Capture:
 class Progress:
     """Records, rate and losses so far, on stderr: the radio's from each stream's timer
     (counted as records come, on the steps before each alone), the gateway's from
-    ``seq`` (every message of the node: :attr:`Message.gap`)."""
+    ``seq`` (every message of the node: :attr:`Message.gap`), apart from those missed
+    while a base station was down (from the heartbeats: :class:`Losses`)."""
 
     def __init__(self, target: Path, terminal: bool) -> None:
         self.target = target
@@ -273,6 +274,10 @@ class Progress:
     def count(self, message: Message) -> None:
         for counted in self.losses.add(message.node, message.record, message.payload, None):
             self.summary.add(counted, message.gap)
+
+    def status(self, status: Status) -> None:
+        """A heartbeat: when each base station was down, for the records after it."""
+        self.losses.status(status.payload)
 
     def line(self, elapsed: float) -> str:
         rate = self.records / elapsed if elapsed > 0 else 0.0

@@ -37,10 +37,11 @@ from typing import IO, Any
 from aspp.records import BY_NAME
 from gateway.common.topics import parse
 
-from .files import MARK, RecordingError
-from .losses import Counted, Losses, Summary
+from .files import MARK, STATUS, RecordingError
+from .losses import Counted, Losses
 from .reader import Entry, Mark, read_all
 from .reports import Reading
+from .summary import Summary
 
 LEADING = ("time", "host_time", "device_time", "seq", "lost_before", "lqi", "rssi")
 LOST_BEFORE = LEADING.index("lost_before")
@@ -112,8 +113,9 @@ class Table:
         self.fields = field_columns(record, first)
         self.columns = [*LEADING, *(column for column, _, _ in self.fields)]
         self.losses = Summary()
-        """Its rows (``received``), and what the file lost of them (the radio's and
-        the gateway's losses are in ``lost_before``, not said)."""
+        """Its rows (``received``), what was missed while its base station was down,
+        and what the file lost of them (the radio's and the gateway's losses are in
+        ``lost_before``, not said)."""
 
     @property
     def rows(self) -> int:
@@ -249,6 +251,12 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
                 progress(entry)
             if entry.after_damage:
                 losses.unread()
+            if entry.topic == STATUS:
+                # (only a hint for the losses: one that is not JSON is passed over, as
+                # export passed every status over before; its tables lose nothing)
+                with contextlib.suppress(RecordingError):
+                    losses.status(entry.payload())
+                continue
             if entry.topic == MARK:
                 if marks is None:
                     marks = Output(out, f"{MARKS}.{form}", form, MARK_COLUMNS)

@@ -28,7 +28,7 @@ from typing import Any
 
 from mcap.opcode import Opcode
 
-from gateway.common.topics import MARK_TOPIC
+from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC
 
 SERIAL = "serial"
 WRITTEN = "serial/written"
@@ -108,6 +108,8 @@ def message_times(payload: Mapping[str, Any]) -> tuple[float, float]:
 MAGIC = b"\x89MCAP0\r\n"
 MARK = MARK_TOPIC.decode()
 """The channel of marks (``gx2ctl mark``), each a JSON object (see MARK_TOPIC)."""
+STATUS = STATUS_TOPIC.decode()
+"""The channel of the gateway's status (its heartbeat), each a JSON object."""
 PARTIAL = 1
 """Exit status of export, plot, and a replay with ``exit=true``, that skipped something
 unreadable (a file, a damaged chunk) and read the rest."""

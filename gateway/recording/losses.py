@@ -36,13 +36,20 @@ it (a reboot, then a start: what the stream lost before is not known).
 Where a reader skipped a damaged stretch of a recording (:meth:`Losses.unread`), what
 each stream misses across it was recorded but could not be read: neither the radio's
 nor the gateway's loss, it is counted apart (``unread``), and said as the file's.
+
+Where a stream's step spans an outage of its node's base station (unplugged, its port
+lost: :mod:`.outages`, from the gateway's status messages fed in with
+:meth:`Losses.status`), the samples that fell due from its row before the outage until
+the station was back were missed by no radio: they are counted apart (``down``), as the
+gateway counts them (its status's ``lost_station_down``), and any after it are the
+radio's.
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
 from typing import Any, Generic, NamedTuple, TypeVar
 
 from aspp.timing import (
@@ -53,6 +60,8 @@ from aspp.timing import (
     TICKS_PER_SECOND,
     TIMER_MODULUS,
 )
+
+from .outages import Outages
 
 T = TypeVar("T")
 WINDOW = 32
@@ -82,11 +91,13 @@ class Counted(NamedTuple, Generic[T]):
     unread: int = 0
     """Of ``lost``, the samples in a stretch of the recording that could not be read
     (all of ``lost``, for the first row after it; the others 0)."""
+    down: int = 0
+    """Of ``lost``, the samples that fell due while the node's base station was down."""
 
     @property
     def radio(self) -> int:
         """Of ``lost``, the samples the radio lost."""
-        return max(0, (self.lost or 0) - self.gateway - self.unread)
+        return max(0, (self.lost or 0) - self.gateway - self.unread - self.down)
 
 
 class _Row(NamedTuple, Generic[T]):
@@ -100,6 +111,8 @@ class _Row(NamedTuple, Generic[T]):
     """The node's messages missing by ``seq`` since the stream's previous row."""
     unread: bool = False
     """A stretch of the recording that could not be read lies before it."""
+    span: tuple[float, float] | None = None
+    """The UNIX times of the stream's previous row and of this one, if both have one."""
 
 
 class _Last(NamedTuple):
@@ -107,20 +120,29 @@ class _Last(NamedTuple):
     timer: int | None
     seq: int | None
     count: int
+    time: float | None
+    """When (UNIX s, the records' clock), to hold against a station's outages."""
 
 
 class Stream(Generic[T]):
     """One node's one record, a row at a time: each row is decided once ``ahead`` more
-    rows of its stream are in (0: at once, on the steps before it alone)."""
+    rows of its stream are in (0: at once, on the steps before it alone). ``outage``:
+    when its node's base station came back from an outage between two UNIX times (its
+    last, if several), or None: there was none (:meth:`.Outages.back`)."""
 
-    def __init__(self, ahead: int = WINDOW) -> None:
+    def __init__(self, ahead: int = WINDOW,
+                 outage: Callable[[float, float], float | None] | None = None) -> None:
         self.ahead = ahead
+        self._outage = outage
         self.period: int | None = None
         """The stream's period (clocks) at the last row decided, if it is a stream."""
         self._last: _Last | None = None
         """The stream's last row, or the node's continuous-mode reply since."""
         self._unknown = False
         """The timer restarted before a continuous-mode reply: the next row says so."""
+        self._replied = False
+        """The node sent a continuous-mode reply amid its stream since the last row (a
+        stop's, it may be)."""
         self._unread = False
         """A stretch of the recording was skipped unread: the next row's losses lie in it."""
         self._pending: deque[_Row[T]] = deque()
@@ -134,7 +156,10 @@ class Stream(Generic[T]):
         next row is counted from there, not from the last one: nothing was lost in
         between. Amid the stream (a start retried, its first reply lost) it changes
         nothing. A timer that restarted before it (a reboot, then a start) is still
-        said by the next row."""
+        said by the next row. A silence across an outage of its station is no stop
+        unless a reply (a stop's) came before it: a node streams on while its base
+        station is down, and the gateway starts it again when it is back, whose reply
+        may come before the stream's first record (a slow stream)."""
         start = _last(payload, count)
         if start is None:
             return
@@ -142,6 +167,9 @@ class Stream(Generic[T]):
         if last is not None and _restarted(last, start.ticks, start.timer, start.seq):
             self._unknown = True
         elif last is not None and not self._silent(last, start):
+            self._replied = True
+            return
+        elif last is not None and not self._replied and self._spans_outage(last, start):
             return
         self._last = start
 
@@ -152,6 +180,11 @@ class Stream(Generic[T]):
         return period is None or (
             start.ticks - last.ticks >= STOPPED_PERIODS * period * TICKS_PER_CLOCK)
 
+    def _spans_outage(self, last: _Last, start: _Last) -> bool:
+        """Whether its node's station was down between ``last`` and ``start``."""
+        return (self._outage is not None and last.time is not None
+                and start.time is not None and self._outage(last.time, start.time) is not None)
+
     def add(self, payload: Mapping[str, Any], item: T, count: int = 0) -> list[Counted[T]]:
         """Add the next row (``count``: the node's messages so far, this one included);
         return the rows decided now, in order."""
@@ -160,6 +193,7 @@ class Stream(Generic[T]):
             return [Counted(item, None, 0)]
         ticks, timer, seq = new.ticks, new.timer, new.seq
         last, self._last = self._last, new
+        self._replied = False
         unread, self._unread = self._unread, False
         restarted = self._unknown or (last is not None and _restarted(last, ticks, timer, seq))
         self._unknown = False
@@ -174,7 +208,8 @@ class Stream(Generic[T]):
         if step < MIN_DIVIDER:
             self._pending.append(_Row(item, None, 0, 0))
         else:
-            self._pending.append(_Row(item, step, None, gateway, unread))
+            span = None if last.time is None or new.time is None else (last.time, new.time)
+            self._pending.append(_Row(item, step, None, gateway, unread, span))
             self._window[step] = self._window.get(step, 0) + 1
         out = []
         while len(self._pending) > self.ahead:
@@ -212,7 +247,21 @@ class Stream(Generic[T]):
                 del self._window[old]
         if row.unread:  # what it misses was recorded: the file lost it, not the gateway
             return Counted(row.item, lost, 0, lost)
-        return Counted(row.item, lost, min(lost, row.gateway))
+        gateway = min(lost, row.gateway)
+        return Counted(row.item, lost, gateway, 0, self._down(row.span, lost - gateway))
+
+    def _down(self, span: tuple[float, float] | None, lost: int) -> int:
+        """Of the ``lost`` samples of a step over ``span``, those that fell due from its
+        start until its node's station came back from an outage in it."""
+        if not lost or span is None or self._outage is None or self.period is None:
+            return 0
+        back = self._outage(*span)
+        if back is None:
+            return 0
+        # as the gateway counts lost_station_down: the samples due before the moment
+        # the station was back, k periods after the step's start for k = 1, 2, ...
+        due = math.ceil((back - span[0]) * CLOCK_HZ / self.period) - 1
+        return max(0, min(lost, due))
 
     def _period(self) -> int | None:
         """The shortest step around the row being decided, if it is a stream's period."""
@@ -233,6 +282,7 @@ class Losses(Generic[T]):
         self._counts: dict[int, int] = {}
         self._started: dict[int, tuple[Mapping[str, Any], int]] = {}
         """Each node's last continuous-mode reply: where a stream first seen begins."""
+        self.outages = Outages()
 
     def add(self, node: int, record: str, payload: Mapping[str, Any],
             item: T) -> list[Counted[T]]:
@@ -240,7 +290,8 @@ class Losses(Generic[T]):
         count = self._counts[node] = self._counts.get(node, 0) + 1
         stream = self.streams.get((node, record))
         if stream is None:
-            stream = self.streams[(node, record)] = Stream(self.ahead)
+            stream = self.streams[(node, record)] = Stream(
+                self.ahead, lambda after, at: self.outages.back(node, after, at))
             if node in self._started:
                 stream.started(*self._started[node])
         out = stream.add(payload, item, count)
@@ -250,6 +301,11 @@ class Losses(Generic[T]):
                 if owner == node:
                     other.started(payload, count)
         return out
+
+    def status(self, payload: Mapping[str, Any]) -> None:
+        """A status message of the gateway (``gx2/gateway/status``), in its place among
+        the records: when each base station was down."""
+        self.outages.status(payload)
 
     def unread(self) -> None:
         """A stretch of the recording was skipped unread (a damaged chunk): each
@@ -267,56 +323,22 @@ class Losses(Generic[T]):
         return None if stream is None else stream.seconds
 
 
-@dataclass
-class Summary:
-    """Totals of rows counted: received, lost by the radio and by the gateway, and
-    recorded but unread (a damaged stretch of a recording)."""
-
-    received: int = 0
-    radio: int = 0
-    gateway: int = 0
-    unread: int = 0
-    unread_seconds: float = 0.0
-
-    def add(self, counted: Counted[Any], gateway: int | None = None,
-            period: float | None = None) -> None:
-        """Count a row; ``gateway``: the messages the gateway lost just before it, if
-        known otherwise than by its stream (a subscriber's count of every record);
-        ``period``: the stream's (s), to say how long the unread stretches are."""
-        self.received += 1
-        self.radio += counted.radio
-        self.gateway += counted.gateway if gateway is None else gateway
-        self.unread += counted.unread
-        self.unread_seconds += counted.unread * (period or 0.0)
-
-    def line(self, separator: str = ", ") -> str:
-        """``radio: 2,600 lost (26.00%), gateway: 0 lost (0.00%)``: each a share of what
-        should have arrived (received and lost); then the file's damage, if any."""
-        total = self.received + self.radio + self.gateway + self.unread
-        said = (f"radio: {self.radio:,} lost ({_share(self.radio, total)}){separator}"
-                f"gateway: {self.gateway:,} lost ({_share(self.gateway, total)})")
-        return f"{said}{separator}{self.damage()}" if self.unread else said
-
-    def damage(self) -> str:
-        """``file damaged: 98 messages, 1.0 s unread``; empty if none was."""
-        if not self.unread:
-            return ""
-        seconds = f", {self.unread_seconds:.1f} s" if self.unread_seconds else ""
-        return (f"file damaged: {self.unread:,} message{'s' * (self.unread != 1)}"
-                f"{seconds} unread")
-
-
-def _share(part: int, total: int) -> str:
-    return f"{100 * part / total:.2f}%" if total else "0.00%"
-
-
 def _last(payload: Mapping[str, Any], count: int) -> _Last | None:
     """Where ``payload`` is on the node's timer (None: it has no device time)."""
     device = payload.get("device_time")
     if not isinstance(device, (int, float)) or isinstance(device, bool) or device != device:
         return None
     return _Last(round(device * TICKS_PER_SECOND), _integer(payload.get("timer")),
-                 _integer(payload.get("seq")), count)
+                 _integer(payload.get("seq")), count, _time(payload))
+
+
+def _time(payload: Mapping[str, Any]) -> float | None:
+    """When the record was sampled (else read), UNIX s; None if it says neither."""
+    for key in ("time", "host_time"):
+        value = payload.get(key)
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and value == value:
+            return float(value)
+    return None
 
 
 def _integer(value: Any) -> int | None:
@@ -344,4 +366,4 @@ def _seq_missing(last: _Last, seq: int | None, count: int) -> int:
     return max(0, (seq - last.seq) - (count - last.count))
 
 
-__all__ = ["STARTED", "WINDOW", "Counted", "Losses", "Stream", "Summary"]
+__all__ = ["STARTED", "WINDOW", "Counted", "Losses", "Stream"]

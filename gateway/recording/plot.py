@@ -14,7 +14,8 @@ period, a restart, or a step longer than GAP_FACTOR periods) every line breaks, 
 loss shows as a gap; where an angle wraps (a jump of more than HALF_TURN, from +180 to
 -180 degrees) that line breaks, rather than being drawn across the panel. The title
 gives the rate, and the samples lost by the radio (the timer's steps) and by the
-gateway (``seq``) apart, as counts and shares. Each panel's legend is beside it, off
+gateway (``seq``) apart, as counts and shares, and those missed while the node's base
+station was down (the recorded status messages) apart again. Each panel's legend is beside it, off
 the data. Marks (``gx2ctl mark``) of the node or of the whole experiment, made within
 the samples' time, are vertical lines labelled with their text, inside the top panel
 (shortened with an ellipsis where it is too long for it), none against
@@ -38,10 +39,11 @@ from aspp.records import BY_NAME
 from gateway.common.topics import parse
 
 from .export import MissingExtra
-from .files import MARK
-from .losses import Counted, Losses, Stream, Summary
+from .files import MARK, STATUS
+from .losses import Counted, Losses, Stream
 from .reader import Mark, read_all
 from .reports import Reading
+from .summary import Summary
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -79,7 +81,8 @@ class Picture:
     marks: list[tuple[float, str]] = field(default_factory=list)
     """(x, text) of each mark drawn."""
     losses: Summary = field(default_factory=Summary)
-    """The samples of the stream received, and lost by the radio and by the gateway."""
+    """The samples of the stream received, lost by the radio and by the gateway, and
+    missed while its base station was down."""
 
 
 @dataclass
@@ -117,8 +120,10 @@ def records_of(paths: list[Path], node: int, record: str | None,
     for entry in read_all(paths, reading):
         if entry.after_damage:
             losses.unread()
-        if entry.topic == "gx2/gateway/status":
-            for listed in entry.payload().get("nodes") or []:
+        if entry.topic == STATUS:
+            status = entry.payload()
+            losses.status(status)
+            for listed in status.get("nodes") or []:
                 if isinstance(listed, dict) and listed.get("node") == node and listed.get(
                         "name"):
                     name = str(listed["name"])

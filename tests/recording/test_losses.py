@@ -9,7 +9,8 @@ import random
 import pytest
 
 from aspp.timing import TICKS_PER_CLOCK, TICKS_PER_SECOND, TIMER_MODULUS, TimerUnwrapper
-from gateway.recording.losses import WINDOW, Counted, Losses, Summary
+from gateway.recording.losses import WINDOW, Counted, Losses
+from gateway.recording.summary import Summary
 
 DIVIDER = 512
 STEP = DIVIDER * TICKS_PER_CLOCK

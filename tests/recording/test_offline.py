@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import itertools
+import json
 import math
 import os
 import subprocess
@@ -14,6 +15,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 from matplotlib import pyplot
+from mcap.writer import Writer
 
 from aspp.orientation import matrix_from_euler
 from aspp.records import BY_NAME, decode, encode
@@ -358,3 +360,24 @@ def test_a_long_mark_label_stays_inside_its_panel_and_leaves_the_panels_alone():
     for text, extent, inside in labels:
         assert inside.x0 <= extent.x0 and extent.x1 <= inside.x1, text
         assert inside.y0 <= extent.y0 and extent.y1 <= inside.y1, text
+
+
+def test_a_status_that_is_not_a_json_object_is_passed_over_by_export(tmp_path):
+    # export reads the statuses for when a base station was down; a foreign one (a JSON
+    # list, written by another tool) tells nothing and costs no row
+    path = tmp_path / "odd.mcap"
+    with path.open("wb") as output:
+        writer = Writer(output)
+        writer.start(profile="", library="another tool")
+        status = writer.register_channel("gx2/gateway/status", "json", 0)
+        euler = writer.register_channel("gx2/76/euler", "json", 0)
+        writer.add_message(status, int(T0 * 1e9), b"[1, 2]", int(T0 * 1e9), 1)
+        for i in range(50):
+            record = payload(76, "euler", i + 1, T0 + i / 100, timer=i, roll=0.1,
+                             pitch=0.2, yaw=0.3)
+            when = int(record["host_time"] * 1e9)
+            writer.add_message(euler, when, json.dumps(record).encode(), when, i + 2)
+        writer.finish()
+    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
+    assert ran.status == 0, ran.stderr
+    assert len(rows(tmp_path / "out" / "76_euler.csv")) == 50
