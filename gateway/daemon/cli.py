@@ -56,7 +56,8 @@ def main(argv: list[str] | None = None) -> int:
     # at --check, and at start rather than as a replay that ends at once having done nothing
     from .ports import never_serial, nothing_to_play
     for where, station in config.placed_stations():
-        problem = nothing_to_play(station.port, station.name or "")
+        problem = nothing_to_play(station.port,
+                                  None if config.base_stations is None else station.name)
         if args.check:
             problem = problem or never_serial(station.port)
         if problem:

@@ -92,9 +92,10 @@ def why_not_open(error: BaseException) -> str:
     return str(error) or type(error).__name__
 
 
-def nothing_to_play(url: str, station: str) -> str | None:
+def nothing_to_play(url: str, station: str | None) -> str | None:
     """Why a ``replay://`` URL has nothing to play for the base station named
-    ``station`` (None if it has, or is no replay): its recordings are read up to their
+    ``station`` (None: one the configuration does not name, its one-station form) (None
+    if it has, or is no replay): its recordings are read up to their
     first message that can be played."""
     replay = Port.replay_of(url)
     return (replay.nothing_to_play(station) or None) if replay is not None else None

@@ -113,14 +113,19 @@ class Replay:
             raise ValueError(str(error)) from None
         return cls(tuple(files), speed, leave, delay)
 
-    def nothing_to_play(self, station: str) -> str:
+    def nothing_to_play(self, station: str | None) -> str:
         """Why the recording has nothing to play for the base station named ``station``
-        (empty if it has): a file of several stations' reads holds none of its name, or
+        (None: the one-station form's, which has no name to give it) (empty if it has):
+        a file of several stations' reads holds none of its name, or
         no file holds a serial read, a node's record or a mark. Files are read only up
         to the first such message, so a gateway's recording is judged by its first
         chunk (and each file's head, where its stations are named)."""
         for path in self.files:
             several = recorded_stations(path)
+            if several and station is None:
+                return (f"{path} holds the reads of base stations {', '.join(several)}: "
+                        "replay it under base_stations:, each station named as one of "
+                        "them (see docs/recording.md, Recording and replay)")
             if several and station not in several:
                 return (f"{path} holds the reads of base stations {', '.join(several)}, "
                         f"none named {station!r}: name the base station that replays it "

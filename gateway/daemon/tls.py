@@ -22,6 +22,11 @@ def _no_passphrase() -> str:
 
 
 def _readable(path: str) -> None:
+    # a regular file only: OpenSSL raises a bare OSError for a directory, and blocks
+    # reading a FIFO until something writes to it
+    if not os.path.isfile(path):
+        raise ValueError(f"{path}: not a file" if os.path.exists(path)
+                         else f"{path}: no such file")
     if not os.access(path, os.R_OK):
         raise ValueError(f"cannot read {path}")
 
@@ -32,7 +37,9 @@ def check_cert(path: str | None) -> str | None:
         _readable(path)
         try:
             ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_verify_locations(cafile=path)
-        except ssl.SSLError as error:
+        except OSError as error:
+            if not isinstance(error, ssl.SSLError):  # (read between the check and here)
+                raise ValueError(f"{path}: {error.strerror or error}") from None
             why = ("no PEM certificate in it" if error.reason == "NO_CERTIFICATE_OR_CRL_FOUND"
                    else f"not a PEM certificate ({error.reason or error})")
             raise ValueError(f"{path}: {why}") from None
@@ -53,7 +60,9 @@ def check_key(path: str | None, cert: str | None) -> str | None:
     except _Encrypted:
         raise ValueError(f"{path}: is encrypted: the live view takes a key without a "
                          "passphrase") from None
-    except ssl.SSLError as error:
+    except OSError as error:
+        if not isinstance(error, ssl.SSLError):
+            raise ValueError(f"{path}: {error.strerror or error}") from None
         why = (f"is the key of another certificate than tls_cert's ({cert})"
                if error.reason == "KEY_VALUES_MISMATCH"
                else "no PEM private key in it" if error.library == "SSL"

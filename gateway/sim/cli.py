@@ -30,6 +30,8 @@ from .server import LinkInUse, Simulator
 
 PROG = "gx2-sim"
 UNPLUG_SECONDS = 2.0
+MAX_UNPLUG_SECONDS = 86400.0
+"""The longest unplug asked for by a duration (0: until replugged)."""
 
 
 def build_parser() -> ArgumentParser:
@@ -99,7 +101,7 @@ def build_control_parser(action: str) -> ArgumentParser:
                         help="the station's name (base_stations:); omit it for a "
                         "gx2-sim of one station")
     if action == "unplug":
-        parser.add_argument("--seconds", type=bounded(float, 0.0, 86400.0),
+        parser.add_argument("--seconds", type=bounded(float, 0.0, MAX_UNPLUG_SECONDS),
                             default=UNPLUG_SECONDS,
                             help=f"plug it back in after this long (default "
                             f"{UNPLUG_SECONDS:g}; 0: until 'gx2-sim replug NAME')")
@@ -138,6 +140,9 @@ def control_handler(stations: list[Station], sims: list[Simulator]) -> Handler:
             seconds = float(words[2]) if len(words) == 3 else UNPLUG_SECONDS
         except ValueError:
             raise ControlError(f"not a number of seconds: {words[2]!r}") from None
+        if not 0 <= seconds <= MAX_UNPLUG_SECONDS:  # (nan too)
+            raise ControlError(f"seconds: {words[2]} is not from 0 to "
+                               f"{MAX_UNPLUG_SECONDS:g}")
         sim.unplug(duration=seconds or None)
         return f"ok {label} unplugged" + (f" for {seconds:g} s" if seconds
                                           else " until replugged")

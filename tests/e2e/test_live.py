@@ -7,6 +7,7 @@ line; the gateway still stops within 2 s with a viewer connected."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import signal
 import socket
@@ -214,7 +215,12 @@ def test_tls_files_the_live_view_cannot_use_fail_check_naming_the_key(tmp_path) 
                     "-out", str(encrypted)], check=True, capture_output=True, timeout=30)
     text = tmp_path / "notes.txt"
     text.write_text("not PEM at all\n")
-    cases = {"cert not PEM": (text, key, "live.tls_cert", "no PEM certificate"),
+    fifo = tmp_path / "fifo"  # (read, it blocked --check until something wrote to it)
+    os.mkfifo(fifo)
+    cases = {"cert a directory": (tmp_path, key, "live.tls_cert", "not a file"),
+             "key a directory": (cert, tmp_path, "live.tls_key", "not a file"),
+             "key a FIFO": (cert, fifo, "live.tls_key", "not a file"),
+             "cert not PEM": (text, key, "live.tls_cert", "no PEM certificate"),
              "the key given as cert": (key, key, "live.tls_cert", "no PEM certificate"),
              "key not PEM": (cert, text, "live.tls_key", "no PEM private key"),
              "another certificate's key": (cert, other_key, "live.tls_key",

@@ -62,12 +62,14 @@ def test_a_several_station_recording_is_replayed_by_name_and_refused_to_others(
     url = f"replay://{directory}{PLAY}"
     [file] = sorted(directory.glob("*.mcap"))
 
-    # the one-station form, as docs/recording.md shows it (its station: station1)
+    # the one-station form, as docs/recording.md shows it: it has no name to give its
+    # station (the default, station1, is not the user's), so the advice is the other form
     for line in refused(tmp_path, {"base_station": {"port": url},
                                    "nodes": [{"address": 76}]}):
         assert line.endswith(f"base_station.port: {file} holds the reads of base stations "
-                             "north, south, none named 'station1': name the base station "
-                             "that replays it as one of them"), line
+                             "north, south: replay it under base_stations:, each station "
+                             "named as one of them (see docs/recording.md, Recording and "
+                             "replay)"), line
     # a station of other names among several
     for line in refused(tmp_path, {"base_stations": [
             {"name": "north", "port": url, "nodes": [{"address": 76}]},

@@ -13,6 +13,7 @@ import pytest
 import serial
 
 from aspp import Decoder, Event, Frame, Reply
+from gateway.sim import control
 from gateway.sim.cli import UNPLUG_SECONDS
 from tests.helpers.processes import Running, script, spawn_run
 from tests.helpers.waiting import wait_for
@@ -154,6 +155,12 @@ def test_gx2_sim_unplug_of_a_name_no_station_has_says_which_there_are(
     assert done.returncode == 1 and "name a station" in done.stderr, done
     done = sim_command("unplug", "north", "--seconds", "soon")
     assert done.returncode == 2 and "'soon' is not a number" in done.stderr, done
+    # what the socket is told is bounded as the command line's option is
+    pid = running.proc.pid
+    path = control.running(pid)[pid]
+    for seconds in ("-1", "nan", "inf", "1e9"):
+        answer = control.ask(path, f"unplug north {seconds}")
+        assert not answer.startswith("ok") and "is not from 0 to 86400" in answer, answer
 
 
 def unplugged(port: serial.Serial) -> bool:
