@@ -205,25 +205,32 @@ WRITERS: dict[str, Callable[[Path, list[str]], Writer]] = {
 class Output:
     """One table's file: written under its temporary name, renamed when whole."""
 
-    def __init__(self, out: Path, name: str, form: str, columns: list[str]) -> None:
+    def __init__(self, out: Path, name: str, form: str, columns: list[str],
+                 outputs: list[Output]) -> None:
         self.path = out / name
         self.temporary = out / TEMPORARY.format(name=name)
         self.rows = 0
+        self._writer: Writer | None = None
+        # known to the export's clean-up before its file exists: a Ctrl-C that lands
+        # just after the file is made (as a test's does, sent when a file appears) would
+        # otherwise leave the temporary behind
+        outputs.append(self)
         self._writer = WRITERS[form](self.temporary, columns)
 
     def add(self, row: list[Any]) -> None:
-        self._writer.add(row)
+        self._writer.add(row)  # type: ignore[union-attr]
         self.rows += 1
 
     def finish(self) -> None:
-        self._writer.close()
+        self._writer.close()  # type: ignore[union-attr]
         os.replace(self.temporary, self.path)
 
     def discard(self) -> None:
         # whatever went wrong (even a second Ctrl-C's in the first's clean-up), the
         # temporary goes: it is never taken for a table, being hidden and so named
-        with contextlib.suppress(Exception):
-            self._writer.close()
+        if self._writer is not None:
+            with contextlib.suppress(Exception):
+                self._writer.close()
         with contextlib.suppress(OSError):
             self.temporary.unlink()
 
@@ -259,8 +266,7 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
                 continue
             if entry.topic == MARK:
                 if marks is None:
-                    marks = Output(out, f"{MARKS}.{form}", form, MARK_COLUMNS)
-                    outputs.append(marks)
+                    marks = Output(out, f"{MARKS}.{form}", form, MARK_COLUMNS, outputs)
                 marks.add(mark_row(Mark.of(entry)))
                 continue
             where = parse(entry.topic)
@@ -270,8 +276,8 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
             open_table = tables.get(where)
             if open_table is None:
                 table = Table(*where, payload)
-                output = Output(out, f"{where[0]}_{where[1]}.{form}", form, table.columns)
-                outputs.append(output)
+                output = Output(out, f"{where[0]}_{where[1]}.{form}", form, table.columns,
+                                outputs)
                 open_table = tables[where] = (table, output)
             table, output = open_table
             _write(losses.add(*where, payload, (table, output, table.row(payload))), losses)
