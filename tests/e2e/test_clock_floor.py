@@ -12,6 +12,7 @@ from gateway.sim.base_station import RadioLink
 from gateway.sim.node import NodeSettings
 from tests.e2e.test_watching import Scraper
 from tests.helpers.ports import free_port
+from tests.helpers.processes import gx2ctl
 from tests.helpers.waiting import wait_for
 
 PACKET = 40 * 10 / 115200
@@ -64,3 +65,12 @@ def test_a_node_queued_behind_another_says_its_clock_floor_is_unseen(simulator, 
     wait_for(lambda: (scrape.value("gx2_node_clock_floor_age_seconds", node="77") or 0)
              >= UNSEEN_S, 5, "the floor's age in the metrics")
     assert scrape.value("gx2_node_clock_floor_age_seconds", node="76") < 1.0
+    # gx2ctl status: the bound in 77's clock column, and the reason under the table
+    shown = gx2ctl("--config", str(gw.path), "status")
+    assert shown.status == 0, shown.stderr
+    rows = {}
+    for line in shown.stdout.splitlines():
+        rows.setdefault(line.split(" ")[0], line)  # (a node's row, then its reasons)
+    assert re.search(r"ppm, <=\d+\.\d ms late +WARN$", rows["77"]), shown.stdout
+    assert "ms late" not in rows["76"], shown.stdout
+    assert re.search(r"^77 WARN: clock floor unseen for", shown.stdout, re.M), shown.stdout
