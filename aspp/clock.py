@@ -150,9 +150,10 @@ records."""
 # So ``time`` may be late by up to max(0, L - R + DRIFT_ERROR * age) more than where
 # its floor was last seen (:meth:`NodeClock.late_bound`). No packet can show more: a
 # packet that waited says only that the floor is below it, so packets bound the line
-# from the other side (``time`` is early by at most the least residual, at each
-# packet's own device time), and a line that never saw its floor (a node whose samples
-# fall just behind another's from the start) is late by the wait with nothing to show.
+# from the other side only (at each packet's device time, ``time`` is early by at most
+# that packet's delay above the line), and a line that never saw its floor (a node
+# whose samples fall just behind another's from the start) is late by the wait with
+# nothing to show.
 # Not counted while held (the line learns nothing: the hold's own reason says why) nor
 # before the estimate locks; a reset, a release or an outage starts it over.
 DRIFT_ERROR = FLOOR_NOISE / (WINDOW / 4)
