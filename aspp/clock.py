@@ -140,12 +140,15 @@ records."""
 # - R(x_f) - F(x_f) is the estimate's error where it last saw its floor: what it is on
 #   a free line (the premise of the whole estimate: the fastest packets come through
 #   with the floor's delay), not part of the bound.
-# - (D_f - D*) (x - x_f): the drift is never exact. A drift stands while the line
-#   rests on a point in the window's middle half (MIDDLE), so on a line that saw its
-#   floor there are floor points at least a quarter of the window to either side, each
-#   within FLOOR_NOISE above F, and the line is below all of them: its slope is off by
-#   at most FLOOR_NOISE over a quarter of the window, DRIFT_ERROR (33 ppm; a line
-#   younger than a window has a shorter base line and may be further off).
+# - (D_f - D*) (x - x_f): the drift is never exact. The line rests on a point p of
+#   the hull (L(p) >= F(p): no packet is early) at least a quarter of the window from
+#   either end (MIDDLE: its drift stands while p is in the middle half, else it moves
+#   to the edge at a quarter), so on a line that saw its floor there are floor points
+#   q (within FLOOR_NOISE above F) a quarter of the window or more to either side of
+#   p, and L(q) <= F(q) + FLOOR_NOISE: the slope is off by at most FLOOR_NOISE over a
+#   quarter of the window, DRIFT_ERROR (33 ppm; a line younger than a window has a
+#   shorter base line and may be further off; a fit that rests the line elsewhere
+#   must derive this again).
 #
 # So ``time`` may be late by up to max(0, L - R + DRIFT_ERROR * age) more than where
 # its floor was last seen (:meth:`NodeClock.late_bound`). No packet can show more: a
