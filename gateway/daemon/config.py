@@ -196,8 +196,9 @@ class LiveConfig(Strict):
 
 
 FLOOR_UNSEEN_S = 30.0
-"""The default of health.floor_unseen_s: at 30 s, ``time`` may be late by up to 1 ms
-(aspp.clock.DRIFT_ERROR), the most a record's ``time`` should be off."""
+"""The default of health.floor_unseen_s: from 30 s unseen, ``time`` may be late by 1 ms
+(aspp.clock.DRIFT_ERROR), the worst error the sample time's targets allow
+(docs/performance.md)."""
 
 
 class HealthConfig(Strict):
