@@ -119,6 +119,49 @@ points leaving the window, a refit) with times advancing at one and a half. So `
 never steps against the device's time by more than half the time between two
 records."""
 
+# How long since the line last saw its floor, and what that may cost (issue 32). A
+# packet is near the floor when its delay above the line is within the floor's noise
+# (FLOOR_NOISE) and so is its height above the line as it stood when the floor was
+# last seen (extrapolated at the drift it had then): a line that rose since (its old
+# floor points left the window, and it now rests on packets that all waited) is no
+# floor seen. The age is counted in device seconds, from that packet to the newest:
+# the line is extrapolated along the device's time, a replay ages it as live did, and
+# a node that sends nothing ages nothing (it is silent, which health says).
+#
+# What is true while no packet comes near the floor. Write F for the true floor (the
+# least delay a packet can have, on the node's true drift D*), L for the line (drift
+# D), R for the line as it stood at the last sighting x_f (drift D_f). At device x:
+#
+#     L(x) - F(x) = [L(x) - R(x)] + [R(x_f) - F(x_f)] + (D_f - D*) (x - x_f)
+#
+# - L - R is seen: how far the line moved from the floor last seen, its drift's moves
+#   included (0 while the line is only extrapolated; the queue's wait once it rises
+#   onto the waiting packets).
+# - R(x_f) - F(x_f) is the estimate's error where it last saw its floor: what it is on
+#   a free line (the premise of the whole estimate: the fastest packets come through
+#   with the floor's delay), not part of the bound.
+# - (D_f - D*) (x - x_f): the drift is never exact. The line rests on a point p of
+#   the hull (L(p) >= F(p): no packet is early) at least a quarter of the window from
+#   either end (MIDDLE: its drift stands while p is in the middle half, else it moves
+#   to the edge at a quarter), so on a line that saw its floor there are floor points
+#   q (within FLOOR_NOISE above F) a quarter of the window or more to either side of
+#   p, and L(q) <= F(q) + FLOOR_NOISE: the slope is off by at most FLOOR_NOISE over a
+#   quarter of the window, DRIFT_ERROR (33 ppm; a line younger than a window has a
+#   shorter base line and may be further off; a fit that rests the line elsewhere
+#   must derive this again).
+#
+# So ``time`` may be late by up to max(0, L - R + DRIFT_ERROR * age) more than where
+# its floor was last seen (:meth:`NodeClock.late_bound`). No packet can show more: a
+# packet that waited says only that the floor is below it, so packets bound the line
+# from the other side only (at each packet's device time, ``time`` is early by at most
+# that packet's delay above the line), and a line that never saw its floor (a node
+# whose samples fall just behind another's from the start) is late by the wait with
+# nothing to show.
+# Not counted while held (the line learns nothing: the hold's own reason says why) nor
+# before the estimate locks; a reset, a release or an outage starts it over.
+DRIFT_ERROR = FLOOR_NOISE / (WINDOW / 4)
+"""How far from the crystal's true drift a line that saw its floor may be (above)."""
+
 Point = tuple[float, float]
 
 
@@ -165,6 +208,9 @@ class NodeClock:
         "_first",
         "_fitted",
         "_fitted_at",
+        "_floor_at",
+        "_floor_drift",
+        "_floor_offset",
         "_given",
         "_last",
         "_locked_since",
@@ -237,6 +283,11 @@ class NodeClock:
         self._last = 0.0
         self._locked_since: float | None = None
         self._residuals: deque[float] = deque(maxlen=RESIDUALS)
+        self._floor_at = 0.0
+        """Device time of the last packet near the floor (see DRIFT_ERROR), and the
+        line as it stood then."""
+        self._floor_offset = 0.0
+        self._floor_drift = 0.0
 
     # -- packets ---------------------------------------------------------------------------
 
@@ -264,8 +315,14 @@ class NodeClock:
             self._fit()
         elif y < self._offset + self._drift * device:
             self._offset = y - self._drift * device  # lowered to it; refit at the block's end
-        line = self._offset + self._drift * device
-        self._residuals.append(y - line)
+        offset, drift = self._offset, self._drift
+        line = offset + drift * device
+        residual = y - line
+        self._residuals.append(residual)
+        # near the floor, and the line not risen from it since (see DRIFT_ERROR)
+        if residual <= FLOOR_NOISE and \
+                y - self._floor_offset - self._floor_drift * device <= FLOOR_NOISE:
+            self._floor_at, self._floor_offset, self._floor_drift = device, offset, drift
         if self._locked_since is None and self._points >= LOCK_POINTS \
                 and device - self._first >= LOCK_SPAN:
             self._locked_since = host
@@ -290,6 +347,7 @@ class NodeClock:
         self._first = self._block_start = self._last = device
         self._offset = y
         self._residuals.append(0.0)
+        self._floor_at, self._floor_offset, self._floor_drift = device, y, self._drift
         return self._give(device, host)
 
     def _give(self, device: float, time: float) -> float:
@@ -374,6 +432,23 @@ class NodeClock:
     @property
     def held(self) -> bool:
         return self._state in HELD_STATES
+
+    @property
+    def floor_age(self) -> float | None:
+        """Device seconds from the last packet near the floor to the newest packet
+        (see DRIFT_ERROR); None unless locked (before the lock, or held)."""
+        return self._last - self._floor_at if self.locked else None
+
+    def late_bound(self) -> float | None:
+        """How much later than where the floor was last seen ``time`` may be, at the
+        newest packet (seconds, see DRIFT_ERROR); None unless locked."""
+        age = self.floor_age
+        if age is None:
+            return None
+        x = self._last
+        moved = (self._offset + self._drift * x
+                 - (self._floor_offset + self._floor_drift * x))
+        return max(0.0, moved + DRIFT_ERROR * age)
 
     def estimate(self) -> Estimate:
         """The current estimate (for status)."""

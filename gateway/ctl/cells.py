@@ -59,13 +59,18 @@ def count(value: Any, unit: str) -> str:
     return f"{text} {unit}" if text != MISSING else MISSING
 
 
-def clock_cell(clock: Any) -> str:
+def clock_cell(clock: Any, unit: str = " ppm") -> str:
     """A node's clock estimate in a few characters: its drift and whether it is locked
-    ("+40.1 ppm" locked, "~+40.1 ppm" still settling, "-" before a timed record)."""
+    ("+40.1 ppm" locked, "~+40.1 ppm" still settling, "-" before a timed record), and,
+    while its floor has gone unseen past the gateway's threshold, how late ``time`` may
+    be ("+40.1 ppm, <=1.4 ms late": status's ``late_ms``)."""
     if not isinstance(clock, Mapping):
         return "-"
     drift = number(clock.get("drift_ppm"))
-    shown = "?" if drift is None else f"{drift:+.1f} ppm"
+    shown = "?" if drift is None else f"{drift:+.1f}{unit}"
+    late = number(clock.get("late_ms"))
+    if late is not None:
+        shown += f", <={late:.1f} ms late"
     return shown if clock.get("locked") is True else f"~{shown}"
 
 

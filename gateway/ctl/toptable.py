@@ -52,7 +52,7 @@ def age_text(age: float) -> str:
 
 
 def _clock(node: Mapping[str, Any], now: float) -> str:
-    return clock_cell(node.get("clock")).removesuffix(" ppm")
+    return clock_cell(node.get("clock"), unit="")
 
 
 def _name(node: Mapping[str, Any], now: float) -> str:

@@ -96,7 +96,8 @@ class Gateway:
             endpoint = config.control.endpoint
             self.stations = [Station(station, self.publisher, only=len(config.stations) == 1,
                                      first=index == 0, on_link_state=self._on_link_state,
-                                     on_replay_end=self._replay_ended)
+                                     on_replay_end=self._replay_ended,
+                                     floor_unseen_s=config.health.floor_unseen_s)
                              for index, station in enumerate(config.stations)]
             self.nodes = {address: node for station in self.stations
                           for address, node in station.nodes.items()}

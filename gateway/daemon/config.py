@@ -195,6 +195,12 @@ class LiveConfig(Strict):
         return tls.check_key(path, info.data.get("tls_cert"))
 
 
+FLOOR_UNSEEN_S = 30.0
+"""The default of health.floor_unseen_s: from 30 s unseen, ``time`` may be late by 1 ms
+(aspp.clock.DRIFT_ERROR), the worst error the sample time's targets allow
+(docs/performance.md)."""
+
+
 class HealthConfig(Strict):
     """Added: when a node is OK, WARN or ERROR (docs/interface.md, section 8)."""
 
@@ -210,6 +216,9 @@ class HealthConfig(Strict):
     settle_s: Annotated[float, Field(ge=2, le=600)] = 10.0
     """A stream (re)started this recently is not judged by its rate or its clock yet,
     nor anything by a window this short: each needs some seconds of records."""
+    floor_unseen_s: Annotated[float, Field(ge=2, le=600)] = FLOOR_UNSEEN_S
+    """WARN when no packet of a node came near its clock's floor for this long (device
+    seconds): ``time`` may be late meanwhile by the bound status gives (`late_ms`)."""
 
 
 class NodeEntry(Strict):

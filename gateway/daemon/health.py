@@ -161,6 +161,9 @@ def judge(node: Node, recent: Recent, now: float, limits: HealthConfig) -> Verdi
             reasons.append(LINE_OVER_CAPACITY)
         elif node.clock.points and not node.clock.locked:
             reasons.append("clock not locked")
+        elif (late := node.floor_unseen()) is not None:
+            reasons.append(f"clock floor unseen for {node.clock.floor_age:.0f} s: time may "
+                           f"be late by up to {late * 1e3:.1f} ms")
     window = f"in {recent.seconds:.0f} s"
     if recent.seconds >= min(limits.window_s, limits.settle_s):  # enough to go by
         loss = recent.loss_percent

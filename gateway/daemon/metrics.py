@@ -154,6 +154,8 @@ def families(report: Mapping[str, Any]) -> Iterator[Metric]:
                   "host's clock (positive: fast)", labels=["node"])
     locked = GAUGE("gx2_node_clock_locked", "1 once its clock estimate has locked",
                    labels=["node"])
+    floor_age = GAUGE("gx2_node_clock_floor_age_seconds", "Device seconds since a packet "
+                      "came near its clock's floor (while locked)", labels=["node"])
     published = COUNTER("gx2_records_published_total", "Records published, by node and record",
                         labels=["node", "record"])
     for (node,), entry in entries:
@@ -168,10 +170,12 @@ def families(report: Mapping[str, Any]) -> Iterator[Metric]:
             if (value := number(clock.get("drift_ppm"))) is not None:
                 drift.add_metric([node], value)
             locked.add_metric([node], float(clock.get("locked") is True))
+            if (value := number(clock.get("floor_age_s"))) is not None:
+                floor_age.add_metric([node], value)
         for record, count in as_map(entry.get("by_record")).items():
             if (value := number(count)) is not None:
                 published.add_metric([node, str(record)], value)
-    yield from (names, states, health, drift, locked, published)
+    yield from (names, states, health, drift, locked, floor_age, published)
 
     recording = report.get("recording")
     if isinstance(recording, Mapping):

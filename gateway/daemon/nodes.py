@@ -30,7 +30,7 @@ from aspp.timing import (
 )
 from gateway.common.topics import default_station_name
 
-from .config import NodeEntry
+from .config import FLOOR_UNSEEN_S, NodeEntry
 
 RATE_WINDOW = 2.0
 """Seconds over which the record rate is measured."""
@@ -86,7 +86,8 @@ class Node:
     """One configured node."""
 
     def __init__(self, config: NodeEntry, *, byte_time: float = BITS_PER_BYTE / 115200,
-                 latency: float = 0.0, station: str | None = None) -> None:
+                 latency: float = 0.0, station: str | None = None,
+                 floor_unseen_s: float = FLOOR_UNSEEN_S) -> None:
         self.config = config
         self.station = station or default_station_name(0)
         """The name of the base station it is configured on (each record carries it)."""
@@ -94,6 +95,9 @@ class Node:
         """Where its timer falls on the host's clock (see :mod:`aspp.clock`)."""
         self._byte_time = byte_time
         """Seconds a byte takes on the serial line (10 bits at the baud rate)."""
+        self.floor_unseen_s = floor_unseen_s
+        """How long its clock may go without seeing its floor before it is a WARN, and
+        status gives how late ``time`` may be (health.floor_unseen_s)."""
         self._latency = latency
         """Seconds from a sample to its packet leaving the base station, at the least:
         the radio's part, which the host cannot see (base_station.latency_ms)."""
@@ -434,12 +438,24 @@ class Node:
             return None
         estimate = self.clock.estimate()
         shift = now - time.monotonic()
+        age, late = self.clock.floor_age, self.floor_unseen()
         return {"offset": estimate.offset - self._latency + shift,
                 # how fast its timer runs against the host's clock (positive: fast)
                 "drift_ppm": round((1 / (1 + estimate.drift) - 1) * 1e6, 3),
                 "spread_ms": round(estimate.spread * 1e3, 4), "locked": estimate.locked,
                 "since": None if estimate.locked_since is None
-                else estimate.locked_since + shift}
+                else estimate.locked_since + shift,
+                "floor_age_s": None if age is None else round(age, 2),
+                "late_ms": None if late is None else round(late * 1e3, 3)}
+
+    def floor_unseen(self) -> float | None:
+        """How late ``time`` may be (seconds, :meth:`aspp.clock.NodeClock.late_bound`)
+        while its clock has gone floor_unseen_s or longer without seeing its floor;
+        None otherwise (seen since, or no lock to judge)."""
+        age = self.clock.floor_age
+        if age is None or age < self.floor_unseen_s:
+            return None
+        return self.clock.late_bound()
 
     def status(self, now: float) -> dict[str, Any]:
         if self.last_seen is not None and now - self.last_seen > 2 * RATE_WINDOW:

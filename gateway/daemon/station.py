@@ -43,16 +43,18 @@ class Station:
 
     def __init__(self, config: StationConfig, publisher: Publisher, *, only: bool,
                  first: bool, on_link_state: Callable[[Station, bool], None],
-                 on_replay_end: Callable[[Station], None]) -> None:
+                 on_replay_end: Callable[[Station], None], floor_unseen_s: float) -> None:
         """``only``: the gateway's one station (its recording keeps the one-station
-        channel names); ``first``: the one that publishes a recording's marks again."""
+        channel names); ``first``: the one that publishes a recording's marks again;
+        ``floor_unseen_s``: how long its nodes' clocks may go without seeing their floor
+        before status gives how late ``time`` may be (health.floor_unseen_s)."""
         self.config = config
         self.name = config.name or ""
         self._on_link_state = on_link_state
         self._on_replay_end = on_replay_end
         line_byte = byte_time(config.baudrate)
         self.nodes = {n.address: Node(n, byte_time=line_byte, latency=config.latency_ms / 1000,
-                                      station=self.name)
+                                      station=self.name, floor_unseen_s=floor_unseen_s)
                       for n in config.nodes}
         self.line = LineLoad(config.baudrate / BITS_PER_BYTE)
         self.replay = Port.replay_of(config.port)

@@ -12,13 +12,16 @@ nodes:
     motion: turn              # turn (about the vertical) or swing (and wobbling, 4 s)
     divider: 512              # 51200 / 512 = 100 Hz
     timer_start: 0.0          # seconds on the timer at power-up (215: near the wrap)
+    ppm: null                 # its crystal's error (null: -30..+30 by address)
+    phase_ms: 0.0             # its cycles start this long after power-up (all nodes
+                              # power up together: where its samples fall against others')
     gyro: ADXRS610            # rate sensor model (its temperature output)
     gyro_bias_error: [0.002, -0.001, 0.0015]   # rad/s: what a bias capture estimates
     accel_noise: 0.002        # g, standard deviation of each accelerometer
     rate_noise: 0.005         # rad/s, the same for each rate sensor
     bit_faults: [rate_y]      # outputs that fail the built-in test (accel_x .. rate_z)
     radio: {in_range: true, command_loss: 0.0, data_loss: 0.0, stop_loss: 0.0,
-            lqi: 200, rssi: -45}
+            lqi: 200, rssi: -45, jitter_ms: 0.5}   # jitter: mean of the random delay
 ```
 
 Or several base stations, each behind its own pty with its own nodes and faults (the
@@ -65,9 +68,12 @@ class RadioConfig(Strict):
     stop_loss: float = Probability
     lqi: int = Field(default=200, ge=0, le=255)
     rssi: int = Field(default=-45, ge=-128, le=127)
+    jitter_ms: float = Field(default=RadioLink.jitter * 1000, ge=0.0, le=100.0)
 
     def build(self) -> RadioLink:
-        return RadioLink(**self.model_dump())
+        fields = self.model_dump()
+        jitter = fields.pop("jitter_ms") / 1000
+        return RadioLink(**fields, jitter=jitter)
 
 
 class LineConfig(Strict):
@@ -87,6 +93,8 @@ class SimNodeEntry(Strict):
     stream: str | None = None
     divider: int = Field(default=DEFAULT_DIVIDER, ge=MIN_DIVIDER, le=MAX_DIVIDER)
     timer_start: float = Field(default=0.0, ge=0.0)
+    ppm: float | None = Field(default=None, ge=-1000.0, le=1000.0)
+    phase_ms: float = Field(default=0.0, ge=0.0, le=1000.0)
     serial: str = Field(default="", max_length=16)
     gyro: str = DEFAULT_GYRO
     gyro_bias_error: list[float] = Field(default=[0.0, 0.0, 0.0], min_length=3, max_length=3)
@@ -133,6 +141,7 @@ class SimNodeEntry(Strict):
     def build(self) -> NodeSettings:
         return NodeSettings(address=self.address, model=self.model, stream=self.stream,
                             divider=self.divider, timer_start=self.timer_start,
+                            ppm=self.ppm, phase=self.phase_ms / 1000,
                             serial=self.serial, gyro=self.gyro,
                             gyro_bias_error=tuple(self.gyro_bias_error),  # type: ignore[arg-type]
                             accel_noise=self.accel_noise, rate_noise=self.rate_noise,

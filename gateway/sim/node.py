@@ -58,6 +58,11 @@ class NodeSettings:
     ppm: float | None = None
     """Its crystal's error: the timer and the calculation cycles run this many parts per
     million fast (negative: slow). None: a few tens, different for each address."""
+    phase: float = 0.0
+    """Seconds after power-up at which its calculation cycles start: where its samples
+    fall against another node's at the same rate (every node powers up together), so
+    that one node's packets can be made to reach the serial line just after another's
+    and queue behind them."""
     gyro: str = DEFAULT_GYRO
     """The rate sensor model, which sets how its temperature output reads."""
     gyro_bias_error: Vector = (0.0, 0.0, 0.0)
@@ -109,7 +114,7 @@ class SimNode:
         """Power-on (or a reboot): timer restarts, RAM state is lost, EEPROM and the
         stored biases kept."""
         self.powered_at = now
-        self._rebase(now)
+        self._rebase(now + self.settings.phase)
         self.pending: deque[gx2.Command] = deque()
         self.accel_bias = self.nonvolatile[1]
         self.gyro_bias = self.nonvolatile[2]

@@ -732,6 +732,15 @@ def test_status_shows_each_nodes_clock_drift_and_whether_it_is_locked():
     assert clock_cell(None) == "-" and clock_cell({"locked": True}) == "?"
 
 
+def test_status_and_top_show_how_late_time_may_be_while_a_clock_floor_is_unseen():
+    from gateway.ctl.cells import clock_cell
+    seen = {"drift_ppm": 40.06, "locked": True, "floor_age_s": 3.2, "late_ms": None}
+    assert clock_cell(seen) == "+40.1 ppm"
+    unseen = {**seen, "floor_age_s": 41.0, "late_ms": 1.366}
+    assert clock_cell(unseen) == "+40.1 ppm, <=1.4 ms late"
+    assert clock_cell(unseen, unit="") == "+40.1, <=1.4 ms late"  # (top's narrower column)
+
+
 def test_status_shows_recording_and_replay_only_when_there_are_any():
     from gateway.ctl.statusview import status_lines
     plain = status_lines({"gateway": {}, "link": {}, "nodes": [], "recording": None,

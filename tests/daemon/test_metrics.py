@@ -48,7 +48,8 @@ def report(**changes: Any) -> dict[str, Any]:
              "packets": 4990,
              "lost_radio": 10, "lost_gateway": 0, "reboots": 1, "silences": 0, "rssi": -44,
              "lqi": 201, "rate_hz": 99.5, "expected_hz": 100.0, "last_seen": 1_800_000_099.9,
-             "clock": {"drift_ppm": -12.5, "locked": True}, "health": "WARN",
+             "clock": {"drift_ppm": -12.5, "locked": True, "floor_age_s": 41.5},
+             "health": "WARN",
              "by_record": {"accel_angrate": 4980, "eeprom_read": 10}},
             {"node": 95, "name": None, "station": "station1", "state": "unreachable",
              "packets": 0, "lost_radio": 0,
@@ -109,6 +110,7 @@ def test_the_values_are_the_reports(server) -> None:
     assert got["gx2_node_rssi_dbm"] == {(("node", "76"),): -44.0}
     assert got["gx2_node_lqi"] == {(("node", "76"),): 201.0}
     assert got["gx2_node_clock_drift_ppm"] == {(("node", "76"),): -12.5}
+    assert got["gx2_node_clock_floor_age_seconds"] == {(("node", "76"),): 41.5}
     assert got["gx2_node_rate_hz"] == {(("node", "76"),): 99.5, (("node", "95"),): 0.0}
     assert got["gx2_node_health"] == {(("node", "76"),): 1.0, (("node", "95"),): 2.0}
     assert got["gx2_node_state"][(("node", "95"), ("state", "unreachable"))] == 1.0

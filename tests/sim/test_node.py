@@ -229,3 +229,27 @@ def test_a_crystal_off_by_some_ppm_runs_its_timer_and_its_cycles_that_much_fast(
     assert {b - a for a, b in pairwise(timers)} <= {512 * 384 - 1, 512 * 384, 512 * 384 + 1}
     assert node().ppm == 0.0 and SimNode(NodeSettings(76), T0).ppm != \
         SimNode(NodeSettings(77), T0).ppm  # by default different for each node
+
+
+def test_a_phase_starts_the_cycles_that_long_after_power_up_the_timer_at_it() -> None:
+    """Nodes power up together; ``phase`` puts one's samples just after another's (the
+    timer still counts from power-up), and a reboot keeps it."""
+    first, later = node(stream="euler"), node(stream="euler", phase=0.004)
+    times = [t for t, _ in first.run_until(T0 + 0.05)]
+    shifted = [t for t, _ in later.run_until(T0 + 0.05)]
+    assert [b - a for a, b in zip(times, shifted, strict=False)] == \
+        pytest.approx([0.004] * len(shifted))
+    assert later.timer_at(T0 + 1.0) == first.timer_at(T0 + 1.0)
+    later.power_up(T0 + 10.0)
+    assert later.next_cycle_time() == pytest.approx(T0 + 10.0 + 0.004 + 0.01)
+
+
+def test_the_yaml_sets_a_nodes_crystal_phase_and_radio_jitter() -> None:
+    from gateway.sim.config import SimConfig
+    entry = SimConfig(nodes=[{"address": 77, "ppm": 80, "phase_ms": 4.5,
+                              "radio": {"jitter_ms": 0}}]).nodes[0]
+    assert (entry.build().ppm, entry.build().phase) == (80.0, 0.0045)
+    assert entry.radio.build().jitter == 0.0
+    plain = SimConfig(nodes=[{"address": 77}]).nodes[0]
+    assert (plain.build().ppm, plain.build().phase, plain.radio.build().jitter) == \
+        (None, 0.0, 0.0005)  # as before: ppm by address, no phase, 0.5 ms

@@ -1,0 +1,113 @@
+"""How long a node's clock estimate has gone without seeing its floor, and what it says
+``time`` may be off by meanwhile (aspp.clock, DRIFT_ERROR): on synthetic streams whose
+truth is known, a free line, and a node whose packets queue behind another's."""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+
+from aspp.clock import DRIFT_ERROR, FLOOR_NOISE, WINDOW, NodeClock
+
+PERIOD = 0.01
+FLOOR = 0.003
+DRIFT = 30e-6
+OFFSET = 500.0
+PACKET = 0.0034
+"""The time on the line of the packet queued ahead (39 bytes at 115200 baud)."""
+
+
+def host(device: float, delay: float) -> float:
+    """When a packet sampled at ``device`` arrives after ``delay`` above the floor."""
+    return OFFSET + (1 + DRIFT) * device + FLOOR + delay
+
+
+def feed(clock: NodeClock, start: float, seconds: float, delay, rng: random.Random,
+         truth: list[float] | None = None) -> float:
+    """Packets every PERIOD from device time ``start`` for ``seconds``, each ``delay(rng)``
+    above the floor; each estimate's error (time - truth) appended to ``truth``. Returns
+    the device time after the last."""
+    count = round(seconds / PERIOD)
+    for i in range(count):
+        device = start + i * PERIOD
+        found = clock.update(device, host(device, delay(rng)))
+        if truth is not None:
+            truth.append(found - host(device, 0.0))
+    return start + count * PERIOD
+
+
+def free(rng: random.Random) -> float:
+    return rng.expovariate(1 / 0.0003)
+
+
+def queued(rng: random.Random) -> float:
+    """Behind another node's packet: the rest of its time on the line, never near the
+    floor."""
+    return rng.uniform(2 * FLOOR_NOISE, PACKET)
+
+
+def test_on_a_free_line_the_floor_is_never_long_unseen() -> None:
+    clock, rng = NodeClock(), random.Random(1)
+    assert clock.floor_age is None and clock.late_bound() is None  # no packet yet
+    clock.update(0.0, host(0.0, 0.0))
+    assert clock.floor_age is None  # not locked yet
+    device, worst = PERIOD, 0.0
+    for _ in range(90):
+        device = feed(clock, device, 1.0, free, rng)
+        worst = max(worst, clock.floor_age or 0.0)
+    assert clock.locked
+    assert worst < 0.1
+
+
+def test_packets_queued_behind_another_nodes_age_the_floor_and_one_near_it_ends_it() -> None:
+    clock, rng = NodeClock(), random.Random(2)
+    errors: list[float] = []
+    device = feed(clock, 0.0, 20.0, free, rng)
+    assert clock.floor_age is not None and clock.floor_age < 0.1
+    start = device
+    device = feed(clock, device, 40.0, queued, rng, errors)
+    age = clock.floor_age
+    assert age == pytest.approx(device - start, abs=0.05)  # the whole stretch
+    # the line is extrapolated: it has not moved, and the bound is the drift's part
+    bound = clock.late_bound()
+    assert bound == pytest.approx(DRIFT_ERROR * age, rel=0.05)
+    assert max(errors) <= bound  # and it holds: time is no later than it says
+    # a packet that comes through fast: the floor is seen again
+    clock.update(device, host(device, 0.0001))
+    assert clock.floor_age == 0.0
+    assert clock.late_bound() == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_line_risen_onto_the_waiting_packets_is_no_floor_seen() -> None:
+    """Once the stretch outlasts the window, the old floor points leave it and the line
+    rests on packets that all waited: close to the line, but the floor is still unseen,
+    and the bound carries how far the line rose (the least wait), as late as time is."""
+    clock, rng = NodeClock(), random.Random(3)
+    errors: list[float] = []
+    device = feed(clock, 0.0, 20.0, free, rng)
+    start = device
+    device = feed(clock, device, WINDOW + 20.0, queued, rng, errors)
+    assert clock.floor_age == pytest.approx(device - start, abs=0.05)
+    late = errors[-1]
+    assert late > FLOOR_NOISE  # the line rose by the least wait: time is late by it
+    assert clock.late_bound() >= late
+
+
+def test_held_before_the_lock_and_after_a_reset_or_release_there_is_no_age() -> None:
+    clock, rng = NodeClock(), random.Random(4)
+    device = feed(clock, 0.0, 10.0, free, rng)
+    device = feed(clock, device, 10.0, queued, rng)
+    assert clock.floor_age == pytest.approx(10.0, abs=0.02)
+    clock.hold()  # the line learns nothing: the hold's own reason says why
+    device = feed(clock, device, 5.0, queued, rng)
+    assert clock.floor_age is None and clock.late_bound() is None
+    clock.release()  # starts over from fresh packets: counted again once locked
+    device = feed(clock, device, 0.5, queued, rng)
+    assert clock.floor_age is None
+    device = feed(clock, device, 2.0, queued, rng)
+    assert clock.floor_age is not None and clock.floor_age < 0.1
+    clock.reset()  # a reboot: a new power-up, the same
+    assert clock.floor_age is None
+    feed(clock, 0.0, 2.0, free, rng)
+    assert clock.floor_age is not None and clock.floor_age < 0.1

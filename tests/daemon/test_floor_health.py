@@ -1,0 +1,72 @@
+"""A node whose clock has not seen its floor for health.floor_unseen_s: a WARN that says
+how late ``time`` may be, the same bound in status (``clock.late_ms``) beside the age
+(``clock.floor_age_s``), and the age as a metric (the end-to-end test drives it through
+gx2-sim, with one node's packets queued behind another's)."""
+
+from __future__ import annotations
+
+import random
+import time
+
+import pytest
+
+from aspp.clock import DRIFT_ERROR
+from gateway.daemon.config import FLOOR_UNSEEN_S, HealthConfig, NodeEntry
+from gateway.daemon.health import Level, Recent, judge
+from gateway.daemon.nodes import Node
+
+LIMITS = HealthConfig()
+
+
+def node_fed(free_s: float, queued_s: float, threshold: float = FLOOR_UNSEEN_S) -> Node:
+    """A streaming node whose clock saw packets at 100 Hz: ``free_s`` seconds of them
+    near the floor, then ``queued_s`` seconds of them each waiting 1 to 3.4 ms behind
+    another node's (device time from 0; host time on the monotonic clock, ending now)."""
+    node = Node(NodeEntry(address=76, stream="accel_angrate"), floor_unseen_s=threshold)
+    node.streaming("accel_angrate", 512)
+    node.stream_started -= free_s + queued_s  # (it has run that long)
+    rng = random.Random(1)
+    count = round((free_s + queued_s) * 100)
+    start = time.monotonic() - count / 100
+    for i in range(count):
+        device = i / 100
+        wait = rng.uniform(0.001, 0.0034) if device >= free_s else rng.expovariate(3000)
+        node.clock.update(device, start + device + 0.003 + wait)
+    return node
+
+
+def minute() -> Recent:
+    return Recent(60.0, 6000, 0, 0, 0, -50.0, 60.0, 6000)
+
+
+def test_a_floor_unseen_past_the_threshold_warns_with_how_late_time_may_be() -> None:
+    node = node_fed(20.0, 35.0)
+    verdict = judge(node, minute(), time.monotonic(), LIMITS)
+    late = DRIFT_ERROR * 35.0
+    assert verdict == (Level.WARN, (f"clock floor unseen for 35 s: time may be late by up "
+                                    f"to {late * 1e3:.1f} ms",))
+    clock = node.status(time.time())["clock"]
+    assert clock["floor_age_s"] == pytest.approx(35.0, abs=0.05)
+    assert clock["late_ms"] == pytest.approx(late * 1e3, rel=0.02)
+
+
+def test_under_the_threshold_the_age_shows_and_nothing_warns() -> None:
+    node = node_fed(20.0, 10.0)
+    assert judge(node, minute(), time.monotonic(), LIMITS) == (Level.OK, ())
+    clock = node.status(time.time())["clock"]
+    assert clock["floor_age_s"] == pytest.approx(10.0, abs=0.05)
+    assert clock["late_ms"] is None
+
+
+def test_the_threshold_is_the_configurations() -> None:
+    assert HealthConfig().floor_unseen_s == FLOOR_UNSEEN_S == 30.0
+    node = node_fed(20.0, 10.0, threshold=5.0)
+    assert judge(node, minute(), time.monotonic(), LIMITS).level is Level.WARN
+
+
+def test_a_node_with_no_locked_clock_has_no_age() -> None:
+    node = Node(NodeEntry(address=76))
+    assert node.status(time.time())["clock"] is None
+    node.clock.update(0.0, time.monotonic())
+    clock = node.status(time.time())["clock"]
+    assert clock["floor_age_s"] is None and clock["late_ms"] is None
