@@ -138,12 +138,15 @@ class Figures:
     """A run's figures, in ms. ``p99``, ``worst``: of |error - the run's median error|
     over every node (bench/timesync.py's spread); ``apart``: the nodes' median errors'
     range; ``drift``: the most any stream's error (its median over DRIFT_BIN) moved
-    within a minute (within its length, if shorter)."""
+    within a minute (within its length, if shorter); ``free``: the least share, over
+    the streams, of packets that found the line free (a stream with none never shows
+    the host its floor: docs/gateway.md)."""
 
     p99: float
     worst: float
     apart: float
     drift: float
+    free: float
 
 
 def _moved(errors: list[tuple[float, float]]) -> float:
@@ -165,7 +168,8 @@ def measure(streams: Streams) -> Figures:
     medians = [statistics.median(e for _, e in errors) for errors in streams.errors.values()]
     return Figures(spread[int(0.99 * (len(spread) - 1))] * 1e3, spread[-1] * 1e3,
                    (max(medians) - min(medians)) * 1e3,
-                   max(_moved(errors) for errors in streams.errors.values()) * 1e3)
+                   max(_moved(errors) for errors in streams.errors.values()) * 1e3,
+                   1 - max(streams.queued[key] for key in streams.errors))
 
 
 # -- gx2-sim's line ---------------------------------------------------------------------------
