@@ -14,8 +14,8 @@ INFOCOM 1999): in the plane of x = device and y = host - device, every packet li
 or above the line y = offset + drift * x, and the packets that waited least are the
 lower convex hull of the points. Of the lines below every point, the one that is
 closest to all of them on average (a linear programme) supports the hull where x is
-the middle of the window. Its slope is where the drift is drawn to (clamped to
-MAX_DRIFT), not where it is set: see MIDDLE. The window slides (about a minute, so a
+the middle of the window; its slope is where the drift is drawn to (clamped to
+MAX_DRIFT, at a bounded rate: DRIFT_RATE). The window slides (about a minute, so a
 drift that changes with temperature is followed); late packets lie above the hull and
 move nothing.
 
@@ -80,34 +80,21 @@ EARLY = 4 * BLOCK
 at every point below it): the drift's base line is still short, and the hull small."""
 EARLY_STEP = 0.1
 # How fast the drift may move. A long run of late packets would otherwise move the
-# drift (past MIDDLE's guard, once the run fills the window's middle half): two nodes
-# at one rate drift past each other by their crystals' difference, and for as long as
-# one node's packet is ready just before the other's, the other's packets all wait
-# behind it on the serial line: tens of seconds of a floor that jumps by a packet's
-# time and ramps back down (gx2-sim shows it at 90% of the line; no packet of that
-# node comes near the true floor meanwhile). A drift fitted over T seconds is uncertain
-# by about FLOOR_NOISE / T, so once fitted over SETTLE_SPAN it moves at most
+# hull's middle edge: two nodes at one rate drift past each other by their crystals'
+# difference, and for as long as one node's packet is ready just before the other's,
+# the other's packets all wait behind it on the serial line: tens of seconds of a
+# floor that jumps by a packet's time and ramps back down, no packet of that node near
+# the true floor meanwhile. A drift fitted over T seconds is uncertain by about
+# FLOOR_NOISE / T, so once fitted over SETTLE_SPAN it moves at most
 # max(DRIFT_RATE, FLOOR_NOISE / T**2) a second: quickly while the base line is short,
 # then no faster than a crystal follows its temperature (about a ppm per kelvin;
 # DRIFT_RATE allows 6 ppm a minute). T is kept through a reset: the drift is the
-# crystal's, not the power-up's. Without this bound, MIDDLE alone gives the model's
-# six seeds p99 0.045-0.397 ms (0.045-0.273 with it).
+# crystal's, not the power-up's. What this and the ideas measured against it give over
+# the line models' sweep (bench/sweep.py) is in docs/performance.md, "Sample time over
+# the sweep".
 SETTLE_SPAN = 10.0
 DRIFT_RATE = 0.1e-6
 FLOOR_NOISE = 0.5e-3
-# Where on the window the line must rest for its drift to stand. Nodes share the serial
-# line: while one node's samples fall just after another's, every packet of it waits
-# behind the other's on the line, tens of seconds with none near the floor (gx2-sim at
-# 90% of the line: 98 to 99% of node 77's packets queue, bench/timesync.py --model).
-# The hull then ends on raised points, and its edge at the window's middle joins a
-# floor point to a raised one: the drift tilts, and ``time`` with it. So the drift is
-# kept while the lowest point under the line at that drift lies in the window's middle
-# half (the line rests on floor points on both sides of the middle, or the window's
-# points do not say otherwise), and moves, to the slope of the hull's edge at the
-# quarter beyond which the lowest point lies, only when the points tilt against it by
-# more than the floor's noise over a quarter of the window. The model's p99 over six
-# seeds: 0.195-0.435 ms with the middle's edge, 0.045-0.273 ms with the middle half.
-MIDDLE = 0.5
 RESIDUALS = 256
 """Recent residuals (delay above the line) kept for the spread."""
 SLEW = 0.5
@@ -376,7 +363,8 @@ class NodeClock:
         self._fit()
 
     def _fit(self) -> None:
-        """The line below every point, at the drift kept or moved as MIDDLE says."""
+        """The line below every point that supports the hull at the window's middle (its
+        slope drawn towards the edge there at the rate SETTLE_SPAN's comment says)."""
         hull: list[Point] = []
         for _, vertices in self._blocks:
             for x, y in vertices:
@@ -386,15 +374,12 @@ class NodeClock:
         if hull[-1][0] - hull[0][0] < LOCK_SPAN:  # too short a base line for a slope
             self._offset = min(y - self._drift * x for x, y in hull)
             return
-        first, last = hull[0][0], hull[-1][0]
-        margin = (1 - MIDDLE) / 2 * (last - first)
-        drift = self._drift
-        lowest = min(hull, key=lambda point: point[1] - drift * point[0])[0]
-        if not first + margin <= lowest <= last - margin:
-            quarter = first + margin if lowest < first + margin else last - margin
-            edge = min(max(bisect.bisect_left(hull, (quarter,)), 1), len(hull) - 1)
-            (x1, y1), (x2, y2) = hull[edge - 1], hull[edge]
-            drift = max(-MAX_DRIFT, min(MAX_DRIFT, (y2 - y1) / (x2 - x1)))
+        # (issue 32: keeping the drift while the line rested in the window's middle
+        # half, f9a36a2, broke ``time`` on a FIFO line: docs/performance.md)
+        middle = (hull[0][0] + hull[-1][0]) / 2
+        edge = min(max(bisect.bisect_left(hull, (middle,)), 1), len(hull) - 1)
+        (x1, y1), (x2, y2) = hull[edge - 1], hull[edge]
+        drift = max(-MAX_DRIFT, min(MAX_DRIFT, (y2 - y1) / (x2 - x1)))
         now = hull[-1][0]
         step = 0.0 if self._fitted_at is None else max(now - self._fitted_at, 0.0)
         self._fitted += step

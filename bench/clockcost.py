@@ -1,87 +1,79 @@
 #!/usr/bin/env python3
-"""What ``NodeClock.update`` costs a record, this checkout's against another commit's,
-interleaved (A B A B ...) over the same packets, so a busy neighbour slows both.
+"""NodeClock.update's cost per record, trees side by side, interleaved: each round
+runs every tree once, in a fresh process with that tree's aspp first on the path, over
+the same pairs (device, arrival) of a line model run (bench/linemodels.py). Run by hand:
 
-Run by hand, not in CI:
-
-    .venv/bin/python bench/clockcost.py [--against main] [--rounds 9]
-
-The packets: one node at 100 Hz for 5 minutes, its delays above the floor exponential
-(mean 0.3 ms), with stretches of 40 s in which every packet waits behind another
-node's (1 to 3.4 ms), one a minute: the path a packet near the floor takes and the one
-it does not. Prints each side's best and median microseconds a record, and the median
-of the rounds' ratios (this checkout over the other).
+    git worktree add --detach /tmp/before main
+    .venv/bin/python bench/clockcost.py /tmp/before . --rounds 5
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib.util
-import random
+import os
 import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from aspp import clock as this  # noqa: E402
-
-PERIOD = 0.01
+HERE = Path(__file__).resolve().parent
 
 
-def packets(seconds: float = 300.0, seed: int = 1) -> list[tuple[float, float]]:
-    rng = random.Random(seed)
-    out = []
-    for i in range(round(seconds / PERIOD)):
-        device = i * PERIOD
-        queued = device % 60 >= 20
-        delay = rng.uniform(0.001, 0.0034) if queued else rng.expovariate(1 / 0.0003)
-        out.append((device, 1000.0 + (1 + 30e-6) * device + 0.003 + delay))
-    return out
+def once(model: str, seed: int, seconds: float, repeats: int = 5) -> float:
+    """Microseconds per update, best of ``repeats``, with the aspp on the path."""
+    import linemodels
 
+    from aspp.clock import NodeClock
+    from aspp.timing import TimerUnwrapper
 
-def other(commit: str):
-    """aspp/clock.py as it is at ``commit``, imported beside this checkout's."""
-    source = subprocess.run(["git", "show", f"{commit}:aspp/clock.py"], cwd=ROOT,
-                            check=True, capture_output=True, text=True).stdout
-    spec = importlib.util.spec_from_loader("aspp._clock_other", loader=None)
-    module = importlib.util.module_from_spec(spec)
-    module.__package__ = "aspp"
-    sys.modules[spec.name] = module  # (its dataclass looks its module up)
-    exec(compile(source, f"{commit}:aspp/clock.py", "exec"), module.__dict__)
-    return module
-
-
-def per_record(make, pairs: list[tuple[float, float]]) -> float:
-    clock = make()
-    update = clock.update
-    start = time.perf_counter()
-    for device, host in pairs:
-        update(device, host)
-    return (time.perf_counter() - start) / len(pairs) * 1e6
+    run = linemodels.MODELS[model](seed, seconds)
+    streams: dict[tuple[int, int], list[tuple[float, float]]] = {}
+    unwrappers: dict[int, TimerUnwrapper] = {}
+    for p in run.packets:
+        if p.ticks is not None:
+            arrival = p.read - p.size * linemodels.BYTE_TIME
+            device = unwrappers.setdefault(p.node, TimerUnwrapper()).update(p.ticks, arrival)
+            streams.setdefault((p.node, p.segment), []).append((device, arrival))
+    count = sum(len(pairs) for pairs in streams.values())
+    best = float("inf")
+    for _ in range(repeats):
+        clocks = {key: NodeClock() for key in streams}
+        t0 = time.perf_counter()
+        for key, pairs in streams.items():
+            update = clocks[key].update
+            for device, host in pairs:
+                update(device, host)
+        best = min(best, time.perf_counter() - t0)
+    return best / count * 1e6
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--against", default="main", help="the commit to compare with")
-    parser.add_argument("--rounds", type=int, default=9)
+    parser.add_argument("trees", nargs="*", default=["."])
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--model", default="gx2sim")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--seconds", type=float, default=120.0)
+    parser.add_argument("--once", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
-    before = other(args.against)
-    pairs = packets()
-    mine: list[float] = []
-    theirs: list[float] = []
+    if args.once:
+        print(f"{once(args.model, args.seed, args.seconds):.3f}")
+        return 0
+    results: dict[str, list[float]] = {tree: [] for tree in args.trees}
     for _ in range(args.rounds):
-        theirs.append(per_record(before.NodeClock, pairs))
-        mine.append(per_record(this.NodeClock, pairs))
-    ratio = statistics.median(m / t for m, t in zip(mine, theirs, strict=True))
-    print(f"{args.against}: best {min(theirs):.3f} us, median {statistics.median(theirs):.3f}"
-          f" us a record")
-    print(f"this checkout: best {min(mine):.3f} us, median {statistics.median(mine):.3f}"
-          f" us a record")
-    print(f"ratio (this / {args.against}), median of {args.rounds} rounds: {ratio:.3f}")
+        for tree in args.trees:
+            env = dict(os.environ, PYTHONPATH=str(Path(tree).resolve()))
+            out = subprocess.run([sys.executable, str(HERE / "clockcost.py"), "--once",
+                                  "--model", args.model, "--seed", str(args.seed),
+                                  "--seconds", str(args.seconds)],
+                                 env=env, check=True, capture_output=True, text=True)
+            results[tree].append(float(out.stdout))
+    print(f"NodeClock.update, us a record ({args.model} seed {args.seed}, "
+          f"{args.seconds:.0f} s; {args.rounds} interleaved rounds, best of 5 each)")
+    for tree, values in results.items():
+        print(f"{tree}: median {statistics.median(values):.2f}, rounds "
+              + ", ".join(f"{v:.2f}" for v in values))
     return 0
 
 

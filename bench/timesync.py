@@ -29,8 +29,9 @@ bars is one where node 77 comes back from its reboot so).
     python bench/timesync.py --model 6  # six seeds, about 15 s
 
 runs the simulator's line model alone in simulated time (no pty, no gateway, no
-reboot): each packet reaches the host exactly when its last byte leaves the base
-station, and goes straight to NodeClock. What is left is the geometry: the nodes power
+reboot; bench/linemodels.py, which bench/sweep.py runs over many draws): each packet
+reaches the host exactly when its last byte leaves the base station, and goes through
+the gateway's clock path (TimerUnwrapper, NodeClock). What is left is the geometry: the nodes power
 up together, so their samples coincide and a node's packets queue behind another's for
 tens of seconds while their crystals drift apart (the last column: each node's share
 of packets that began on the line the moment the one before ended). Beside it, a
@@ -43,7 +44,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import random
 import shutil
 import statistics
 import subprocess
@@ -59,14 +59,14 @@ import msgpack
 import yaml
 import zmq
 from benchutil import free_port
+from linemodels import BYTE_TIME, feed, gx2sim_packets
 
-from aspp import Decoder, Reply, decode
 from aspp.clock import WINDOW, NodeClock
-from aspp.frame import HEADER_SIZE, REPLY_OVERHEAD
+from aspp.frame import REPLY_OVERHEAD
 from aspp.records import BY_NAME
-from aspp.timing import TICKS_PER_SECOND, TIMER_MODULUS, byte_time
-from gateway.sim.base_station import RADIO_LATENCY, BaseStation, LineFaults
-from gateway.sim.node import NodeSettings, SimNode
+from aspp.timing import TIMER_MODULUS, TimerUnwrapper, byte_time
+from gateway.sim.base_station import RADIO_LATENCY, LineFaults
+from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
 
 NODES = [NodeSettings(76, divider=592, stream="accel_angrate", ppm=40.0),
@@ -257,44 +257,24 @@ class ModelRun:
 
 
 def model_run(seed: int, seconds: float) -> ModelRun:
-    """The simulator's line model run in simulated time, event by event, every packet
-    given to NodeClock (and the reference) when its last byte leaves the UART."""
-    rng = random.Random(seed)
-    start = 1000.0
-    nodes = [SimNode(settings, start, random.Random(rng.random())) for settings in NODES]
-    station = BaseStation(nodes, line=STALLS, rng=rng)
-    decoder = Decoder()
-    clocks = {n.address: NodeClock() for n in nodes}
-    references = {n.address: TrueDriftFloor(n.ppm) for n in nodes}
-    last_timer: dict[int, int] = {}
-    wraps = dict.fromkeys(clocks, 0)
-    run = ModelRun({a: [] for a in clocks}, {a: [] for a in clocks}, {})
-    queued = dict.fromkeys(clocks, 0)
-    packets = dict.fromkeys(clocks, 0)
-    line_free = now = start
-    while now < start + seconds:
-        now = station.next_due(now)
-        station.advance(now)
-        for event in decoder.feed(station.take_output(now)):
-            if not isinstance(event, Reply):
-                continue
-            record = decode(event.raw, HEADER_SIZE, len(event.raw) - 4)
-            node, timer = event.node, record.values[record.spec.field_names.index("timer")]
-            if timer < last_timer.get(node, 0):
-                wraps[node] += 1
-            last_timer[node] = timer
-            device = (timer + wraps[node] * TIMER_MODULUS) / TICKS_PER_SECOND
-            arrival = now - len(event.raw) * station.byte_time
-            packets[node] += 1
-            queued[node] += arrival - line_free < station.byte_time
-            line_free = now
-            truth = station.nodes[node].sampled[timer] + RADIO_LATENCY
-            found = clocks[node].update(device, arrival)
-            reference = references[node].update(device, arrival)
-            if now - start > WARM_UP:
-                run.errors[node].append(found - truth)
-                run.true_drift[node].append(reference - truth)
-    run.queued = {a: queued[a] / max(packets[a], 1) for a in clocks}
+    """The simulator's line model run in simulated time (bench/linemodels.py), every
+    packet through the gateway's clock path, and the reference fed the same pairs."""
+    line = gx2sim_packets(seed, seconds, NODES, STALLS)
+    streams = feed(line)
+    references = {n.address: TrueDriftFloor(n.ppm or 0.0) for n in NODES}
+    unwrappers = {n.address: TimerUnwrapper() for n in NODES}
+    run = ModelRun({a: [e for _, e in streams.errors.get((a, 0), [])] for a in references},
+                   {a: [] for a in references},
+                   {a: streams.queued.get((a, 0), 0.0) for a in references})
+    first = line.packets[0].truth
+    for packet in line.packets:
+        if packet.ticks is None:
+            continue
+        arrival = packet.read - packet.size * BYTE_TIME
+        device = unwrappers[packet.node].update(packet.ticks, arrival)
+        reference = references[packet.node].update(device, arrival)
+        if packet.truth - first >= WARM_UP:
+            run.true_drift[packet.node].append(reference - packet.truth)
     return run
 
 
