@@ -127,15 +127,17 @@ records."""
 # - R(x_f) - F(x_f) is the estimate's error where it last saw its floor: what it is on
 #   a free line (the premise of the whole estimate: the fastest packets come through
 #   with the floor's delay), not part of the bound.
-# - (D_f - D*) (x - x_f): the drift is never exact. The line rests on a point p of
-#   the hull (L(p) >= F(p): no packet is early) at least a quarter of the window from
-#   either end (MIDDLE: its drift stands while p is in the middle half, else it moves
-#   to the edge at a quarter), so on a line that saw its floor there are floor points
-#   q (within FLOOR_NOISE above F) a quarter of the window or more to either side of
-#   p, and L(q) <= F(q) + FLOOR_NOISE: the slope is off by at most FLOOR_NOISE over a
-#   quarter of the window, DRIFT_ERROR (33 ppm; a line younger than a window has a
-#   shorter base line and may be further off; a fit that rests the line elsewhere
-#   must derive this again).
+# - (D_f - D*) (x - x_f): the drift is never exact. It is drawn to the slope of the
+#   hull's edge across the window's middle (_fit), whose two ends p1 <= middle <= p2
+#   are packets, so on or above the floor (L(p) >= F(p)). At the sighting, the newest
+#   packet, at the window's end and so half a window or more after p1 once the window
+#   is full, lies within FLOOR_NOISE of the floor and of the line: the slope is then
+#   off (upwards, the way that makes ``time`` late later) by at most FLOOR_NOISE over
+#   half the window. DRIFT_ERROR allows it over a quarter (33 ppm), for the rate bound
+#   (SETTLE_SPAN) holding the drift behind the edge's and a window not yet full. That
+#   is an allowance, not a proof: a line younger than a window, or a drift the rate
+#   bound holds far from the edge's, may be further off (docs/performance.md, "Sample
+#   time over the sweep", measures what is left).
 #
 # So ``time`` may be late by up to max(0, L - R + DRIFT_ERROR * age) more than where
 # its floor was last seen (:meth:`NodeClock.late_bound`). No packet can show more: a

@@ -69,9 +69,10 @@ def test_packets_queued_behind_another_nodes_age_the_floor_and_one_near_it_ends_
     device = feed(clock, device, 40.0, queued, rng, errors)
     age = clock.floor_age
     assert age == pytest.approx(device - start, abs=0.05)  # the whole stretch
-    # the line is extrapolated: it has not moved, and the bound is the drift's part
+    # the drift's part at least; and more as the hull's middle edge tilts onto the
+    # waiting packets (the fit of d57636c, issue 32: the line moves, and says so)
     bound = clock.late_bound()
-    assert bound == pytest.approx(DRIFT_ERROR * age, rel=0.05)
+    assert bound >= DRIFT_ERROR * age * 0.999
     assert max(errors) <= bound  # and it holds: time is no later than it says
     # a packet that comes through fast: the floor is seen again
     clock.update(device, host(device, 0.0001))
