@@ -3,15 +3,15 @@ to shutdown.
 
 One asyncio loop owns every serial port, the PUB and ROUTER sockets and every timer, so
 no socket is ever touched by two threads. Each base station is a
-:class:`~gateway.daemon.station.Station` of its own (link, reader, scheduler,
+:class:`~gateway.daemon.station.station.Station` of its own (link, reader, scheduler,
 supervisor, nodes); the gateway has one publisher, one control endpoint, one recorder,
 one metrics endpoint and one health. Data flows one way: a station's
-:mod:`~gateway.daemon.link` (bytes in) -> :mod:`~gateway.daemon.reader` (decoded,
-tallied by :mod:`~gateway.daemon.nodes`) -> :mod:`~gateway.daemon.publisher` (and the
+:mod:`~gateway.daemon.station.link` (bytes in) -> :mod:`~gateway.daemon.station.reader` (decoded,
+tallied by :mod:`~gateway.daemon.station.nodes`) -> :mod:`~gateway.daemon.outputs.zeromq` (and the
 recorder). Control requests go :mod:`~gateway.daemon.control` ->
 :mod:`~gateway.daemon.operations` -> the node's station's
-:mod:`~gateway.daemon.scheduler` -> its serial writes, their replies coming back
-through its reader; its :mod:`~gateway.daemon.supervisor` keeps each node doing what it
+:mod:`~gateway.daemon.station.scheduler` -> its serial writes, their replies coming back
+through its reader; its :mod:`~gateway.daemon.station.supervisor` keeps each node doing what it
 should.
 """
 
@@ -39,15 +39,15 @@ from .control import ControlServer
 from .errors import StartupError
 from .health import SAMPLE_PERIOD, Health
 from .operations import Operations
-from .publisher import Publisher, Sink
-from .recorder import Recorder
-from .replay import ReplayLink
+from .outputs.recorder import Recorder
+from .outputs.zeromq import Publisher, Sink
 from .sd_notify import Notifier
-from .station import Station
+from .station.replay import ReplayLink
+from .station.station import Station
 
 if TYPE_CHECKING:
-    from .live import LiveServer
-    from .metrics import MetricsServer
+    from .outputs.live import LiveServer
+    from .outputs.metrics import MetricsServer
 
 log = logging.getLogger("gx2.gateway")
 EXIT_PROMISE = 2.0
@@ -111,13 +111,13 @@ class Gateway:
             if config.metrics is not None:
                 # imported only when configured: prometheus-client takes 64 ms to import
                 # and 1.8 MiB of memory (python -X importtime; VmRSS before and after)
-                from .metrics import MetricsServer
+                from .outputs.metrics import MetricsServer
                 endpoint = config.metrics.endpoint
                 self.metrics = MetricsServer(endpoint)
             self.live: LiveServer | None = None
             if config.live is not None:
                 # imported only when configured, as metrics are: foxglove-sdk's server
-                from .live import LiveServer
+                from .outputs.live import LiveServer
                 endpoint = config.live.endpoint
                 self.live = LiveServer(config.live)
         except (zmq.ZMQError, OSError, StartupError) as error:
@@ -284,7 +284,7 @@ class Gateway:
     async def _sample(self) -> None:
         """Once a second: the counters each node's health is judged over, and a report
         for the metrics endpoint if none was made in that second (the heartbeat's)."""
-        # the ports open beside the loop (gateway.daemon.offloop), a few milliseconds
+        # the ports open beside the loop (gateway.daemon.station.offloop), a few milliseconds
         # after start: nothing is judged before each station's first open has been
         # tried, so a port that opens at once never shows its nodes as ERROR ("base
         # station not open yet") for the first second; one that hangs holds this up

@@ -30,8 +30,8 @@ from typing import Any, NamedTuple, Protocol
 from gateway.common.protocol import HealthLevel as Level
 
 from .config import HealthConfig
-from .lineload import LineLoad
-from .nodes import Node, State
+from .station.lineload import LineLoad
+from .station.nodes import Node, State
 
 log = logging.getLogger("gx2.health")
 

@@ -20,10 +20,10 @@ from aspp.timing import data_rate, divider_for_rate
 from gateway.common import ops
 
 from .errors import Invalid, NodeError, OpError, Refused
-from .nodes import Node
 from .requests import RequestBase
-from .scheduler import Scheduler
-from .supervisor import Supervisor
+from .station.nodes import Node
+from .station.scheduler import Scheduler
+from .station.supervisor import Supervisor
 
 
 class StationParts(Protocol):

@@ -9,11 +9,11 @@ from typing import TYPE_CHECKING, Any
 from aspp.timing import BITS_PER_BYTE
 from gateway.common.version import VERSION
 
-from .replay import ReplayLink
+from .station.replay import ReplayLink
 
 if TYPE_CHECKING:
     from .app import Gateway
-    from .station import Station
+    from .station.station import Station
 
 
 def report(gateway: Gateway) -> dict[str, Any]:

@@ -12,8 +12,8 @@ from aspp.records import decode, encode
 from aspp.timing import TICKS_PER_CLOCK
 from gateway.daemon.config import HealthConfig, NodeEntry
 from gateway.daemon.health import Health, Level, Recent, Window, judge
-from gateway.daemon.lineload import LineLoad
-from gateway.daemon.nodes import Node, State
+from gateway.daemon.station.lineload import LineLoad
+from gateway.daemon.station.nodes import Node, State
 
 LIMITS = HealthConfig()
 PERIOD_TICKS = 512 * TICKS_PER_CLOCK

@@ -9,8 +9,8 @@ import msgpack
 import pytest
 import zmq
 
-from gateway.daemon import publisher as publishing
-from gateway.daemon.publisher import Publisher, compiled_send
+from gateway.daemon.outputs import zeromq as publishing
+from gateway.daemon.outputs.zeromq import Publisher, compiled_send
 
 
 def published(monkeypatch: pytest.MonkeyPatch | None = None) -> list[list[bytes]]:

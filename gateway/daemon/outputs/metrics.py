@@ -25,8 +25,8 @@ from prometheus_client.registry import Collector
 from gateway.common.endpoints import host_port
 from gateway.common.reading import as_map, number
 
-from .health import Level
-from .nodes import State
+from ..health import Level
+from ..station.nodes import State
 
 COUNTER, GAUGE = CounterMetricFamily, GaugeMetricFamily
 

@@ -1,6 +1,6 @@
 """A recording played back in place of the base station: ``replay://PATH``.
 
-It stands where :class:`~gateway.daemon.link.SerialLink` stands: each recorded read
+It stands where :class:`~gateway.daemon.station.link.SerialLink` stands: each recorded read
 goes to the reader with the times it was read at (UNIX and monotonic), so the reader,
 the nodes' clock estimates and the publisher do exactly what they did live. It takes
 nothing: a write is an error (the gateway sends nothing during a replay).

@@ -14,9 +14,9 @@ from typing import Any
 
 from mcap.reader import NonSeekingReader, make_reader
 
-from gateway.daemon import recorder as recorder_module
 from gateway.daemon.config import RecordConfig
-from gateway.daemon.recorder import Recorder
+from gateway.daemon.outputs import recorder as recorder_module
+from gateway.daemon.outputs.recorder import Recorder
 from gateway.recording.files import file_name
 from tests.helpers.waiting import wait_for
 

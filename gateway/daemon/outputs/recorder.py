@@ -61,7 +61,7 @@ from gateway.recording.files import SERIAL as SERIAL_READS
 from gateway.recording.files import WRITTEN, OutOfRange, file_name
 from gateway.recording.writer import RecordingWriter
 
-from .config import RecordConfig
+from ..config import RecordConfig
 from .retention import Retention
 
 log = logging.getLogger("gx2.record")

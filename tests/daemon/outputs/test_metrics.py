@@ -13,7 +13,7 @@ import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
 from gateway.common.endpoints import host_port
-from gateway.daemon.metrics import MetricsServer
+from gateway.daemon.outputs.metrics import MetricsServer
 from tests.helpers.ports import free_port
 
 CONTRACT = {

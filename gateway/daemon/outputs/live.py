@@ -31,8 +31,8 @@ from gateway.common.schemas import ENCODING as SCHEMA_ENCODING
 from gateway.common.schemas import schema_for_topic
 from gateway.recording.files import JSON_ENCODING, OutOfRange, message_times, ns
 
-from .config import LiveConfig
-from .errors import StartupError
+from ..config import LiveConfig
+from ..errors import StartupError
 
 log = logging.getLogger("gx2.live")
 STOP_WAIT = 0.5
