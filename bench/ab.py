@@ -88,7 +88,7 @@ async def run():
     for address, record in STREAMS:  # known, as after arming (both trees do the same)
         gw.nodes[address].streaming(record)
     counter.start()
-    until_subscribed(lambda: gw.publisher.status({}), ready)
+    until_subscribed(lambda: getattr(gw, "outputs", gw.publisher).status({}), ready)
     cpu = time.process_time()
     for chunk in chunks:
         feed(chunk, *(time.time(),) * CLOCKS)

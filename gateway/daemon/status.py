@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 def report(gateway: Gateway) -> dict[str, Any]:
     now, monotonic = time.time(), time.monotonic()
     config = gateway.config
-    health, published = gateway.health, gateway.publisher.published()
+    health, published = gateway.health, gateway.outputs.published()
     stations = [station_link(station, monotonic) for station in gateway.stations]
     return {
         "gateway": {"version": VERSION, "uptime": round(now - gateway.started, 3),
@@ -42,10 +42,16 @@ def report(gateway: Gateway) -> dict[str, Any]:
         "nodes": [{**node.status(now), **health.status(node, monotonic),
                    "by_record": published.get(node.address, {})}
                   for node in gateway.nodes.values()],
-        "recording": gateway.recorder.status() if gateway.recorder is not None else None,
+        "recording": output_status(gateway, "recording"),
         "replay": replay_status([s.link for s in gateway.stations]),
-        "live": gateway.live.status() if gateway.live is not None else None,
+        "live": output_status(gateway, "live"),
     }
+
+
+def output_status(gateway: Gateway, name: str) -> dict[str, Any] | None:
+    """What an output says of itself; None when it is not configured."""
+    output = gateway.outputs.get(name)
+    return output.status() if output is not None else None
 
 
 def station_link(station: Station, monotonic: float) -> dict[str, Any]:

@@ -33,6 +33,7 @@ from gateway.recording.files import JSON_ENCODING, OutOfRange, message_times, ns
 
 from ..config import LiveConfig
 from ..errors import StartupError
+from . import Needs, Output
 
 log = logging.getLogger("gx2.live")
 STOP_WAIT = 0.5
@@ -112,8 +113,8 @@ class Viewers(foxglove.ServerListener):
                     "subscriptions": self.subscriptions}
 
 
-class LiveServer:
-    """The server and its channels. :meth:`published` is given every message the
+class LiveServer(Output):
+    """The server and its channels. :meth:`take` is given every message the
     gateway publishes, on the loop."""
 
     def __init__(self, config: LiveConfig) -> None:
@@ -141,7 +142,7 @@ class LiveServer:
             log.warning("live view on %s: any host that reaches it may watch (it is "
                         "read-only and unauthenticated)", config.endpoint)
 
-    def published(self, topic: bytes, payload: dict[str, Any]) -> None:
+    def take(self, topic: bytes, payload: dict[str, Any]) -> None:
         """A published message, to the viewers of its topic (if any)."""
         channel = self._channels.get(topic, False)
         if channel is False:
@@ -200,3 +201,8 @@ class LiveServer:
         if stopping.is_alive():
             log.warning("live view: a connection that never completed its WebSocket "
                         "handshake is still open: left to the process's exit")
+
+
+def make(needs: Needs) -> LiveServer:
+    assert needs.config.live is not None
+    return LiveServer(needs.config.live)

@@ -62,6 +62,7 @@ from gateway.recording.files import WRITTEN, OutOfRange, file_name
 from gateway.recording.writer import RecordingWriter
 
 from ..config import RecordConfig
+from . import Needs, Output
 from .retention import Retention
 
 log = logging.getLogger("gx2.record")
@@ -88,8 +89,8 @@ def exclusive(path: Path) -> IO[bytes]:
     return path.open("xb")
 
 
-class Recorder:
-    """``serial``/``written``/``published`` on the loop; everything else in its thread."""
+class Recorder(Output):
+    """``serial``/``sent``/``take`` on the loop; everything else in its thread."""
 
     def __init__(self, config: RecordConfig, metadata: dict[str, str],
                  create: Callable[[Path], IO[bytes]] | None = None) -> None:
@@ -160,7 +161,7 @@ class Recorder:
         else:
             self.overflowed += 1
 
-    def published(self, topic: bytes, payload: dict[str, Any]) -> None:
+    def take(self, topic: bytes, payload: dict[str, Any]) -> None:
         """A published message. The payload is not copied: the gateway makes a new map
         for every message and never changes one once published."""
         queue = self._queue
@@ -196,7 +197,7 @@ class Recorder:
     def start(self) -> None:
         self._thread.start()
 
-    def close(self, timeout: float = CLOSE_S) -> None:
+    def close(self, timeout: float = CLOSE_S) -> None:  # (seconds: the contract's)
         """Write what is queued and finish the file, within ``timeout`` s (see the
         module's docstring for what the file holds when the disk is slower), and end
         the thread."""
@@ -417,3 +418,8 @@ class Recorder:
 
     def _writing(self) -> Path | None:
         return self.path if self._output is not None else None
+
+
+def make(needs: Needs) -> Recorder:
+    assert needs.config.record is not None
+    return Recorder(needs.config.record, needs.metadata())
