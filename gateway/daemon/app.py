@@ -44,6 +44,7 @@ from .outputs import Needs, Outputs, build
 from .sd_notify import Notifier
 from .station.replay import ReplayLink
 from .station.station import Station
+from .stations import Stations
 
 if TYPE_CHECKING:
     from .outputs.recorder import Recorder
@@ -79,14 +80,14 @@ class Gateway:
         try:
             self.outputs = Outputs(build(Needs(config, self._context, server,
                                                self._recording_metadata)))
-            self.stations = [Station(station, self.outputs, only=len(config.stations) == 1,
-                                     first=index == 0, on_link_state=self._on_link_state,
-                                     on_replay_end=self._replay_ended,
-                                     floor_unseen_s=config.health.floor_unseen_s)
-                             for index, station in enumerate(config.stations)]
-            self.nodes = {address: node for station in self.stations
-                          for address, node in station.nodes.items()}
-            self.replaying = any(station.replaying for station in self.stations)
+            self.stations = Stations(
+                Station(station, self.outputs, only=len(config.stations) == 1,
+                        first=index == 0, on_link_state=self._on_link_state,
+                        on_replay_end=self._replay_ended,
+                        floor_unseen_s=config.health.floor_unseen_s)
+                for index, station in enumerate(config.stations))
+            self.nodes = self.stations.nodes
+            self.replaying = self.stations.replaying
             self.ops = Operations(self.stations, self.status,
                                   allow_eeprom_write=config.control.allow_eeprom_write,
                                   allow_any_eeprom_address=config.control.allow_any_eeprom_address,

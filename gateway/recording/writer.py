@@ -24,7 +24,7 @@ from .files import (
     METADATA,
     PROFILE,
     RAW_ENCODING,
-    SERIAL,
+    SERIAL_READS,
     message_times,
     ns,
 )
@@ -71,7 +71,7 @@ class RecordingWriter:
         return schema_id
 
     def serial(self, data: bytes, host_time: float, monotonic: float,
-               topic: str = SERIAL) -> None:
+               topic: str = SERIAL_READS) -> None:
         """A read from (or, with ``topic=WRITTEN``, a write to) the base station;
         OutOfRange, and nothing written, if a time cannot be recorded."""
         logged, sampled = ns(host_time), ns(monotonic)

@@ -61,3 +61,13 @@ def test_the_daemon_loads_prometheus_client_only_for_a_metrics_endpoint() -> Non
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=60, check=True)
     assert run.stdout.strip() == "[]", run.stdout
+
+
+def test_no_runner_imports_its_parser_and_status_not_the_gateway() -> None:
+    """A runner takes what it needs from a module below the parser (gateway.ctl.where);
+    a status report is built from what it is handed: no import loops."""
+    runners = {name: imported_modules(PACKAGE / "ctl" / name)
+               for name in ("tail.py", "top.py", "record.py")}
+    assert {name: "gateway.ctl.cli" in found for name, found in runners.items()} == \
+        dict.fromkeys(runners, False)
+    assert "gateway.daemon.app" not in imported_modules(PACKAGE / "daemon" / "status.py")

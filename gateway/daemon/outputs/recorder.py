@@ -57,8 +57,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
-from gateway.recording.files import SERIAL as SERIAL_READS
-from gateway.recording.files import WRITTEN, OutOfRange, file_name
+from gateway.recording.files import SERIAL_READS, WRITTEN, OutOfRange, file_name
 from gateway.recording.writer import RecordingWriter
 
 from ..config import RecordConfig
@@ -80,7 +79,7 @@ CLOSE_S = 1.0
 DRAIN_SHARE = 0.5
 """The share of close()'s time the queue may take; the rest is the last chunk's and the
 summary's (a handful of writes)."""
-SERIAL, SENT, PUBLISHED = 0, 1, 2
+QUEUED_READ, QUEUED_WRITE, QUEUED_MESSAGE = 0, 1, 2
 """What a queued item is: a read, a write, a published message."""
 
 
@@ -148,7 +147,7 @@ class Recorder(Output):
         """A read from a base station, kept on ``channel`` (its station's)."""
         queue = self._queue
         if len(queue) < self.capacity:
-            queue.append((SERIAL, data, host_time, monotonic, channel))
+            queue.append((QUEUED_READ, data, host_time, monotonic, channel))
         else:
             self.overflowed += 1
 
@@ -157,7 +156,7 @@ class Recorder(Output):
         """A write to a base station, kept on ``channel`` (its station's)."""
         queue = self._queue
         if len(queue) < self.capacity:
-            queue.append((SENT, bytes(data), host_time, monotonic, channel))
+            queue.append((QUEUED_WRITE, bytes(data), host_time, monotonic, channel))
         else:
             self.overflowed += 1
 
@@ -166,7 +165,7 @@ class Recorder(Output):
         for every message and never changes one once published."""
         queue = self._queue
         if len(queue) < self.capacity:
-            queue.append((PUBLISHED, topic, payload))
+            queue.append((QUEUED_MESSAGE, topic, payload))
         else:
             self.overflowed += 1
 
@@ -273,7 +272,7 @@ class Recorder(Output):
         """One message into the file; one it cannot take (anything but the disk's
         failure) is refused, and the thread goes on with the next."""
         try:
-            if item[0] == PUBLISHED:
+            if item[0] == QUEUED_MESSAGE:
                 writer.message(item[1].decode(), item[2])
             else:
                 writer.serial(item[1], item[2], item[3], topic=item[4])
@@ -288,7 +287,7 @@ class Recorder(Output):
         """A message not written, counted; the first of each kind said in one line (with
         its traceback if it is not a time out of range: a bug, here or in mcap)."""
         self.refused += 1
-        topic = item[1].decode(errors="replace") if item[0] == PUBLISHED else item[4]
+        topic = item[1].decode(errors="replace") if item[0] == QUEUED_MESSAGE else item[4]
         kind = type(error).__name__
         if kind in self._refusals:
             return

@@ -54,7 +54,6 @@ from gateway.common.topics import parse
 from gateway.recording.files import (
     MARK,
     METADATA,
-    SERIAL,
     RecordingError,
     is_serial_reads,
     serial_channels,
@@ -71,7 +70,9 @@ SCHEME = "replay://"
 YIELD_EVERY = 200
 DELAY_S = 1.0
 OPTIONS = ("speed", "exit", "delay")
-PUBLISHED = "published"
+FILE_OF_READS = "serial"
+"""A gateway's recording (its serial reads): played by reading them again."""
+FILE_OF_MESSAGES = "published"
 """A file of published messages (no serial reads): played by publishing them again."""
 
 
@@ -240,7 +241,8 @@ class ReplayLink:
         seen = 0
         await asyncio.sleep(self.replay.delay)
         for path in self.replay.files:
-            # SERIAL (a gateway's recording) or PUBLISHED, once the file has shown which
+            # FILE_OF_READS (a gateway's recording) or FILE_OF_MESSAGES, once the file
+            # has shown which
             kind: str | None = None
             several = recorded_stations(path)
             if several and self.station not in several:
@@ -262,15 +264,15 @@ class ReplayLink:
                 record = not serial and parse(topic) is not None
                 if kind is None and (record or is_serial_reads(topic)):
                     # (a gateway's recording of several stations: any station's reads)
-                    kind = SERIAL if is_serial_reads(topic) else PUBLISHED
+                    kind = FILE_OF_READS if is_serial_reads(topic) else FILE_OF_MESSAGES
                 start = self.start_at
-                if record and kind == SERIAL and start is not None and start.waiting:
+                if record and kind == FILE_OF_READS and start is not None and start.waiting:
                     start.recorded(entry)
-                played = ((topic == MARK and self.marks) or (serial and kind == SERIAL)
-                          or (record and kind == PUBLISHED and self.marks))
+                played = ((topic == MARK and self.marks) or (serial and kind == FILE_OF_READS)
+                          or (record and kind == FILE_OF_MESSAGES and self.marks))
                 if not played:
                     continue
-                if serial or kind != SERIAL:
+                if serial or kind != FILE_OF_READS:
                     await self._play_paced(ahead)
                 ahead.append((entry, serial))
             await self._play_paced(ahead)
