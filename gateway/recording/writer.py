@@ -12,7 +12,7 @@ from typing import IO, Any
 
 from mcap.writer import CompressionType, Writer
 
-from gateway.common.jsontext import compact
+from gateway.common.jsontext import compact, compact_bytes
 from gateway.common.schemas import ENCODING as SCHEMA_ENCODING
 from gateway.common.schemas import schema_for_topic
 from gateway.common.version import VERSION
@@ -79,12 +79,15 @@ class RecordingWriter:
         self._writer.add_message(self._channel(topic, RAW_ENCODING), logged, data,
                                  sampled, self.messages)
 
-    def message(self, topic: str, payload: Mapping[str, Any]) -> None:
-        """A published message: a node's record, or the gateway's status; OutOfRange,
-        and nothing written, if its times cannot be recorded (mcap would fail part-way,
-        its statistics already holding them, and then fail to finish the file)."""
+    def message(self, topic: str, payload: Mapping[str, Any],
+                data: bytes | None = None) -> None:
+        """A published message: a node's record, or the gateway's status (``data``:
+        its JSON, if it has been made already); OutOfRange, and nothing written, if its
+        times cannot be recorded (mcap would fail part-way, its statistics already
+        holding them, and then fail to finish the file)."""
         logged, sampled = (ns(when) for when in message_times(payload))
-        data = compact(payload).encode()
+        if data is None:
+            data = compact_bytes(payload)
         self.messages += 1
         self._writer.add_message(self._channel(topic, JSON_ENCODING), logged, data,
                                  sampled, self.messages)

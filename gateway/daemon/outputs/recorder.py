@@ -61,7 +61,7 @@ from gateway.recording.files import SERIAL_READS, WRITTEN, OutOfRange, file_name
 from gateway.recording.writer import RecordingWriter
 
 from ..config import RecordConfig
-from . import Needs, Output
+from . import Message, Needs, Output
 from .retention import Retention
 
 log = logging.getLogger("gx2.record")
@@ -160,12 +160,13 @@ class Recorder(Output):
         else:
             self.overflowed += 1
 
-    def take(self, topic: bytes, payload: dict[str, Any]) -> None:
-        """A published message. The payload is not copied: the gateway makes a new map
-        for every message and never changes one once published."""
+    def take(self, message: Message) -> None:
+        """A published message. Not copied: the gateway makes a new map for every
+        message and never changes one once published; its JSON is made in the thread
+        (or was already, by the live view)."""
         queue = self._queue
         if len(queue) < self.capacity:
-            queue.append((QUEUED_MESSAGE, topic, payload))
+            queue.append((QUEUED_MESSAGE, message.topic, message))
         else:
             self.overflowed += 1
 
@@ -273,7 +274,8 @@ class Recorder(Output):
         failure) is refused, and the thread goes on with the next."""
         try:
             if item[0] == QUEUED_MESSAGE:
-                writer.message(item[1].decode(), item[2])
+                message = item[2]
+                writer.message(item[1].decode(), message.payload, message.json())
             else:
                 writer.serial(item[1], item[2], item[3], topic=item[4])
         except OSError:

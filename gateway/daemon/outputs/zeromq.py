@@ -16,7 +16,7 @@ import zmq
 
 from gateway.common import curve
 
-from . import Needs, Output
+from . import Message, Needs, Output
 
 log = logging.getLogger("gx2.publish")
 _MORE, _LAST = int(zmq.SNDMORE | zmq.NOBLOCK), int(zmq.NOBLOCK)
@@ -54,7 +54,10 @@ class Publisher(Output):
         self.sent = 0
         self.failed = 0
 
-    def take(self, name: bytes, payload: dict[str, Any]) -> bool:  # type: ignore[override]
+    def take(self, message: Message) -> None:
+        self.send(message.topic, message.payload)
+
+    def send(self, name: bytes, payload: dict[str, Any]) -> bool:
         """Send one message; False if ZeroMQ refused it (counted and logged, never
         raised): the fan-out's answer for the message (:class:`.Outputs`)."""
         try:
