@@ -43,6 +43,7 @@ from .operations import Operations
 from .outputs import Needs, Outputs, build
 from .sd_notify import Notifier
 from .station.replay import ReplayLink
+from .station.replayread import ReplayReaders
 from .station.station import Station
 from .stations import Stations
 
@@ -80,11 +81,12 @@ class Gateway:
         try:
             self.outputs = Outputs(build(Needs(config, self._context, server,
                                                self._recording_metadata)))
+            replays = ReplayReaders()  # (a recording of several stations: read once)
             self.stations = Stations(
                 Station(station, self.outputs, only=len(config.stations) == 1,
                         first=index == 0, on_link_state=self._on_link_state,
                         on_replay_end=self._replay_ended,
-                        floor_unseen_s=config.health.floor_unseen_s)
+                        floor_unseen_s=config.health.floor_unseen_s, replays=replays)
                 for index, station in enumerate(config.stations))
             self.nodes = self.stations.nodes
             self.replaying = self.stations.replaying

@@ -28,6 +28,7 @@ from .outlet import Outlet, SerialTap
 from .ports import Port
 from .reader import Reader
 from .replay import ReplayLink
+from .replayread import ReplayReaders
 from .replaystart import RecordedStart
 from .scheduler import Scheduler
 from .supervisor import Supervisor
@@ -40,11 +41,14 @@ class Station:
 
     def __init__(self, config: StationConfig, publisher: Outlet, *, only: bool,
                  first: bool, on_link_state: Callable[[Station, bool], None],
-                 on_replay_end: Callable[[Station], None], floor_unseen_s: float) -> None:
+                 on_replay_end: Callable[[Station], None], floor_unseen_s: float,
+                 replays: ReplayReaders | None = None) -> None:
         """``only``: the gateway's one station (its recording keeps the one-station
         channel names); ``first``: the one that publishes a recording's marks again;
         ``floor_unseen_s``: how long its nodes' clocks may go without seeing their floor
-        before status gives how late ``time`` may be (health.floor_unseen_s)."""
+        before status gives how late ``time`` may be (health.floor_unseen_s);
+        ``replays``: the recordings' readings the gateway's stations share (a recording
+        of several stations read once for all)."""
         self.config = config
         self.name = config.name or ""
         self._on_link_state = on_link_state
@@ -55,6 +59,7 @@ class Station:
                       for n in config.nodes}
         self.line = LineLoad(config.baudrate / BITS_PER_BYTE)
         self.replay = Port.replay_of(config.port)
+        self._replays = replays or ReplayReaders()
         self.replaying = self.replay is not None
         self.scheduler = Scheduler(self._write, station=self.name)
         self.supervisor = Supervisor(self.scheduler, self.nodes, passive=self.replaying)
@@ -87,7 +92,8 @@ class Station:
             self.link = ReplayLink(self.replay, self._replayed, self._link_state,
                                    self._replay_ended, self._publisher.replayed,
                                    station=self.name, marks=self._first,
-                                   start=self.recorded)
+                                   start=self.recorded,
+                                   source=self._replays.of(self.replay.files))
         else:
             self.link = SerialLink(self.port.path, self.config.baudrate, on_data,
                                    self._link_state)
