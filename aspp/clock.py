@@ -345,7 +345,7 @@ class NodeClock:
             # strictly above the floor by a double's step there, not by a fixed
             # nanosecond: that is lost in rounding once the host clock reads 2**24 s
             # (a monotonic clock after 194 days up; the UNIX clock always, which is why
-            # gateway.daemon.nodes keeps the promise again after converting to it)
+            # gateway.daemon.station.nodes keeps the promise again after converting to it)
             elapsed = device - given[0]
             floor = given[1] + SLEW * elapsed
             if time <= floor:

@@ -52,7 +52,10 @@ import aspp, gateway  # from the tree measured, before anything puts this one fi
 try:
     from gateway.daemon.app import Gateway
     from gateway.daemon.config import GatewayConfig
-    from gateway.daemon.reader import Reader
+    try:  # (a tree from before the daemon's station/ package: its flat reader)
+        from gateway.daemon.station.reader import Reader
+    except ImportError:
+        from gateway.daemon.reader import Reader
     # a gateway of base stations: its first station's reader (before: the gateway's)
     def feeder(gw): return (gw.stations[0] if hasattr(gw, "stations") else gw).reader.on_data
     # a read's UNIX time, and its monotonic time where the reader takes one too
@@ -85,7 +88,7 @@ async def run():
     for address, record in STREAMS:  # known, as after arming (both trees do the same)
         gw.nodes[address].streaming(record)
     counter.start()
-    until_subscribed(lambda: gw.publisher.status({}), ready)
+    until_subscribed(lambda: getattr(gw, "outputs", gw.publisher).status({}), ready)
     cpu = time.process_time()
     for chunk in chunks:
         feed(chunk, *(time.time(),) * CLOCKS)

@@ -32,7 +32,10 @@ import aspp, gateway
 try:
     from gateway.daemon.app import Gateway
     from gateway.daemon.config import GatewayConfig
-    from gateway.daemon.reader import Reader
+    try:  # (a tree from before the daemon's station/ package: its flat reader)
+        from gateway.daemon.station.reader import Reader
+    except ImportError:
+        from gateway.daemon.reader import Reader
     # a gateway of base stations: its first station's reader (before: the gateway's)
     def feeder(gw): return (gw.stations[0] if hasattr(gw, "stations") else gw).reader.on_data
     # a read's UNIX time, and its monotonic time where the reader takes one too

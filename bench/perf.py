@@ -215,7 +215,7 @@ def pipeline_round(chunks: list[bytes], packets: int) -> tuple[float, float]:
     async def run() -> tuple[float, float]:
         gateway = Gateway(config)
         counter.start()
-        until_subscribed(lambda: gateway.publisher.status({}), ready)
+        until_subscribed(lambda: getattr(gateway, "outputs", gateway.publisher).status({}), ready)
         start, cpu = time.perf_counter(), time.process_time()
         for chunk in chunks:
             gateway.stations[0].reader.on_data(chunk, time.time(), time.monotonic())

@@ -13,9 +13,9 @@ import pytest
 import yaml
 from prometheus_client import CollectorRegistry, generate_latest
 
-from gateway.daemon.metrics import StatusCollector
-from gateway.daemon.nodes import State
-from tests.daemon.test_metrics import report
+from gateway.daemon.outputs.metrics import StatusCollector
+from gateway.daemon.station.nodes import State
+from tests.daemon.outputs.test_metrics import report
 
 RULES = Path(__file__).resolve().parents[1] / "deploy" / "gx2-alerts.yml"
 UNIT_TESTS = Path(__file__).resolve().parent / "alerts_test.yml"

@@ -92,7 +92,8 @@ def named_in_the_map() -> dict[str, set[str]]:
 
 
 @pytest.mark.parametrize("directory", ["aspp/", "gateway/", "gateway/common/",
-                                       "gateway/daemon/", "gateway/ctl/",
+                                       "gateway/daemon/", "gateway/daemon/station/",
+                                       "gateway/daemon/outputs/", "gateway/ctl/",
                                        "gateway/recording/", "gateway/sim/", "bench/"])
 def test_the_map_of_the_tree_names_every_module_and_nothing_gone(directory: str) -> None:
     named = named_in_the_map().get(directory, set())

@@ -12,6 +12,8 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+import orjson
+
 _encode = json.JSONEncoder(ensure_ascii=False, separators=(",", ":")).encode
 _encode_strictly = json.JSONEncoder(ensure_ascii=False, separators=(",", ":"),
                                     allow_nan=False).encode
@@ -43,6 +45,23 @@ def compact(value: Mapping[str, Any]) -> str:
         return _encode_strictly(value)
     except (ValueError, TypeError):
         return _encode(strict(value))
+
+
+def compact_bytes(value: Mapping[str, Any]) -> bytes:
+    """One strict JSON object, without spaces, as UTF-8: what a recording and the live
+    view hold of a message.
+
+    orjson, 16x faster than the standard library's encoder for the gateway's payloads
+    (bench/jsonenc.py: 0.6 against 10 us a record, interleaved rounds; 18x for one
+    with a NaN magnetometer). What it writes parses back to what :func:`compact`'s
+    does (the bench checks every payload): NaN and the infinities as null (orjson's
+    own rule, as :func:`strict`'s), floats in their shortest round-tripping form, keys
+    in the map's order. What orjson refuses (bytes, keys that are not strings, an int
+    past 64 bits) is rebuilt through :func:`strict`, as :func:`compact` does."""
+    try:
+        return orjson.dumps(value)
+    except TypeError:  # (orjson.JSONEncodeError is one)
+        return _encode(strict(value)).encode()
 
 
 def json_line(value: Any) -> str:

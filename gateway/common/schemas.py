@@ -74,7 +74,7 @@ def field_schema(field: Field) -> Schema:
 
 
 # the fields every published record carries besides its own (docs/interface.md, section
-# 4; built in gateway.daemon.nodes.Node.tally), then a timed record's two; lqi and rssi
+# 4; built in gateway.daemon.station.nodes.Node.tally), then a timed record's two; lqi and rssi
 # are the packet's two link quality bytes (aspp.events.LINK_QUALITY: an unsigned and a
 # signed byte)
 _COMMON: tuple[tuple[str, Schema, str, str], ...] = (

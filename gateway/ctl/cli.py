@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from dataclasses import dataclass
 from typing import Any
 
 from gateway.common import curve
@@ -25,6 +24,7 @@ from . import PROG
 from .client import Client, CtlError
 from .offline import add_commands as add_offline_commands
 from .output import json_line, show
+from .where import Endpoints
 
 DEFAULT_TIMEOUT = 5.0
 CLIENT_KEY_ENV, SERVER_KEY_ENV = "GX2_CLIENT_KEY", "GX2_SERVER_KEY"
@@ -141,20 +141,7 @@ def add_op(commands: Any, groups: dict[str, Any], op: Op,
         sub.add_argument(switch.flag, dest=switch.name, action="store_true", help=switch.help)
 
 
-# --- where the gateway is ---------------------------------------------------------------
-
-@dataclass(frozen=True)
-class Endpoints:
-    control: str
-    publish: str | None
-    """Known only from --config; otherwise asked of the gateway when needed."""
-    keys: curve.ClientKeys | None = None
-    publish_secured: bool | None = None
-    """Whether the publish socket uses CURVE too (None: ask the gateway's status)."""
-    heartbeat_s: float | None = None
-    nodes: tuple[int, ...] | None = None
-    """The configured nodes (None: ask the gateway's status)."""
-
+# --- where the gateway is (gateway.ctl.where) ---------------------------------------------
 
 def endpoints(args: argparse.Namespace) -> Endpoints:
     """From --config (loaded here: its errors exit 2), --control, or the default; CURVE

@@ -42,7 +42,7 @@ from .client import CtlError
 from .tail import Source, Stop, source, subscribe
 
 if TYPE_CHECKING:
-    from .cli import Endpoints
+    from .where import Endpoints
 
 FLUSH_S = 1.0
 PROGRESS_S = 0.5

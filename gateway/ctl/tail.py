@@ -22,7 +22,7 @@ from . import PROG
 from .client import Client, CtlError
 
 if TYPE_CHECKING:
-    from .cli import Endpoints
+    from .where import Endpoints
 
 
 

@@ -39,7 +39,7 @@ from .tail import Stop, subscribe
 from .toptable import HEALTH_STYLE, cut, table
 
 if TYPE_CHECKING:
-    from .cli import Endpoints
+    from .where import Endpoints
 
 TICK = 0.2
 """Seconds between looks at the keyboard (and at the clock, for the ages shown)."""

@@ -3,15 +3,16 @@ to shutdown.
 
 One asyncio loop owns every serial port, the PUB and ROUTER sockets and every timer, so
 no socket is ever touched by two threads. Each base station is a
-:class:`~gateway.daemon.station.Station` of its own (link, reader, scheduler,
-supervisor, nodes); the gateway has one publisher, one control endpoint, one recorder,
-one metrics endpoint and one health. Data flows one way: a station's
-:mod:`~gateway.daemon.link` (bytes in) -> :mod:`~gateway.daemon.reader` (decoded,
-tallied by :mod:`~gateway.daemon.nodes`) -> :mod:`~gateway.daemon.publisher` (and the
-recorder). Control requests go :mod:`~gateway.daemon.control` ->
+:class:`~gateway.daemon.station.station.Station` of its own (link, reader, scheduler,
+supervisor, nodes); the gateway has one set of outputs (:mod:`~gateway.daemon.outputs`:
+ZeroMQ, and the recorder, live view and metrics when configured), one control endpoint
+and one health. Data flows one way: a station's :mod:`~gateway.daemon.station.link`
+(bytes in) -> :mod:`~gateway.daemon.station.reader` (decoded, tallied by
+:mod:`~gateway.daemon.station.nodes`) -> the outputs' fan-out -> every output. Control
+requests go :mod:`~gateway.daemon.control` ->
 :mod:`~gateway.daemon.operations` -> the node's station's
-:mod:`~gateway.daemon.scheduler` -> its serial writes, their replies coming back
-through its reader; its :mod:`~gateway.daemon.supervisor` keeps each node doing what it
+:mod:`~gateway.daemon.station.scheduler` -> its serial writes, their replies coming back
+through its reader; its :mod:`~gateway.daemon.station.supervisor` keeps each node doing what it
 should.
 """
 
@@ -39,15 +40,16 @@ from .control import ControlServer
 from .errors import StartupError
 from .health import SAMPLE_PERIOD, Health
 from .operations import Operations
-from .publisher import Publisher, Sink
-from .recorder import Recorder
-from .replay import ReplayLink
+from .outputs import Needs, Outputs, build
 from .sd_notify import Notifier
-from .station import Station
+from .station.replay import ReplayLink
+from .station.replayread import ReplayReaders
+from .station.station import Station
+from .stations import Stations
 
 if TYPE_CHECKING:
-    from .live import LiveServer
-    from .metrics import MetricsServer
+    from .outputs.recorder import Recorder
+    from .outputs.zeromq import Publisher
 
 log = logging.getLogger("gx2.gateway")
 EXIT_PROMISE = 2.0
@@ -58,18 +60,6 @@ exit): the loop's shutdown ends this long before them. The whole shutdown, loop 
 all, took 16 ms here (tests/e2e/test_shutdown.py, recording): room for a loaded host."""
 EXIT_BUDGET = 1.5
 """Seconds a shutdown may spend stopping streams, within the promised 2 s."""
-
-
-def fan_out(sinks: list[Sink]) -> Sink | None:
-    """One callable giving each published message to every sink (the recorder, the
-    live view): none, the one itself (no extra call on the per-record path), or both."""
-    if len(sinks) <= 1:
-        return sinks[0] if sinks else None
-
-    def every(topic: bytes, payload: dict[str, Any]) -> None:
-        for sink in sinks:
-            sink(topic, payload)
-    return every
 
 
 class Gateway:
@@ -88,54 +78,39 @@ class Gateway:
             self._auth = AsyncioAuthenticator(self._context)
             self._auth.start()
             self._auth.configure_curve_callback("*", self.allow_list)
-        endpoint = config.publish.endpoint
         try:
-            self.publisher = Publisher(self._context, endpoint, config.publish.high_water_mark,
-                                       server if config.curve and config.curve.publish
-                                       else None)
-            endpoint = config.control.endpoint
-            self.stations = [Station(station, self.publisher, only=len(config.stations) == 1,
-                                     first=index == 0, on_link_state=self._on_link_state,
-                                     on_replay_end=self._replay_ended,
-                                     floor_unseen_s=config.health.floor_unseen_s)
-                             for index, station in enumerate(config.stations)]
-            self.nodes = {address: node for station in self.stations
-                          for address, node in station.nodes.items()}
-            self.replaying = any(station.replaying for station in self.stations)
+            self.outputs = Outputs(build(Needs(config, self._context, server,
+                                               self._recording_metadata)))
+            replays = ReplayReaders()  # (a recording of several stations: read once)
+            self.stations = Stations(
+                Station(station, self.outputs, only=len(config.stations) == 1,
+                        first=index == 0, on_link_state=self._on_link_state,
+                        on_replay_end=self._replay_ended,
+                        floor_unseen_s=config.health.floor_unseen_s, replays=replays)
+                for index, station in enumerate(config.stations))
+            self.nodes = self.stations.nodes
+            self.replaying = self.stations.replaying
             self.ops = Operations(self.stations, self.status,
                                   allow_eeprom_write=config.control.allow_eeprom_write,
                                   allow_any_eeprom_address=config.control.allow_any_eeprom_address,
-                                  publish_mark=lambda mark: self.publisher.mark(mark))
-            self.control = ControlServer(self._context, endpoint, self.ops, server)
-            self.metrics: MetricsServer | None = None
-            if config.metrics is not None:
-                # imported only when configured: prometheus-client takes 64 ms to import
-                # and 1.8 MiB of memory (python -X importtime; VmRSS before and after)
-                from .metrics import MetricsServer
-                endpoint = config.metrics.endpoint
-                self.metrics = MetricsServer(endpoint)
-            self.live: LiveServer | None = None
-            if config.live is not None:
-                # imported only when configured, as metrics are: foxglove-sdk's server
-                from .live import LiveServer
-                endpoint = config.live.endpoint
-                self.live = LiveServer(config.live)
-        except (zmq.ZMQError, OSError, StartupError) as error:
+                                  publish_mark=self.outputs.mark)
+            endpoint = config.control.endpoint
+            try:
+                self.control = ControlServer(self._context, endpoint, self.ops, server)
+            except (zmq.ZMQError, OSError) as error:
+                raise StartupError(f"cannot bind {endpoint}: {error.strerror or error}") \
+                    from None
+        except StartupError:
             self._stop_auth()
             self._context.destroy(linger=0)
-            if isinstance(error, StartupError):
-                raise  # (its own words: the live view's, for what is not the port)
-            raise StartupError(f"cannot bind {endpoint}: {error.strerror or error}") from None
-        self.health = Health(self.nodes.values(), config.health)
-        self.health.lines = [(None if len(self.stations) == 1 else station.name, station.line)
-                             for station in self.stations]
-        self.recorder: Recorder | None = None
-        if config.record is not None:
-            self.recorder = Recorder(config.record, self._recording_metadata())
-            self.health.recorder = self.recorder
-        self.publisher.record = fan_out([
-            *([self.recorder.published] if self.recorder is not None else []),
-            *([self.live.published] if self.live is not None else [])])
+            raise
+        self.publisher: Publisher = self.outputs.by_name["zeromq"]  # type: ignore[assignment]
+        """The ZeroMQ output: what status counts as published."""
+        self.recorder: Recorder | None = self.outputs.get("recording")  # type: ignore[assignment]
+        self.health = Health(self.nodes.values(), config.health,
+                             lines=[(None if len(self.stations) == 1 else station.name,
+                                     station.line) for station in self.stations],
+                             recorder=self.recorder)
         # only once nothing above can fail: the embedded simulator makes a directory
         for station in self.stations:
             station.open(self.recorder)
@@ -155,8 +130,7 @@ class Gateway:
 
     async def run(self, stop: asyncio.Event) -> None:
         self._stop = stop
-        if self.recorder is not None:
-            self.recorder.start()
+        self.outputs.start()
         for station in self.stations:
             station.start()
         loop = asyncio.get_running_loop()
@@ -187,12 +161,6 @@ class Gateway:
 
     async def _shutdown(self, done_by: float) -> None:
         """Close everything by ``done_by`` (time.monotonic())."""
-        loop = asyncio.get_running_loop()
-        metrics = (loop.run_in_executor(None, self.metrics.close)  # (up to 0.5 s: meanwhile)
-                   if self.metrics is not None else None)
-        live = (loop.run_in_executor(None, self.live.close,  # (its viewers told, meanwhile)
-                                     done_by - time.monotonic())
-                if self.live is not None else None)
         # nothing more is started for any node; then every request still running is
         # answered at once ("shutting down") and cancelled: its client hears why now,
         # not at its own timeout, and what a cancelled quiet command would have
@@ -209,18 +177,13 @@ class Gateway:
                 await asyncio.wait_for(asyncio.gather(*stopping), EXIT_BUDGET)
         for station in self.stations:
             station.close()
-        self.publisher.close()
+        # every output at once, off the loop, which has nothing left to do: the
+        # recording's last second and index, the live view's viewers told, the metrics
+        # server stopped, all in what is left of the promise (the recorder says what
+        # the file holds if the disk is slower)
+        await self.outputs.close(done_by)
         self._stop_auth()
         self._context.destroy(linger=0)  # (the answers above: up to CLOSE_LINGER_MS)
-        if self.recorder is not None:
-            # off the loop, which has nothing left to do: the last second, and the index,
-            # in what is left of the promise (the recorder says what the file holds if
-            # the disk is slower)
-            await loop.run_in_executor(None, self.recorder.close,
-                                       max(0.0, done_by - time.monotonic()))
-        for closing in (metrics, live):
-            if closing is not None:
-                await closing
         log.info("stopped")
 
     def _stop_auth(self) -> None:
@@ -243,7 +206,7 @@ class Gateway:
         return metadata
 
     def _replay_ended(self, station: Station) -> None:
-        self.publisher.status(self.status())
+        self.outputs.status(self.status())
         replays = [s.link for s in self.stations if isinstance(s.link, ReplayLink)]
         if not all(link.finished for link in replays):
             return  # (the others' recordings are still playing)
@@ -264,7 +227,7 @@ class Gateway:
                             (" connected" if not down else
                              f" disconnected, reconnecting: {', '.join(down)}"
                              if len(self.stations) > 1 else " disconnected, reconnecting"))
-        self.publisher.status(self.status())
+        self.outputs.status(self.status())
 
     # -- status ---------------------------------------------------------------------------
 
@@ -279,12 +242,12 @@ class Gateway:
     async def _heartbeat(self) -> None:
         while True:
             await asyncio.sleep(self.config.publish.heartbeat_s)
-            self.publisher.status(self.status())
+            self.outputs.status(self.status())
 
     async def _sample(self) -> None:
         """Once a second: the counters each node's health is judged over, and a report
         for the metrics endpoint if none was made in that second (the heartbeat's)."""
-        # the ports open beside the loop (gateway.daemon.offloop), a few milliseconds
+        # the ports open beside the loop (gateway.daemon.station.offloop), a few milliseconds
         # after start: nothing is judged before each station's first open has been
         # tried, so a port that opens at once never shows its nodes as ERROR ("base
         # station not open yet") for the first second; one that hangs holds this up
@@ -298,14 +261,13 @@ class Gateway:
             for station in self.stations:
                 station.sample(now)
             self.health.sample(now)
-            if self.metrics is not None and now - self._reported >= SAMPLE_PERIOD:
+            if self.outputs.reads_reports and now - self._reported >= SAMPLE_PERIOD:
                 self.status()
             await asyncio.sleep(SAMPLE_PERIOD)
 
     def status(self) -> dict[str, Any]:
         """The status report (and the one the metrics endpoint serves from now on)."""
         report = status.report(self)
-        if self.metrics is not None:
-            self.metrics.update(report)
-            self._reported = time.monotonic()
+        self.outputs.report(report)
+        self._reported = time.monotonic()
         return report

@@ -21,9 +21,9 @@ from aspp.selftest import BIT_OFF, NEGATIVE_RATE_BIT, POSITIVE_BIT, Sample, judg
 from aspp.temperature import accel_celsius, gyro_celsius
 
 from .errors import GoesOn, NodeError, OpError
-from .nodes import Node
 from .operations import Operations, Result, handles
-from .scheduler import Priority
+from .station.nodes import Node
+from .station.scheduler import Priority
 
 log = logging.getLogger("gx2.calibration")
 SAMPLES = 10

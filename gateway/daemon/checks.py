@@ -159,7 +159,7 @@ def live_refusal(config: GatewayConfig) -> str | None:
     them at start (None if it would take them, or there is no TLS)."""
     if config.live is None or config.live.tls_cert is None:
         return None
-    from .live import tls_refusal  # (foxglove-sdk: only when it is configured)
+    from .outputs.live import tls_refusal  # (foxglove-sdk: only when it is configured)
     why = tls_refusal(config.live)
     if why is None:
         return None

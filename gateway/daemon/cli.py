@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
         fail(parser.prog, str(error), 2)
     # a recording with nothing the gateway can play is refused as the configuration is:
     # at --check, and at start rather than as a replay that ends at once having done nothing
-    from .ports import never_serial, nothing_to_play
+    from .station.ports import never_serial, nothing_to_play
     for where, station in config.placed_stations():
         problem = nothing_to_play(station.port,
                                   None if config.base_stations is None else station.name)

@@ -37,7 +37,8 @@ from gateway.common.strict import Strict, load_model
 from gateway.common.topics import STATION_NAME, default_station_name
 from gateway.common.yamlfile import ConfigError
 
-from . import ports, tls
+from . import tls
+from .station import ports
 
 __all__ = ["ConfigError", "GatewayConfig", "load_config"]
 

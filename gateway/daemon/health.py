@@ -30,8 +30,8 @@ from typing import Any, NamedTuple, Protocol
 from gateway.common.protocol import HealthLevel as Level
 
 from .config import HealthConfig
-from .lineload import LineLoad
-from .nodes import Node, State
+from .station.lineload import LineLoad
+from .station.nodes import Node, State
 
 log = logging.getLogger("gx2.health")
 
@@ -213,15 +213,17 @@ class Health:
     """Every node's window and verdict, the gateway's own, and the link's recent
     throughput."""
 
-    def __init__(self, nodes: Iterable[Node], limits: HealthConfig) -> None:
+    def __init__(self, nodes: Iterable[Node], limits: HealthConfig,
+                 lines: Iterable[tuple[str | None, LineLoad]] = (),
+                 recorder: Recording | None = None) -> None:
         self.limits = limits
         self.nodes = list(nodes)
         self._windows = {node.address: Window(limits.window_s) for node in self.nodes}
         self._verdicts: dict[int, Verdict] = {}
-        self.lines: list[tuple[str | None, LineLoad]] = []
+        self.lines = list(lines)
         """Each base station's serial line, with its name (None for a gateway's only
         one): a line over capacity is a WARN of the gateway's."""
-        self.recorder: Recording | None = None
+        self.recorder = recorder
         """The gateway's recorder, if it records: what its own health is judged by."""
         self._overflows: deque[tuple[float, int]] = deque()
         self._gateway = Verdict(Level.OK, ())

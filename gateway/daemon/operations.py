@@ -20,10 +20,11 @@ from aspp.timing import data_rate, divider_for_rate
 from gateway.common import ops
 
 from .errors import Invalid, NodeError, OpError, Refused
-from .nodes import Node
 from .requests import RequestBase
-from .scheduler import Scheduler
-from .supervisor import Supervisor
+from .station.nodes import Node
+from .station.scheduler import Scheduler
+from .station.supervisor import Supervisor
+from .stations import Stations
 
 
 class StationParts(Protocol):
@@ -57,15 +58,14 @@ class Operations:
     def __init__(self, stations: Sequence[StationParts], status: Callable[[], Result], *,
                  allow_eeprom_write: bool, allow_any_eeprom_address: bool = False,
                  publish_mark: Callable[[Result], bool] | None = None) -> None:
-        self.stations = list(stations)
-        self.nodes = {address: node for station in self.stations
-                      for address, node in station.nodes.items()}
-        self.station_of = {address: station for station in self.stations
-                            for address in station.nodes}
+        self.stations = stations if isinstance(stations, Stations) else Stations(stations)
+        """The one node -> station map is the gateway's (:mod:`.stations`), shared."""
+        self.nodes = self.stations.nodes
+        self.station_of = self.stations.of
         self.status = status
         self.allow_eeprom_write = allow_eeprom_write
         self.allow_any_eeprom_address = allow_any_eeprom_address
-        self.replaying = any(station.replaying for station in self.stations)
+        self.replaying = self.stations.replaying
         """Playing a recording: nothing may be sent to a node."""
         self.publish_mark = publish_mark
         """Publishes a mark (and so records it); False if it could not be published."""

@@ -4,22 +4,44 @@
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, Protocol
 
 from aspp.timing import BITS_PER_BYTE
 from gateway.common.version import VERSION
 
-from .replay import ReplayLink
+from .station.replay import ReplayLink
 
 if TYPE_CHECKING:
-    from .app import Gateway
-    from .station import Station
+    from gateway.common.curve import AllowList
+
+    from .config import GatewayConfig
+    from .control import ControlServer
+    from .health import Health
+    from .outputs import Outputs
+    from .outputs.zeromq import Publisher
+    from .station.nodes import Node
+    from .station.station import Station
 
 
-def report(gateway: Gateway) -> dict[str, Any]:
+class Reported(Protocol):
+    """What a status report is made of (the gateway hands itself: app.py)."""
+
+    config: GatewayConfig
+    started: float
+    health: Health
+    outputs: Outputs
+    publisher: Publisher
+    control: ControlServer
+    allow_list: AllowList | None
+    stations: Sequence[Station]
+    nodes: dict[int, Node]
+
+
+def report(gateway: Reported) -> dict[str, Any]:
     now, monotonic = time.time(), time.monotonic()
     config = gateway.config
-    health, published = gateway.health, gateway.publisher.published()
+    health, published = gateway.health, gateway.outputs.published()
     stations = [station_link(station, monotonic) for station in gateway.stations]
     return {
         "gateway": {"version": VERSION, "uptime": round(now - gateway.started, 3),
@@ -35,17 +57,28 @@ def report(gateway: Gateway) -> dict[str, Any]:
                     "curve_denied": gateway.allow_list.denied if gateway.allow_list else 0,
                     "publish_curve": bool(config.curve and config.curve.publish),
                     **health.gateway_status(monotonic)},
-        # (the first station's link: what a client of one base station reads)
-        "link": {key: value for key, value in stations[0].items()
-                 if key not in ("name", "nodes")},
+        # each station's link is in ``stations``; ``link`` is the interface's for a
+        # client of one base station (the first, in a gateway of several)
+        "link": one_station_link(stations[0]),
         "stations": stations,
         "nodes": [{**node.status(now), **health.status(node, monotonic),
                    "by_record": published.get(node.address, {})}
                   for node in gateway.nodes.values()],
-        "recording": gateway.recorder.status() if gateway.recorder is not None else None,
+        "recording": output_status(gateway, "recording"),
         "replay": replay_status([s.link for s in gateway.stations]),
-        "live": gateway.live.status() if gateway.live is not None else None,
+        "live": output_status(gateway, "live"),
     }
+
+
+def output_status(gateway: Reported, name: str) -> dict[str, Any] | None:
+    """What an output says of itself; None when it is not configured."""
+    output = gateway.outputs.get(name)
+    return output.status() if output is not None else None
+
+
+def one_station_link(station: dict[str, Any]) -> dict[str, Any]:
+    """A station's link as ``link`` shows it: without its name and its nodes."""
+    return {key: value for key, value in station.items() if key not in ("name", "nodes")}
 
 
 def station_link(station: Station, monotonic: float) -> dict[str, Any]:

@@ -30,7 +30,8 @@ from mcap.opcode import Opcode
 
 from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC
 
-SERIAL = "serial"
+SERIAL_READS = "serial"
+"""The channel of the serial reads of a gateway of one base station."""
 WRITTEN = "serial/written"
 
 
@@ -39,13 +40,13 @@ def serial_channels(station: str | None) -> tuple[str, str]:
     for a gateway of one base station (``station`` None), ``serial/<station>`` and
     ``serial/<station>/written`` for each of several."""
     if station is None:
-        return SERIAL, WRITTEN
-    return f"{SERIAL}/{station}", f"{SERIAL}/{station}/written"
+        return SERIAL_READS, WRITTEN
+    return f"{SERIAL_READS}/{station}", f"{SERIAL_READS}/{station}/written"
 
 
 def is_serial_reads(topic: str) -> bool:
     """Whether ``topic`` is a channel of serial reads (one station's or the only one's)."""
-    return topic == SERIAL or (topic.startswith(SERIAL + "/") and topic != WRITTEN
+    return topic == SERIAL_READS or (topic.startswith(SERIAL_READS + "/") and topic != WRITTEN
                                and not topic.endswith("/written"))
 METADATA = "gx2-gateway"
 """The name of the metadata record a file opens with: what wrote it (the gateway's

@@ -12,7 +12,7 @@ from typing import IO, Any
 
 from mcap.writer import CompressionType, Writer
 
-from gateway.common.jsontext import compact
+from gateway.common.jsontext import compact, compact_bytes
 from gateway.common.schemas import ENCODING as SCHEMA_ENCODING
 from gateway.common.schemas import schema_for_topic
 from gateway.common.version import VERSION
@@ -24,7 +24,7 @@ from .files import (
     METADATA,
     PROFILE,
     RAW_ENCODING,
-    SERIAL,
+    SERIAL_READS,
     message_times,
     ns,
 )
@@ -71,7 +71,7 @@ class RecordingWriter:
         return schema_id
 
     def serial(self, data: bytes, host_time: float, monotonic: float,
-               topic: str = SERIAL) -> None:
+               topic: str = SERIAL_READS) -> None:
         """A read from (or, with ``topic=WRITTEN``, a write to) the base station;
         OutOfRange, and nothing written, if a time cannot be recorded."""
         logged, sampled = ns(host_time), ns(monotonic)
@@ -79,12 +79,15 @@ class RecordingWriter:
         self._writer.add_message(self._channel(topic, RAW_ENCODING), logged, data,
                                  sampled, self.messages)
 
-    def message(self, topic: str, payload: Mapping[str, Any]) -> None:
-        """A published message: a node's record, or the gateway's status; OutOfRange,
-        and nothing written, if its times cannot be recorded (mcap would fail part-way,
-        its statistics already holding them, and then fail to finish the file)."""
+    def message(self, topic: str, payload: Mapping[str, Any],
+                data: bytes | None = None) -> None:
+        """A published message: a node's record, or the gateway's status (``data``:
+        its JSON, if it has been made already); OutOfRange, and nothing written, if its
+        times cannot be recorded (mcap would fail part-way, its statistics already
+        holding them, and then fail to finish the file)."""
         logged, sampled = (ns(when) for when in message_times(payload))
-        data = compact(payload).encode()
+        if data is None:
+            data = compact_bytes(payload)
         self.messages += 1
         self._writer.add_message(self._channel(topic, JSON_ENCODING), logged, data,
                                  sampled, self.messages)

@@ -1,6 +1,6 @@
 """Every (state, event) of a node's clock estimate (issue 31, defect 1), against the true
 sample instants of a simulated node: a crystal 40 ppm fast, fed through the timer and
-its unwrapping as the gateway feeds it (gateway/daemon/nodes.py), on a serial line that
+its unwrapping as the gateway feeds it (gateway/daemon/station/nodes.py), on a serial line that
 is free (delays of a fraction of a millisecond above the floor) or over capacity (every
 packet behind a full queue). The host's monotonic clock reads UPTIME: a node's own
 seconds taken for it are thousands of seconds off.

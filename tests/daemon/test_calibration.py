@@ -10,8 +10,8 @@ from typing import Any
 import pytest
 
 from gateway.daemon import calibration
-from gateway.daemon import scheduler as scheduling
 from gateway.daemon.errors import NodeError
+from gateway.daemon.station import scheduler as scheduling
 from gateway.sim.base_station import RadioLink
 from gateway.sim.node import NodeSettings
 from gateway.sim.physics import Motion

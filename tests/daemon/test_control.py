@@ -14,8 +14,8 @@ import pytest
 import zmq
 import zmq.asyncio
 
-from gateway.daemon import scheduler as scheduling
 from gateway.daemon.control import ControlServer, answer_within
+from gateway.daemon.station import scheduler as scheduling
 from gateway.sim.base_station import RadioLink
 from gateway.sim.node import NodeSettings
 from tests.helpers.wired import Wired

@@ -13,7 +13,7 @@ import pytest
 from aspp.clock import DRIFT_ERROR
 from gateway.daemon.config import FLOOR_UNSEEN_S, HealthConfig, NodeEntry
 from gateway.daemon.health import Level, Recent, judge
-from gateway.daemon.nodes import Node
+from gateway.daemon.station.nodes import Node
 
 LIMITS = HealthConfig()
 

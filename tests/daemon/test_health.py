@@ -12,8 +12,8 @@ from aspp.records import decode, encode
 from aspp.timing import TICKS_PER_CLOCK
 from gateway.daemon.config import HealthConfig, NodeEntry
 from gateway.daemon.health import Health, Level, Recent, Window, judge
-from gateway.daemon.lineload import LineLoad
-from gateway.daemon.nodes import Node, State
+from gateway.daemon.station.lineload import LineLoad
+from gateway.daemon.station.nodes import Node, State
 
 LIMITS = HealthConfig()
 PERIOD_TICKS = 512 * TICKS_PER_CLOCK
@@ -234,9 +234,10 @@ class FakeRecorder:
 
 def test_the_gateway_is_an_error_while_its_recorder_cannot_write(caplog) -> None:
     caplog.set_level(logging.INFO, "gx2.health")
-    health = Health([], LIMITS)
-    assert health.gateway_status(1.0) == {"health": "OK", "reasons": []}  # records nothing
-    recorder = health.recorder = FakeRecorder()
+    nothing = Health([], LIMITS)  # records nothing
+    assert nothing.gateway_status(1.0) == {"health": "OK", "reasons": []}
+    recorder = FakeRecorder()
+    health = Health([], LIMITS, recorder=recorder)
     health.sample(1.0)
     recorder.failure = "No space left on device"
     assert health.gateway_status(1.5) == {
@@ -251,8 +252,8 @@ def test_the_gateway_is_an_error_while_its_recorder_cannot_write(caplog) -> None
 
 
 def test_the_gateway_warns_while_its_recorders_queue_overflowed_within_the_window() -> None:
-    health = Health([], LIMITS)
-    recorder = health.recorder = FakeRecorder()
+    recorder = FakeRecorder()
+    health = Health([], LIMITS, recorder=recorder)
     for second in range(10):
         health.sample(float(second))
     recorder.overflowed = 250
@@ -269,9 +270,8 @@ def test_the_gateway_warns_while_its_recorders_queue_overflowed_within_the_windo
 def test_a_line_over_capacity_warns_for_the_gateway_and_its_held_nodes() -> None:
     node = streaming_node()
     stream = Stream(node)
-    health = Health([node], LIMITS)
     line = LineLoad(11520.0)
-    health.lines = [("north", line)]
+    health = Health([node], LIMITS, lines=[("north", line)])
     now = settled(node)
     for second in range(8):  # the line full, second after second
         stream.send(100)

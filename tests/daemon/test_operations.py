@@ -11,10 +11,10 @@ import pytest
 
 from aspp.commands import EEPROM_AUTO_START, EEPROM_DIVIDER
 from gateway.common import ops
-from gateway.daemon import scheduler as scheduling
 from gateway.daemon.errors import Invalid, NodeError, Refused
 from gateway.daemon.operations import HANDLERS
 from gateway.daemon.requests import MODELS
+from gateway.daemon.station import scheduler as scheduling
 from gateway.sim.base_station import RadioLink
 from gateway.sim.node import FIRMWARE_VERSION, NodeSettings
 from tests.helpers.wired import Wired

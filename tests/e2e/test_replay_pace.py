@@ -18,7 +18,7 @@ RECORD_S = 12.0
 OVER = "line over capacity"
 DELAY_S = 4.5
 """Seconds before the replay plays. A gateway judges its line over the last five seconds
-once it has four of them (gateway/daemon/lineload.py): a replay that begins after that
+once it has four of them (gateway/daemon/station/lineload.py): a replay that begins after that
 is judged, by a gateway that counts the bytes as they are played, while it plays."""
 
 

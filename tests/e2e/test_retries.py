@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from gateway.daemon.scheduler import MAX_ATTEMPTS, REPLY_TIMEOUT
+from gateway.daemon.station.scheduler import MAX_ATTEMPTS, REPLY_TIMEOUT
 from gateway.sim.base_station import LineFaults, RadioLink
 from gateway.sim.node import NodeSettings
 from tests.helpers.gateway import Control

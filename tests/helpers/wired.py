@@ -15,12 +15,12 @@ import time
 from typing import Any
 
 from gateway.daemon.config import NodeEntry
-from gateway.daemon.nodes import Node
 from gateway.daemon.operations import Operations
-from gateway.daemon.reader import Reader
 from gateway.daemon.requests import MODELS
-from gateway.daemon.scheduler import Scheduler
-from gateway.daemon.supervisor import Supervisor
+from gateway.daemon.station.nodes import Node
+from gateway.daemon.station.reader import Reader
+from gateway.daemon.station.scheduler import Scheduler
+from gateway.daemon.station.supervisor import Supervisor
 from gateway.sim.base_station import BaseStation, LineFaults, RadioLink
 from gateway.sim.node import NodeSettings, SimNode
 

@@ -9,10 +9,10 @@ from aspp.frame import encode_reply_packet
 from aspp.records import encode
 from aspp.timing import TICKS_PER_CLOCK, byte_time
 from gateway.daemon.config import NodeEntry
-from gateway.daemon.nodes import Node
-from gateway.daemon.reader import Reader
-from gateway.daemon.scheduler import Scheduler
-from gateway.daemon.supervisor import Supervisor
+from gateway.daemon.station.nodes import Node
+from gateway.daemon.station.reader import Reader
+from gateway.daemon.station.scheduler import Scheduler
+from gateway.daemon.station.supervisor import Supervisor
 from tests.helpers.wired import RecordingPublisher
 
 IDLE = 0.03

@@ -1,6 +1,6 @@
 """A recording played back in place of the base station: ``replay://PATH``.
 
-It stands where :class:`~gateway.daemon.link.SerialLink` stands: each recorded read
+It stands where :class:`~gateway.daemon.station.link.SerialLink` stands: each recorded read
 goes to the reader with the times it was read at (UNIX and monotonic), so the reader,
 the nodes' clock estimates and the publisher do exactly what they did live. It takes
 nothing: a write is an error (the gateway sends nothing during a replay).
@@ -54,7 +54,6 @@ from gateway.common.topics import parse
 from gateway.recording.files import (
     MARK,
     METADATA,
-    SERIAL,
     RecordingError,
     is_serial_reads,
     serial_channels,
@@ -62,6 +61,8 @@ from gateway.recording.files import (
 )
 from gateway.recording.reader import Entry, read
 from gateway.recording.reports import FileReport, Reading
+
+from .replayread import ReplayReader
 
 if TYPE_CHECKING:
     from .replaystart import RecordedStart
@@ -71,7 +72,9 @@ SCHEME = "replay://"
 YIELD_EVERY = 200
 DELAY_S = 1.0
 OPTIONS = ("speed", "exit", "delay")
-PUBLISHED = "published"
+FILE_OF_READS = "serial"
+"""A gateway's recording (its serial reads): played by reading them again."""
+FILE_OF_MESSAGES = "published"
 """A file of published messages (no serial reads): played by publishing them again."""
 
 
@@ -183,8 +186,14 @@ class ReplayLink:
                  on_state: Callable[[bool], None], on_end: Callable[[], None],
                  on_message: Callable[[str, dict[str, Any]], object], *,
                  station: str = "", marks: bool = True,
-                 start: RecordedStart | None = None) -> None:
+                 start: RecordedStart | None = None,
+                 source: ReplayReader | None = None) -> None:
         self.replay = replay
+        self._source = source or ReplayReader(replay.files)
+        """The reading of the recording it shares with the other stations playing it
+        (:mod:`.replayread`): each file read and decompressed once for all."""
+        self._several: dict[Path, tuple[str, ...]] = {}
+        """Each file's stations, as its head names them (read once)."""
         self.start_at = start
         """Given the recorded records, to start each node's seq and device time at the
         recorded ones."""
@@ -226,6 +235,7 @@ class ReplayLink:
         return "up" if self.up else "down"
 
     def start(self) -> None:
+        self._source.join(self, self._plays, self._read_file)
         self.up = True
         self.since = time.time()
         self._on_state(True)
@@ -234,16 +244,28 @@ class ReplayLink:
     def write(self, data: bytes) -> None:
         raise OSError("replaying a recording: nothing is sent to the base station")
 
+    def _plays(self, path: Path) -> bool:
+        """Whether it plays ``path``: a file of one station's reads (or none), or of
+        several stations' that holds its own (the others' are skipped: _not_its_own)."""
+        several = self._stations_of(path)
+        return not several or self.station in several
+
+    def _stations_of(self, path: Path) -> tuple[str, ...]:
+        several = self._several.get(path)
+        if several is None:
+            several = self._several[path] = recorded_stations(path)
+        return several
+
     async def _play(self) -> None:
         speed = self.replay.speed
-        reading = Reading(self._read_file)
         seen = 0
         await asyncio.sleep(self.replay.delay)
         for path in self.replay.files:
-            # SERIAL (a gateway's recording) or PUBLISHED, once the file has shown which
+            # FILE_OF_READS (a gateway's recording) or FILE_OF_MESSAGES, once the file
+            # has shown which
             kind: str | None = None
-            several = recorded_stations(path)
-            if several and self.station not in several:
+            several = self._stations_of(path)
+            if not self._plays(path):
                 self._not_its_own(path, several)
                 continue
             # the channel of reads it plays: with one station's, the first one found
@@ -251,7 +273,7 @@ class ReplayLink:
             # a read, and the marks after it, are played once the records recorded
             # after it have been seen: at the next read of the channel (.replaystart)
             ahead: list[tuple[Entry, bool]] = []
-            for entry in read(path, reading):
+            async for entry in self._source.entries(self, path):
                 seen += 1
                 if speed == 0 and seen % YIELD_EVERY == 0:
                     await asyncio.sleep(0)
@@ -262,20 +284,21 @@ class ReplayLink:
                 record = not serial and parse(topic) is not None
                 if kind is None and (record or is_serial_reads(topic)):
                     # (a gateway's recording of several stations: any station's reads)
-                    kind = SERIAL if is_serial_reads(topic) else PUBLISHED
+                    kind = FILE_OF_READS if is_serial_reads(topic) else FILE_OF_MESSAGES
                 start = self.start_at
-                if record and kind == SERIAL and start is not None and start.waiting:
+                if record and kind == FILE_OF_READS and start is not None and start.waiting:
                     start.recorded(entry)
-                played = ((topic == MARK and self.marks) or (serial and kind == SERIAL)
-                          or (record and kind == PUBLISHED and self.marks))
+                played = ((topic == MARK and self.marks) or (serial and kind == FILE_OF_READS)
+                          or (record and kind == FILE_OF_MESSAGES and self.marks))
                 if not played:
                     continue
-                if serial or kind != SERIAL:
+                if serial or kind != FILE_OF_READS:
                     await self._play_paced(ahead)
                 ahead.append((entry, serial))
             await self._play_paced(ahead)
-        self.partial = self.partial or reading.partial or self.unreadable > 0
+        self.partial = self.partial or self.unreadable > 0
         self.finished = True
+        self._source.leave(self)
         if self.unreadable:
             log.warning("replay: skipped %d messages that are not JSON objects",
                         self.unreadable)
@@ -331,9 +354,11 @@ class ReplayLink:
         if line:
             log.warning("replay: %s", line)
         if report.partial:
+            self.partial = True
             self.last_error = line
 
     def close(self) -> None:
         if self._task is not None:
             self._task.cancel()
+        self._source.leave(self)
         self.up = False

@@ -1,4 +1,4 @@
-"""The ZeroMQ PUB side: the one place a message is published.
+"""The ZeroMQ PUB side: the output whose send is the message's publication.
 
 Each message is ``[topic, msgpack payload]`` (topics: :mod:`gateway.common.topics`).
 Sends never block: PUB drops for a subscriber past its high-water mark rather than
@@ -15,11 +15,10 @@ import msgpack
 import zmq
 
 from gateway.common import curve
-from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC, parse, topic
+
+from . import Message, Needs, Output
 
 log = logging.getLogger("gx2.publish")
-Sink = Callable[[bytes, dict[str, Any]], None]
-"""What is given every message published: its topic and its payload."""
 _MORE, _LAST = int(zmq.SNDMORE | zmq.NOBLOCK), int(zmq.NOBLOCK)
 
 
@@ -36,7 +35,9 @@ def compiled_send(socket: zmq.Socket) -> Callable[[bytes, int], Any]:
     return socket.send  # type: ignore[return-value]
 
 
-class Publisher:
+class Publisher(Output):
+    """The PUB socket: each message sent as ``[topic, msgpack payload]``."""
+
     def __init__(self, context: zmq.Context, endpoint: str, high_water_mark: int,
                  server: curve.KeyPair | None = None) -> None:
         # a plain socket even on the loop's asyncio context: sends never block (NOBLOCK),
@@ -48,54 +49,17 @@ class Publisher:
             curve.serve(self.socket, server)
         self.socket.bind(endpoint)
         self.endpoint = endpoint
-        self._topics: dict[tuple[int, str], list[Any]] = {}
-        """(node, record) -> [its topic, messages published on it]."""
         self._pack = msgpack.Packer().pack
         self._socket_send = compiled_send(self.socket)
         self.sent = 0
         self.failed = 0
-        self.record: Sink | None = None
-        """Given every message published, when the gateway records or serves the live
-        view (app.py's fan_out)."""
 
-    def publish(self, node: int, record: str, payload: dict[str, Any]) -> bool:
-        """Publish one record; False if ZeroMQ refused it (counted, never raised). A
-        subscriber past its high-water mark loses messages silently inside PUB: it sees
-        them as gaps in ``seq``."""
-        key = (node, record)
-        entry = self._topics.get(key)
-        if entry is None:
-            entry = self._topics[key] = [topic(node, record), 0]
-        if self._send(entry[0], payload):
-            entry[1] += 1
-            return True
-        return False
+    def take(self, message: Message) -> None:
+        self.send(message.topic, message.payload)
 
-    def published(self) -> dict[int, dict[str, int]]:
-        """Messages published on each topic: node -> record name -> count."""
-        counts: dict[int, dict[str, int]] = {}
-        for (node, record), (_, count) in self._topics.items():
-            if count:
-                counts.setdefault(node, {})[record] = count
-        return counts
-
-    def status(self, payload: dict[str, Any]) -> bool:
-        return self._send(STATUS_TOPIC, payload)
-
-    def mark(self, payload: dict[str, Any]) -> bool:
-        return self._send(MARK_TOPIC, payload)
-
-    def replayed(self, name: str, payload: dict[str, Any]) -> bool:
-        """A message of a recording, published again on its topic as it was recorded (a
-        node's record counted as one published on that node's topic)."""
-        found = parse(name)
-        if found is not None:
-            return self.publish(*found, payload)
-        return self._send(name.encode(), payload)
-
-    def _send(self, name: bytes, payload: dict[str, Any]) -> bool:
-        if self.record is not None:
-            self.record(name, payload)
+    def send(self, name: bytes, payload: dict[str, Any]) -> bool:
+        """Send one message; False if ZeroMQ refused it (counted and logged, never
+        raised): the fan-out's answer for the message (:class:`.Outputs`)."""
         try:
             self._socket_send(name, _MORE)
             self._socket_send(self._pack(payload), _LAST)
@@ -106,5 +70,11 @@ class Publisher:
         self.sent += 1
         return True
 
-    def close(self) -> None:
+    def close(self, seconds: float = 0.0) -> None:
         self.socket.close()
+
+
+def make(needs: Needs) -> Publisher:
+    config = needs.config
+    return Publisher(needs.context, config.publish.endpoint, config.publish.high_water_mark,
+                     needs.server if config.curve and config.curve.publish else None)

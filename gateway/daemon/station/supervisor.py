@@ -1,6 +1,6 @@
 """The supervisor: it keeps every node doing what it should.
 
-What a node should do is its ``desired`` stream (:class:`~gateway.daemon.nodes.Node`):
+What a node should do is its ``desired`` stream (:class:`~gateway.daemon.station.nodes.Node`):
 the configured ``stream:`` until an operator's ``start`` or ``stop`` replaces it, for as
 long as the gateway runs. The supervisor pursues it, in the background and at the
 scheduler's background priority, whenever the node may have stopped doing it:
@@ -36,7 +36,7 @@ from aspp.records import Record, lookup
 from aspp.stop import GaveUp, NoAnswer, Probe, SendStop, Stopped, StopPolicy
 from aspp.timing import TICKS_PER_CLOCK, TIMER_MODULUS
 
-from .errors import LinkDown, NodeError
+from ..errors import LinkDown, NodeError
 from .nodes import OFF, Node, State
 from .scheduler import Priority, Scheduler
 

@@ -9,24 +9,26 @@ import msgpack
 import pytest
 import zmq
 
-from gateway.daemon import publisher as publishing
-from gateway.daemon.publisher import Publisher, compiled_send
+from gateway.daemon.outputs import Outputs
+from gateway.daemon.outputs import zeromq as publishing
+from gateway.daemon.outputs.zeromq import Publisher, compiled_send
 
 
 def published(monkeypatch: pytest.MonkeyPatch | None = None) -> list[list[bytes]]:
     context = zmq.Context()
     try:
         publisher = Publisher(context, "inproc://published", 100)
+        outputs = Outputs({"zeromq": publisher})
         sub = context.socket(zmq.SUB)
         sub.setsockopt(zmq.SUBSCRIBE, b"gx2/")
         sub.connect("inproc://published")
         got: list[list[bytes]] = []
         for seq in range(1, 1000):  # until the subscription has reached the PUB
-            publisher.publish(76, "euler", {"seq": seq, "roll": math.nan})
+            outputs.publish(76, "euler", {"seq": seq, "roll": math.nan})
             if sub.poll(10):
                 got.append(sub.recv_multipart())
                 break
-        publisher.status({"gateway": {}})
+        outputs.status({"gateway": {}})
         assert sub.poll(1000)
         got.append(sub.recv_multipart())
         sub.close(0)

@@ -5,8 +5,9 @@ supervisor of its nodes, their states and clocks, and how full its line is. Noth
 here is shared with another station, so one unplugged, stalled, flooded with garbage or
 replaying slowly never delays another's records or commands: each link's reads arrive
 on the loop as its own callbacks, each scheduler has its own one command in flight.
-What the gateway has once (publisher, control, recorder, metrics, health) is handed in,
-and a record's way stays one-way: link -> reader -> node -> publisher.
+What the gateway has once (its outputs, control, health) is handed in as the small
+protocols of :mod:`.outlet`, and a record's way stays one-way: link -> reader -> node ->
+the outlet (the gateway's outputs). No module of this package imports an output.
 """
 
 from __future__ import annotations
@@ -14,26 +15,23 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 from aspp.timing import BITS_PER_BYTE, byte_time
 from gateway.recording.files import serial_channels
 
-from .config import StationConfig
-from .health import SAMPLE_PERIOD
+from ..config import StationConfig
+from ..health import SAMPLE_PERIOD
 from .lineload import LineLoad
 from .link import SerialLink
 from .nodes import Node
+from .outlet import Outlet, SerialTap
 from .ports import Port
-from .publisher import Publisher
 from .reader import Reader
 from .replay import ReplayLink
+from .replayread import ReplayReaders
 from .replaystart import RecordedStart
 from .scheduler import Scheduler
 from .supervisor import Supervisor
-
-if TYPE_CHECKING:
-    from .recorder import Recorder
 
 log = logging.getLogger("gx2.gateway")
 
@@ -41,13 +39,16 @@ log = logging.getLogger("gx2.gateway")
 class Station:
     """One base station's parts; :meth:`open` once the gateway's sockets are bound."""
 
-    def __init__(self, config: StationConfig, publisher: Publisher, *, only: bool,
+    def __init__(self, config: StationConfig, publisher: Outlet, *, only: bool,
                  first: bool, on_link_state: Callable[[Station, bool], None],
-                 on_replay_end: Callable[[Station], None], floor_unseen_s: float) -> None:
+                 on_replay_end: Callable[[Station], None], floor_unseen_s: float,
+                 replays: ReplayReaders | None = None) -> None:
         """``only``: the gateway's one station (its recording keeps the one-station
         channel names); ``first``: the one that publishes a recording's marks again;
         ``floor_unseen_s``: how long its nodes' clocks may go without seeing their floor
-        before status gives how late ``time`` may be (health.floor_unseen_s)."""
+        before status gives how late ``time`` may be (health.floor_unseen_s);
+        ``replays``: the recordings' readings the gateway's stations share (a recording
+        of several stations read once for all)."""
         self.config = config
         self.name = config.name or ""
         self._on_link_state = on_link_state
@@ -58,6 +59,7 @@ class Station:
                       for n in config.nodes}
         self.line = LineLoad(config.baudrate / BITS_PER_BYTE)
         self.replay = Port.replay_of(config.port)
+        self._replays = replays or ReplayReaders()
         self.replaying = self.replay is not None
         self.scheduler = Scheduler(self._write, station=self.name)
         self.supervisor = Supervisor(self.scheduler, self.nodes, passive=self.replaying)
@@ -72,14 +74,14 @@ class Station:
         """Its serial channels in a recording: (reads, writes)."""
         self._publisher = publisher
         self._first = first
-        self.recorder: Recorder | None = None
+        self.recorder: SerialTap | None = None
         self.port: Port | None = None
         self.link: SerialLink | ReplayLink | None = None
         self._opened = False
         """Its port has been open once (later opens are the link's reconnects)."""
         self._on_data: Callable[[bytes, float, float], None] = self.reader.on_data
 
-    def open(self, recorder: Recorder | None) -> None:
+    def open(self, recorder: SerialTap | None) -> None:
         """Make its port (an embedded simulator makes a directory: only once nothing of
         the gateway can fail any more) and its link."""
         self.recorder = recorder
@@ -90,7 +92,8 @@ class Station:
             self.link = ReplayLink(self.replay, self._replayed, self._link_state,
                                    self._replay_ended, self._publisher.replayed,
                                    station=self.name, marks=self._first,
-                                   start=self.recorded)
+                                   start=self.recorded,
+                                   source=self._replays.of(self.replay.files))
         else:
             self.link = SerialLink(self.port.path, self.config.baudrate, on_data,
                                    self._link_state)

@@ -5,7 +5,7 @@ plain serial device.
 - a pyserial URL (``rfc2217://host:port``, ``socket://``, ``loop://``), for a base
   station behind a network serial server;
 - ``replay://PATH[?speed=N&exit=true]``: a recording played back
-  (:mod:`gateway.daemon.replay`);
+  (:mod:`gateway.daemon.station.replay`);
 - ``sim://[?faults]``: gx2-sim, run inside the gateway for the configured nodes behind
   a pty with a private path, so the daemon opens it exactly as it opens hardware. Query
   parameters select faults: ``sim://?data_loss=0.05&garbage=0.01&stop_loss=0.5``.
@@ -66,7 +66,7 @@ def check_url(url: str, nodes: list[int]) -> str:
 def open_serial(path: str, baudrate: int) -> serial.SerialBase:
     """Open the base station's port (a device path or a pyserial URL): a device
     exclusively and raw. It may block for seconds (a network serial server that does not
-    answer): the link calls it off the loop (:mod:`gateway.daemon.offloop`)."""
+    answer): the link calls it off the loop (:mod:`gateway.daemon.station.offloop`)."""
     is_device = "://" not in path
     # write_timeout applies only to URL handlers without an fd (loop://)
     return serial.serial_for_url(path, baudrate, timeout=0, write_timeout=0.1,

@@ -8,8 +8,8 @@ from typing import Any
 
 from aspp.timing import TICKS_PER_SECOND, WRAP_SECONDS
 from gateway.daemon.config import NodeEntry
-from gateway.daemon.nodes import Node
-from gateway.daemon.replaystart import RecordedStart
+from gateway.daemon.station.nodes import Node
+from gateway.daemon.station.replaystart import RecordedStart
 from gateway.recording.reader import Entry
 
 

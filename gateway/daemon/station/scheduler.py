@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from aspp.commands import Command
 
-from .errors import LinkDown, NodeError
+from ..errors import LinkDown, NodeError
 
 if TYPE_CHECKING:
     from .nodes import Delivery

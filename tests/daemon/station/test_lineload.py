@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from gateway.daemon.lineload import AT_CAPACITY, ROOM, SPAN, LineLoad
+from gateway.daemon.station.lineload import AT_CAPACITY, ROOM, SPAN, LineLoad
 
 CAPACITY = 11520.0
 

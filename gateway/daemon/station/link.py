@@ -9,10 +9,10 @@ driver buffer is never mistaken for a lost port (pyserial's own write timeout co
 scheduling stall as a timeout even after every byte was written). A read or write
 error, or end of file (the USB plug pulled), closes the port, and it is reopened with
 backoff in steps of at most 1 s until it comes back. What it opens comes from
-:mod:`gateway.daemon.ports`.
+:mod:`gateway.daemon.station.ports`.
 
 Opening and closing never run on the loop: each runs in a daemon thread
-(:mod:`gateway.daemon.offloop`), the link ``opening`` meanwhile, so a network serial
+(:mod:`gateway.daemon.station.offloop`), the link ``opening`` meanwhile, so a network serial
 server that does not answer stalls no other base station, no request and no shutdown.
 """
 

@@ -13,7 +13,7 @@ from aspp.frame import encode_reply_packet
 from aspp.records import decode, encode
 from aspp.timing import TICKS_PER_CLOCK, TICKS_PER_SECOND, TIMER_MODULUS, WRAP_SECONDS
 from gateway.daemon.config import NodeEntry
-from gateway.daemon.nodes import SILENCE_MIN, STEPS_CHECKED, Node, State
+from gateway.daemon.station.nodes import SILENCE_MIN, STEPS_CHECKED, Node, State
 
 
 def test_silent_at_is_the_watchers_deadline() -> None:
@@ -221,7 +221,7 @@ def test_samples_missed_while_the_station_was_down_are_not_radio_loss(
     ``lost_station_down``; what it missed after the station was back (the node out of
     range meanwhile) is still ``lost_radio``."""
     clock = Clock(1000.0)
-    monkeypatch.setattr("gateway.daemon.nodes.time", clock)
+    monkeypatch.setattr("gateway.daemon.station.nodes.time", clock)
     node = Node(NodeEntry(address=76))
     node.streaming("accel_angrate", 512)  # 100 Hz
     step = 512 * TICKS_PER_CLOCK

@@ -57,11 +57,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
-from gateway.recording.files import SERIAL as SERIAL_READS
-from gateway.recording.files import WRITTEN, OutOfRange, file_name
+from gateway.recording.files import SERIAL_READS, WRITTEN, OutOfRange, file_name
 from gateway.recording.writer import RecordingWriter
 
-from .config import RecordConfig
+from ..config import RecordConfig
+from . import Message, Needs, Output
 from .retention import Retention
 
 log = logging.getLogger("gx2.record")
@@ -79,7 +79,7 @@ CLOSE_S = 1.0
 DRAIN_SHARE = 0.5
 """The share of close()'s time the queue may take; the rest is the last chunk's and the
 summary's (a handful of writes)."""
-SERIAL, SENT, PUBLISHED = 0, 1, 2
+QUEUED_READ, QUEUED_WRITE, QUEUED_MESSAGE = 0, 1, 2
 """What a queued item is: a read, a write, a published message."""
 
 
@@ -88,8 +88,8 @@ def exclusive(path: Path) -> IO[bytes]:
     return path.open("xb")
 
 
-class Recorder:
-    """``serial``/``written``/``published`` on the loop; everything else in its thread."""
+class Recorder(Output):
+    """``serial``/``sent``/``take`` on the loop; everything else in its thread."""
 
     def __init__(self, config: RecordConfig, metadata: dict[str, str],
                  create: Callable[[Path], IO[bytes]] | None = None) -> None:
@@ -147,7 +147,7 @@ class Recorder:
         """A read from a base station, kept on ``channel`` (its station's)."""
         queue = self._queue
         if len(queue) < self.capacity:
-            queue.append((SERIAL, data, host_time, monotonic, channel))
+            queue.append((QUEUED_READ, data, host_time, monotonic, channel))
         else:
             self.overflowed += 1
 
@@ -156,16 +156,17 @@ class Recorder:
         """A write to a base station, kept on ``channel`` (its station's)."""
         queue = self._queue
         if len(queue) < self.capacity:
-            queue.append((SENT, bytes(data), host_time, monotonic, channel))
+            queue.append((QUEUED_WRITE, bytes(data), host_time, monotonic, channel))
         else:
             self.overflowed += 1
 
-    def published(self, topic: bytes, payload: dict[str, Any]) -> None:
-        """A published message. The payload is not copied: the gateway makes a new map
-        for every message and never changes one once published."""
+    def take(self, message: Message) -> None:
+        """A published message. Not copied: the gateway makes a new map for every
+        message and never changes one once published; its JSON is made in the thread
+        (or was already, by the live view)."""
         queue = self._queue
         if len(queue) < self.capacity:
-            queue.append((PUBLISHED, topic, payload))
+            queue.append((QUEUED_MESSAGE, message.topic, message))
         else:
             self.overflowed += 1
 
@@ -196,7 +197,7 @@ class Recorder:
     def start(self) -> None:
         self._thread.start()
 
-    def close(self, timeout: float = CLOSE_S) -> None:
+    def close(self, timeout: float = CLOSE_S) -> None:  # (seconds: the contract's)
         """Write what is queued and finish the file, within ``timeout`` s (see the
         module's docstring for what the file holds when the disk is slower), and end
         the thread."""
@@ -272,8 +273,9 @@ class Recorder:
         """One message into the file; one it cannot take (anything but the disk's
         failure) is refused, and the thread goes on with the next."""
         try:
-            if item[0] == PUBLISHED:
-                writer.message(item[1].decode(), item[2])
+            if item[0] == QUEUED_MESSAGE:
+                message = item[2]
+                writer.message(item[1].decode(), message.payload, message.json())
             else:
                 writer.serial(item[1], item[2], item[3], topic=item[4])
         except OSError:
@@ -287,7 +289,7 @@ class Recorder:
         """A message not written, counted; the first of each kind said in one line (with
         its traceback if it is not a time out of range: a bug, here or in mcap)."""
         self.refused += 1
-        topic = item[1].decode(errors="replace") if item[0] == PUBLISHED else item[4]
+        topic = item[1].decode(errors="replace") if item[0] == QUEUED_MESSAGE else item[4]
         kind = type(error).__name__
         if kind in self._refusals:
             return
@@ -417,3 +419,8 @@ class Recorder:
 
     def _writing(self) -> Path | None:
         return self.path if self._output is not None else None
+
+
+def make(needs: Needs) -> Recorder:
+    assert needs.config.record is not None
+    return Recorder(needs.config.record, needs.metadata())

@@ -31,8 +31,9 @@ from gateway.common.schemas import ENCODING as SCHEMA_ENCODING
 from gateway.common.schemas import schema_for_topic
 from gateway.recording.files import JSON_ENCODING, OutOfRange, message_times, ns
 
-from .config import LiveConfig
-from .errors import StartupError
+from ..config import LiveConfig
+from ..errors import StartupError
+from . import Message, Needs, Output
 
 log = logging.getLogger("gx2.live")
 STOP_WAIT = 0.5
@@ -112,8 +113,8 @@ class Viewers(foxglove.ServerListener):
                     "subscriptions": self.subscriptions}
 
 
-class LiveServer:
-    """The server and its channels. :meth:`published` is given every message the
+class LiveServer(Output):
+    """The server and its channels. :meth:`take` is given every message the
     gateway publishes, on the loop."""
 
     def __init__(self, config: LiveConfig) -> None:
@@ -141,19 +142,20 @@ class LiveServer:
             log.warning("live view on %s: any host that reaches it may watch (it is "
                         "read-only and unauthenticated)", config.endpoint)
 
-    def published(self, topic: bytes, payload: dict[str, Any]) -> None:
+    def take(self, message: Message) -> None:
         """A published message, to the viewers of its topic (if any)."""
+        topic = message.topic
         channel = self._channels.get(topic, False)
         if channel is False:
             channel = self._channels[topic] = self._open(topic)
         if channel is None or not channel.has_sinks():
             return
         try:
-            log_time = ns(message_times(payload)[1])
+            log_time = ns(message_times(message.payload)[1])
         except OutOfRange as error:  # (raised here, on the loop, it would end the replay)
             self._refuse(topic, error)
             return
-        channel.log(compact(payload).encode(), log_time=log_time)
+        channel.log(message.json(), log_time=log_time)
         self.messages += 1
 
     def _refuse(self, topic: bytes, error: OutOfRange) -> None:
@@ -200,3 +202,8 @@ class LiveServer:
         if stopping.is_alive():
             log.warning("live view: a connection that never completed its WebSocket "
                         "handshake is still open: left to the process's exit")
+
+
+def make(needs: Needs) -> LiveServer:
+    assert needs.config.live is not None
+    return LiveServer(needs.config.live)

@@ -13,8 +13,8 @@ from collections.abc import Iterator
 import pytest
 import serial
 
-from gateway.daemon import link as link_module
-from gateway.daemon.link import SerialLink
+from gateway.daemon.station import link as link_module
+from gateway.daemon.station.link import SerialLink
 from tests.helpers.waiting import wait_for_async
 
 

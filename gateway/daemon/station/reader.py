@@ -19,7 +19,7 @@ from aspp.frame import HEADER_SIZE
 from aspp.timing import BITS_PER_BYTE
 
 from .nodes import Delivery, Node
-from .publisher import Publisher
+from .outlet import Publishes
 from .scheduler import Scheduler
 from .supervisor import Supervisor
 
@@ -27,7 +27,7 @@ log = logging.getLogger("gx2.reader")
 
 
 class Reader:
-    def __init__(self, nodes: dict[int, Node], publisher: Publisher, supervisor: Supervisor,
+    def __init__(self, nodes: dict[int, Node], publisher: Publishes, supervisor: Supervisor,
                  scheduler: Scheduler, idle_seconds: float, idle_timer: bool = True,
                  byte_time: float = BITS_PER_BYTE / 115200) -> None:
         self.decoder = Decoder()

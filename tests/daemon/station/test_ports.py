@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import serial
 
-from gateway.daemon.ports import PLAIN_REASONS, open_serial, why_not_open
+from gateway.daemon.station.ports import PLAIN_REASONS, open_serial, why_not_open
 
 
 def failure(path: str) -> BaseException:

@@ -9,7 +9,7 @@ unwraps to less than 218 s, and its first record is the replay's first.
 
 The file says it all the same: a gateway's recording holds every record it published,
 each after the read it was decoded from. So the replay reads each read's records before
-playing the read (:class:`~gateway.daemon.replay.ReplayLink` looks that far ahead), and
+playing the read (:class:`~gateway.daemon.station.replay.ReplayLink` looks that far ahead), and
 each node's first record published in the replay takes the recorded seq and device time
 of the record it is (the same node, record and timer). From there the node counts on as
 the recording gateway did: its seq from the recorded one, and its device time by the
@@ -24,21 +24,19 @@ kept, at most KEPT of them.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 from aspp.timing import TICKS_PER_SECOND
 from gateway.recording.files import RecordingError
 from gateway.recording.reader import Entry
+
+from .outlet import Publishes
 
 if TYPE_CHECKING:
     from .nodes import Node
 
 KEPT = 100_000
 """Recorded records kept to match against, at most (a node that never matches)."""
-
-
-class Publishes(Protocol):
-    def publish(self, node: int, record: str, payload: dict[str, Any]) -> bool: ...
 
 
 class RecordedStart:

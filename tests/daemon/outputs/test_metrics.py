@@ -13,7 +13,7 @@ import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
 from gateway.common.endpoints import host_port
-from gateway.daemon.metrics import MetricsServer
+from gateway.daemon.outputs.metrics import MetricsServer
 from tests.helpers.ports import free_port
 
 CONTRACT = {
@@ -85,7 +85,7 @@ def values(family: Any) -> dict[tuple[tuple[str, str], ...], float]:
 
 
 def test_every_metric_of_the_interface_is_served_with_its_type_and_labels(server) -> None:
-    server.update(report())
+    server.report(report())
     families = scrape(server)
     for name, (kind, labels) in CONTRACT.items():
         assert name in families, f"{name} is not served"
@@ -96,7 +96,7 @@ def test_every_metric_of_the_interface_is_served_with_its_type_and_labels(server
 
 
 def test_the_values_are_the_reports(server) -> None:
-    server.update(report())
+    server.report(report())
     got = {name: values(family) for name, family in scrape(server).items()}
     assert got["gx2_link_up"] == {(): 1.0}
     assert got["gx2_link_reconnects"] == {(): 2.0}
@@ -124,7 +124,7 @@ def test_the_values_are_the_reports(server) -> None:
 
 def test_the_link_down_is_a_zero_and_recording_counters_appear_when_it_records(
         server) -> None:
-    server.update(report(link={"state": "down"}, recording={"written": 9, "dropped": 2,
+    server.report(report(link={"state": "down"}, recording={"written": 9, "dropped": 2,
                                                             "errors": 1, "bytes": 12_345}))
     got = {name: values(family) for name, family in scrape(server).items()}
     assert got["gx2_link_up"] == {(): 0.0}
@@ -137,10 +137,10 @@ def test_the_link_down_is_a_zero_and_recording_counters_appear_when_it_records(
 def test_the_gateways_own_health_is_a_gauge_absent_from_a_gateway_without_one(
         server, health: str, value: float) -> None:
     base = report()
-    server.update({**base, "gateway": {**base["gateway"], "health": health,
+    server.report({**base, "gateway": {**base["gateway"], "health": health,
                                        "reasons": ["recording failed: Disk full"]}})
     assert values(scrape(server)["gx2_gateway_health"]) == {(): value}
-    server.update({**base, "gateway": {"version": "0.9", "time": 1.0}})
+    server.report({**base, "gateway": {"version": "0.9", "time": 1.0}})
     assert "gx2_gateway_health" not in scrape(server)
 
 
@@ -148,7 +148,7 @@ def test_a_report_of_another_shape_loses_only_what_it_lacks(server) -> None:
     odd = report(link={"state": "up", "reconnects": "two", "discarded": [1]},
                  nodes=[{"node": 76, "rssi": float("nan"), "lqi": True, "rate_hz": 50},
                         {"name": "no address"}, "not a map"])
-    server.update(odd)
+    server.report(odd)
     got = {name: values(family) for name, family in scrape(server).items()}
     assert got["gx2_link_reconnects"] == {}
     assert got["gx2_node_rate_hz"] == {(("node", "76"),): 50.0}
@@ -187,7 +187,7 @@ def test_anything_else_is_refused_with_an_example(text: str) -> None:
 def test_with_several_stations_each_links_series_carry_its_name(server) -> None:
     links = [{**report()["link"], "name": name, "state": state, "discarded": {"garbage": n}}
              for name, state, n in (("north", "down", 5), ("south", "up", 7))]
-    server.update(report(stations=links))
+    server.report(report(stations=links))
     got = {name: {tuple(sorted(s.labels.items())): s.value for s in family.samples}
            for name, family in scrape(server).items()}
     assert got["gx2_link_up"] == {(("station", "north"),): 0.0, (("station", "south"),): 1.0}
@@ -195,7 +195,7 @@ def test_with_several_stations_each_links_series_carry_its_name(server) -> None:
         (("reason", "garbage"), ("station", "north")): 5.0,
         (("reason", "garbage"), ("station", "south")): 7.0}
     # a gateway of one base station: its link's series as ever, without a label
-    server.update(report(stations=links[:1]))
+    server.report(report(stations=links[:1]))
     got = {name: {tuple(sorted(s.labels.items())): s.value for s in family.samples}
            for name, family in scrape(server).items()}
     assert got["gx2_link_up"] == {(): 1.0}

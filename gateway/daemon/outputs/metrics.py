@@ -15,6 +15,7 @@ labels are part of the interface (docs/interface.md, section 8).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterator, Mapping
 from typing import Any
 
@@ -25,8 +26,9 @@ from prometheus_client.registry import Collector
 from gateway.common.endpoints import host_port
 from gateway.common.reading import as_map, number
 
-from .health import Level
-from .nodes import State
+from ..health import Level
+from ..station.nodes import State
+from . import Needs, Output
 
 COUNTER, GAUGE = CounterMetricFamily, GaugeMetricFamily
 
@@ -194,8 +196,10 @@ class StatusCollector(Collector):
             yield from families(report)
 
 
-class MetricsServer:
+class MetricsServer(Output):
     """``GET /metrics`` on HOST:PORT, served by prometheus-client in a thread."""
+
+    takes_messages = False
 
     def __init__(self, endpoint: str) -> None:
         host, port = host_port(endpoint)
@@ -207,14 +211,25 @@ class MetricsServer:
         # raises OSError (in use, no such address) before anything runs
         self._server, self._thread = start_http_server(port, host, registry)
 
-    def update(self, report: Mapping[str, Any]) -> None:
-        """Serve ``report`` from now on (called on the loop)."""
-        self.collector.report = report
+    def report(self, status: Mapping[str, Any]) -> None:
+        """Serve ``status`` from now on (called on the loop)."""
+        self.collector.report = status
 
-    def close(self) -> None:
-        """Stop serving; blocks up to the server's poll interval (0.5 s): call it off
-        the loop."""
-        self._server.shutdown()
-        self._server.server_close()
-        self._thread.join(1.0)
+    def close(self, seconds: float = 1.0) -> None:
+        """Stop serving within ``seconds``: the server's shutdown waits up to its poll
+        interval (0.5 s), so it runs in a daemon thread waited for that long at most
+        (left to the process's exit past it, as the server's thread is)."""
+        def stop() -> None:
+            self._server.shutdown()
+            self._server.server_close()
+        stopping = threading.Thread(target=stop, name="gx2-metrics-stop", daemon=True)
+        stopping.start()
+        stopping.join(seconds)
+        if not stopping.is_alive():
+            self._thread.join(max(0.0, seconds))
+
+
+def make(needs: Needs) -> MetricsServer:
+    assert needs.config.metrics is not None
+    return MetricsServer(needs.config.metrics.endpoint)
 

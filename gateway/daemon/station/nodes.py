@@ -30,7 +30,7 @@ from aspp.timing import (
 )
 from gateway.common.topics import default_station_name
 
-from .config import FLOOR_UNSEEN_S, NodeEntry
+from ..config import FLOOR_UNSEEN_S, NodeEntry
 
 RATE_WINDOW = 2.0
 """Seconds over which the record rate is measured."""

@@ -14,9 +14,10 @@ from typing import Any
 
 from mcap.reader import NonSeekingReader, make_reader
 
-from gateway.daemon import recorder as recorder_module
 from gateway.daemon.config import RecordConfig
-from gateway.daemon.recorder import Recorder
+from gateway.daemon.outputs import Message
+from gateway.daemon.outputs import recorder as recorder_module
+from gateway.daemon.outputs.recorder import Recorder
 from gateway.recording.files import file_name
 from tests.helpers.waiting import wait_for
 
@@ -40,7 +41,7 @@ def test_files_rotate_by_age_and_close_finishes_the_last(tmp_path):
     sent = 0
     while time.monotonic() - start < 2.0:
         recorder.serial(b"\xaa" * 40, time.time(), time.monotonic())
-        recorder.published(b"gx2/76/euler", {"roll": 0.1, "host_time": time.time()})
+        recorder.take(Message(b"gx2/76/euler", {"roll": 0.1, "host_time": time.time()}))
         sent += 2
         time.sleep(0.01)  # (a stream's pace, not a synchronisation)
     recorder.close()
@@ -400,14 +401,14 @@ def test_a_message_that_cannot_be_written_is_counted_said_once_and_the_rest_writ
     sent = 0
     for seq in range(30):
         if seq % 10 == 5:
-            recorder.published(*bad[seq // 10])
+            recorder.take(Message(*bad[seq // 10]))
         else:
-            recorder.published(b"gx2/76/euler", {"seq": seq, "host_time": 1.7e9 + seq})
+            recorder.take(Message(b"gx2/76/euler", {"seq": seq, "host_time": 1.7e9 + seq}))
             sent += 1
     recorder.serial(b"\xaa", 1.7e18, 1.0)
     wait_for(lambda: recorder.status()["dropped"] == 4, 5, "the refused counted")
     assert recorder.failure == ""
-    recorder.published(b"gx2/76/euler", {"seq": 30, "host_time": 1.7e9 + 30})
+    recorder.take(Message(b"gx2/76/euler", {"seq": 30, "host_time": 1.7e9 + 30}))
     recorder.close()
     (path,) = tmp_path.iterdir()
     assert finished(path) == sent + 1 == recorder.written

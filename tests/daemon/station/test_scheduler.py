@@ -7,8 +7,8 @@ import asyncio
 
 import pytest
 
-from gateway.daemon import scheduler as scheduling
-from gateway.daemon.scheduler import LinkDown, NodeError, Scheduler
+from gateway.daemon.station import scheduler as scheduling
+from gateway.daemon.station.scheduler import LinkDown, NodeError, Scheduler
 
 
 @pytest.fixture(autouse=True)

@@ -11,10 +11,10 @@ from typing import Any
 
 import pytest
 
-from gateway.daemon import scheduler as scheduling
-from gateway.daemon import supervisor as supervising
 from gateway.daemon.errors import LinkDown, NodeError
-from gateway.daemon.nodes import OFF, State
+from gateway.daemon.station import scheduler as scheduling
+from gateway.daemon.station import supervisor as supervising
+from gateway.daemon.station.nodes import OFF, State
 from gateway.sim.base_station import RadioLink
 from gateway.sim.node import NodeSettings
 from tests.helpers.waiting import wait_for_async

@@ -1,0 +1,234 @@
+"""Where published messages go: the output contract, the table of outputs, and the
+fan-out that gives each message to each of them.
+
+An output is one module of this package with a ``make(needs)`` and a row of
+:data:`OUTPUTS`: ZeroMQ (:mod:`.zeromq`), the MCAP recorder (:mod:`.recorder`), the
+Foxglove live view (:mod:`.live`), Prometheus metrics (:mod:`.metrics`). Its life is
+the contract of :class:`Output`: built with all it needs (nothing is wired into it
+afterwards), started, given each published message on the loop (``take``: never
+blocks, awaits or raises; an output whose work is slow queues it, bounded, and drops
+and counts what does not fit), given each status report (``report``), asked its
+``status``, and closed with the rest against one deadline. An output never calls back
+into a station: stations see the fan-out only as the protocols of
+:mod:`gateway.daemon.station.outlet`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import importlib
+import logging
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import zmq
+
+from gateway.common.jsontext import compact_bytes
+from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC, parse, topic
+
+from ..errors import StartupError
+
+if TYPE_CHECKING:
+    from gateway.common.curve import KeyPair
+
+    from ..config import GatewayConfig
+
+log = logging.getLogger("gx2.outputs")
+
+
+class Message:
+    """A published message as every output sees it: its topic, its payload (shared by
+    every output, never changed once published), and its JSON, made once, by the first
+    output that asks for it (the live view on the loop, when a viewer watches its
+    topic, or the recorder in its thread: the two may race for one message, and then
+    both make the same bytes)."""
+
+    __slots__ = ("_json", "payload", "topic")
+
+    def __init__(self, topic: bytes, payload: dict[str, Any]) -> None:
+        self.topic = topic
+        self.payload = payload
+        self._json: bytes | None = None
+
+    def json(self) -> bytes:
+        """Its payload as strict, compact JSON (gateway.common.jsontext.compact_bytes)."""
+        data = self._json
+        if data is None:
+            data = self._json = compact_bytes(self.payload)
+        return data
+
+
+class Output:
+    """The contract every output keeps; each method's default does nothing."""
+
+    name = ""
+    """Its row's name in :data:`OUTPUTS` (set when it is built)."""
+    takes_messages = True
+    """False for an output that only reads the status reports (metrics): the per-record
+    path then never calls it."""
+
+    def start(self) -> None:
+        """Start its worker, if it has one (on the loop, once every output is built)."""
+
+    def take(self, message: Message) -> None:
+        """A published message, on the loop: never blocks, awaits or raises. The
+        message is shared by every output: keep it, never change it; its JSON is
+        ``message.json()``, made once for all."""
+
+    def report(self, status: Mapping[str, Any]) -> None:
+        """The gateway's latest status report (on the loop, at least once a second)."""
+
+    def status(self) -> dict[str, Any] | None:
+        """What it says of itself in the status report (None: nothing)."""
+        return None
+
+    def close(self, seconds: float) -> None:
+        """Stop within ``seconds``; called off the loop, beside every other output's."""
+
+
+@dataclass(frozen=True)
+class Needs:
+    """Everything an output may be built with."""
+
+    config: GatewayConfig
+    context: zmq.Context[Any]
+    """The gateway's ZeroMQ context (its sockets live on the loop)."""
+    server: KeyPair | None
+    """The gateway's CURVE key pair, when it has one."""
+    metadata: Callable[[], dict[str, str]]
+    """What a recording says about the gateway that made it."""
+
+
+OUTPUTS: dict[str, tuple[str, str]] = {
+    # name:      (its section of the configuration, its module)
+    "zeromq": ("publish", "zeromq"),
+    "metrics": ("metrics", "metrics"),
+    "live": ("live", "live"),
+    "recording": ("record", "recorder"),
+}
+"""Every output, in the order they are built: one is built when its section is
+configured, and only then is its module imported (prometheus-client takes 64 ms to
+import and 1.8 MiB, foxglove-sdk more). The name is the status report's key for what
+it says of itself."""
+
+
+def build(needs: Needs) -> dict[str, Output]:
+    """The configured outputs, by name. A port one cannot bind: StartupError."""
+    built: dict[str, Output] = {}
+    for name, (section, module) in OUTPUTS.items():
+        configured = getattr(needs.config, section)
+        if configured is None:
+            continue
+        make = importlib.import_module(f"{__name__}.{module}").make
+        try:
+            output: Output = make(needs)
+        except (zmq.ZMQError, OSError) as error:
+            endpoint = getattr(configured, "endpoint", section)
+            raise StartupError(f"cannot bind {endpoint}: {error.strerror or error}") \
+                from None
+        output.name = name
+        built[name] = output
+    return built
+
+
+class Outputs:
+    """The fan-out: each published message to every output that takes messages, and
+    each status report to every output.
+
+    ZeroMQ is the gateway's publication: its answer is the message's (published, or
+    lost and counted by the node), and it is given the message last, after the outputs
+    that keep or show it whatever ZeroMQ did with it. It takes the topic and payload
+    as they are (it packs msgpack, no JSON): a gateway with no other output makes no
+    :class:`Message` at all."""
+
+    def __init__(self, outputs: Mapping[str, Output]) -> None:
+        self.by_name = dict(outputs)
+        self._publication: Any = self.by_name["zeromq"]
+        """ZeroMQ's output (its send: the message's publication)."""
+        publication = self._publication
+        self._takes = tuple(output.take for output in self.by_name.values()
+                            if output.takes_messages and output is not publication)
+        self._topics: dict[tuple[int, str], list[Any]] = {}
+        """(node, record) -> [its topic, messages published on it]."""
+        self.reads_reports = any(type(output).report is not Output.report
+                                 for output in self.by_name.values())
+        """Some output reads the status reports: one is made each second at least."""
+
+    def get(self, name: str) -> Output | None:
+        return self.by_name.get(name)
+
+    # -- the loop's side ----------------------------------------------------------------
+
+    def publish(self, node: int, record: str, payload: dict[str, Any]) -> bool:
+        """One record; False if ZeroMQ refused it (counted, never raised). A subscriber
+        past its high-water mark loses messages silently inside PUB: it sees them as
+        gaps in ``seq``."""
+        key = (node, record)
+        entry = self._topics.get(key)
+        if entry is None:
+            entry = self._topics[key] = [topic(node, record), 0]
+        # (_give, inlined: one call fewer a record, about 500 instructions of the
+        # 85,000 a record takes, bench/instructions.py)
+        if self._takes:
+            message = Message(entry[0], payload)
+            for take in self._takes:
+                take(message)
+        if self._publication.send(entry[0], payload):
+            entry[1] += 1
+            return True
+        return False
+
+    def published(self) -> dict[int, dict[str, int]]:
+        """Messages published on each topic: node -> record name -> count."""
+        counts: dict[int, dict[str, int]] = {}
+        for (node, record), (_, count) in self._topics.items():
+            if count:
+                counts.setdefault(node, {})[record] = count
+        return counts
+
+    def status(self, payload: dict[str, Any]) -> bool:
+        """A status report, published (the heartbeat's, a link's change)."""
+        return self._give(STATUS_TOPIC, payload)
+
+    def mark(self, payload: dict[str, Any]) -> bool:
+        return self._give(MARK_TOPIC, payload)
+
+    def replayed(self, name: str, payload: dict[str, Any]) -> bool:
+        """A message of a recording, published again on its topic as it was recorded (a
+        node's record counted as one published on that node's topic)."""
+        found = parse(name)
+        if found is not None:
+            return self.publish(*found, payload)
+        return self._give(name.encode(), payload)
+
+    def _give(self, name: bytes, payload: dict[str, Any]) -> bool:
+        if self._takes:
+            message = Message(name, payload)
+            for take in self._takes:
+                take(message)
+        return self._publication.send(name, payload)  # type: ignore[no-any-return]
+
+    def report(self, status: Mapping[str, Any]) -> None:
+        """The gateway's latest status report, to every output."""
+        for output in self.by_name.values():
+            output.report(status)
+
+    # -- life ---------------------------------------------------------------------------
+
+    def start(self) -> None:
+        for output in self.by_name.values():
+            output.start()
+
+    async def close(self, done_by: float) -> None:
+        """Close every output at once, each in a thread of its own, all by ``done_by``
+        (time.monotonic()): one slow to stop never shortens another's time."""
+        loop = asyncio.get_running_loop()
+        seconds = max(0.0, done_by - time.monotonic())
+        closing = [loop.run_in_executor(None, output.close, seconds)
+                   for output in self.by_name.values()]
+        results = await asyncio.gather(*closing, return_exceptions=True)
+        for output, result in zip(self.by_name.values(), results, strict=True):
+            if isinstance(result, BaseException):
+                log.error("output %s: closing it failed: %s", output.name, result)
