@@ -32,7 +32,7 @@ from zmq.auth.asyncio import AsyncioAuthenticator
 
 from gateway.common.curve import AllowList, KeyPair
 from gateway.common.version import VERSION
-from gateway.recording.files import PARTIAL
+from gateway.recording.files import PARTIAL, serial_channels
 
 from . import status
 from .config import GatewayConfig
@@ -83,8 +83,10 @@ class Gateway:
                                                self._recording_metadata)))
             replays = ReplayReaders()  # (a recording of several stations: read once)
             self.stations = Stations(
-                Station(station, self.outputs, only=len(config.stations) == 1,
-                        first=index == 0, on_link_state=self._on_link_state,
+                Station(station, self.outputs,
+                        channels=serial_channels(None if len(config.stations) == 1
+                                                 else station.name),
+                        replays_marks=index == 0, on_link_state=self._on_link_state,
                         on_replay_end=self._replay_ended,
                         floor_unseen_s=config.health.floor_unseen_s, replays=replays)
                 for index, station in enumerate(config.stations))

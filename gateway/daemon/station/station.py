@@ -17,7 +17,6 @@ import time
 from collections.abc import Callable
 
 from aspp.timing import BITS_PER_BYTE, byte_time
-from gateway.recording.files import serial_channels
 
 from ..config import StationConfig
 from ..health import SAMPLE_PERIOD
@@ -39,12 +38,15 @@ log = logging.getLogger("gx2.gateway")
 class Station:
     """One base station's parts; :meth:`open` once the gateway's sockets are bound."""
 
-    def __init__(self, config: StationConfig, publisher: Outlet, *, only: bool,
-                 first: bool, on_link_state: Callable[[Station, bool], None],
+    def __init__(self, config: StationConfig, publisher: Outlet, *,
+                 channels: tuple[str, str], replays_marks: bool,
+                 on_link_state: Callable[[Station, bool], None],
                  on_replay_end: Callable[[Station], None], floor_unseen_s: float,
                  replays: ReplayReaders | None = None) -> None:
-        """``only``: the gateway's one station (its recording keeps the one-station
-        channel names); ``first``: the one that publishes a recording's marks again;
+        """``channels``: its serial channels in a recording, (reads, writes), as the
+        gateway names them (:func:`gateway.recording.files.serial_channels`);
+        ``replays_marks``: it publishes a replayed recording's marks again (one station
+        of a gateway does, so a mark is not published once a station);
         ``floor_unseen_s``: how long its nodes' clocks may go without seeing their floor
         before status gives how late ``time`` may be (health.floor_unseen_s);
         ``replays``: the recordings' readings the gateway's stations share (a recording
@@ -70,10 +72,10 @@ class Station:
                              self.supervisor, self.scheduler,
                              config.idle_ms / 1000, idle_timer=not self.replaying,
                              byte_time=line_byte)
-        self.channels = serial_channels(None if only else self.name)
+        self.channels = channels
         """Its serial channels in a recording: (reads, writes)."""
         self._publisher = publisher
-        self._first = first
+        self._replays_marks = replays_marks
         self.recorder: SerialTap | None = None
         self.port: Port | None = None
         self.link: SerialLink | ReplayLink | None = None
@@ -91,7 +93,7 @@ class Station:
         if self.replay is not None:
             self.link = ReplayLink(self.replay, self._replayed, self._link_state,
                                    self._replay_ended, self._publisher.replayed,
-                                   station=self.name, marks=self._first,
+                                   station=self.name, marks=self._replays_marks,
                                    start=self.recorded,
                                    source=self._replays.of(self.replay.files))
         else:
