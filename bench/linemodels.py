@@ -15,7 +15,7 @@ see and the gateway's ``latency_ms`` stands for). Two models, written apart:
   frames and paused for tens to hundreds of ms at random; crystals within +-50 ppm,
   power-up phases at random, reboots and timer wraps.
 
-:func:`feed` then does to each packet what gateway.daemon.nodes.Node.tally does for the
+:func:`feed` then does to each packet what gateway.daemon.station.nodes.Node.tally does for the
 clock: the arrival is the read's instant less the packet's own bytes on the line, the
 timer is unwrapped by a TimerUnwrapper judging by the node's NodeClock, a restarted
 timer (or a discovery packet) resets the clock, and ``time`` is the clock's line at the
@@ -44,7 +44,7 @@ from aspp.timing import (
     byte_time,
     sample_period,
 )
-from gateway.daemon.nodes import SILENCE_PERIODS
+from gateway.daemon.station.nodes import SILENCE_PERIODS
 from gateway.sim.base_station import RADIO_LATENCY, BaseStation, LineFaults
 from gateway.sim.node import NodeSettings, SimNode
 
@@ -97,7 +97,7 @@ class Streams:
 
 
 def feed(model: Model, clock: type[NodeClock] = NodeClock) -> Streams:
-    """Each packet through the clock path of gateway.daemon.nodes.Node.tally."""
+    """Each packet through the clock path of gateway.daemon.station.nodes.Node.tally."""
     clocks: dict[int, NodeClock] = {}
     unwrappers: dict[int, TimerUnwrapper] = {}
     for node, period in model.periods.items():
