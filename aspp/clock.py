@@ -89,9 +89,14 @@ EARLY_STEP = 0.1
 # max(DRIFT_RATE, FLOOR_NOISE / T**2) a second: quickly while the base line is short,
 # then no faster than a crystal follows its temperature (about a ppm per kelvin;
 # DRIFT_RATE allows 6 ppm a minute). T is kept through a reset: the drift is the
-# crystal's, not the power-up's. What this and the ideas measured against it give over
-# the line models' sweep (bench/sweep.py) is in docs/performance.md, "Sample time over
-# the sweep".
+# crystal's, not the power-up's. A drift at the clamp (MAX_DRIFT) is not held: no
+# crystal is that far off, so late points drew it there, and the bound would keep it
+# for minutes (a stream whose first packets all queued, then one found the line free
+# 7 s in: the edge joining them sloped beyond the clamp, and 115 s later the drift was
+# still -161 ppm, ``time`` 10 ms early; issue 32, FIFO seed 67). It goes to the edge's
+# slope at the next fit, and is bounded from there. What this and the ideas measured
+# against it give over the line models' sweep (bench/sweep.py) is in
+# docs/performance.md, "Sample time over the sweep".
 SETTLE_SPAN = 10.0
 DRIFT_RATE = 0.1e-6
 FLOOR_NOISE = 0.5e-3
@@ -134,7 +139,8 @@ records."""
 #   is full, lies within FLOOR_NOISE of the floor and of the line: the slope is then
 #   off (upwards, the way that makes ``time`` late later) by at most FLOOR_NOISE over
 #   half the window. DRIFT_ERROR allows it over a quarter (33 ppm), for the rate bound
-#   (SETTLE_SPAN) holding the drift behind the edge's and a window not yet full. That
+#   (SETTLE_SPAN) holding the drift behind the edge's and a window not yet full (a
+#   drift at MAX_DRIFT it does not hold: it goes to the edge's at the next fit). That
 #   is an allowance, not a proof: a line younger than a window, or a drift the rate
 #   bound holds far from the edge's, may be further off (docs/performance.md, "Sample
 #   time over the sweep", measures what is left).
@@ -385,7 +391,7 @@ class NodeClock:
         now = hull[-1][0]
         step = 0.0 if self._fitted_at is None else max(now - self._fitted_at, 0.0)
         self._fitted += step
-        if self._fitted >= SETTLE_SPAN:
+        if self._fitted >= SETTLE_SPAN and abs(self._drift) < MAX_DRIFT:  # (not at the clamp)
             room = max(DRIFT_RATE, FLOOR_NOISE / self._fitted ** 2) * step
             drift = max(self._drift - room, min(self._drift + room, drift))
         self._fitted_at = now
