@@ -14,7 +14,6 @@ import os
 import statistics
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -24,7 +23,6 @@ def once(model: str, seed: int, seconds: float, repeats: int = 5) -> float:
     """Microseconds per update, best of ``repeats``, with the aspp on the path."""
     import linemodels
 
-    from aspp.clock import NodeClock
     from aspp.timing import TimerUnwrapper
 
     run = linemodels.MODELS[model](seed, seconds)
@@ -35,17 +33,7 @@ def once(model: str, seed: int, seconds: float, repeats: int = 5) -> float:
             arrival = p.read - p.size * linemodels.BYTE_TIME
             device = unwrappers.setdefault(p.node, TimerUnwrapper()).update(p.ticks, arrival)
             streams.setdefault((p.node, p.segment), []).append((device, arrival))
-    count = sum(len(pairs) for pairs in streams.values())
-    best = float("inf")
-    for _ in range(repeats):
-        clocks = {key: NodeClock() for key in streams}
-        t0 = time.perf_counter()
-        for key, pairs in streams.items():
-            update = clocks[key].update
-            for device, host in pairs:
-                update(device, host)
-        best = min(best, time.perf_counter() - t0)
-    return best / count * 1e6
+    return linemodels.update_cost(streams, repeats)
 
 
 def main() -> int:

@@ -59,9 +59,9 @@ import msgpack
 import yaml
 import zmq
 from benchutil import free_port
-from linemodels import BYTE_TIME, feed, gx2sim_packets
+from linemodels import BYTE_TIME, feed, gx2sim_packets, update_cost
 
-from aspp.clock import WINDOW, NodeClock
+from aspp.clock import WINDOW
 from aspp.frame import REPLY_OVERHEAD
 from aspp.records import BY_NAME
 from aspp.timing import TIMER_MODULUS, TimerUnwrapper, byte_time
@@ -214,16 +214,7 @@ def cost_per_record(samples: list[Sample], rounds: int = 5) -> float:
     streams = {}
     for s in samples:
         streams.setdefault((s.node, s.segment), []).append((s.device_time, s.host_time))
-    best = float("inf")
-    for _ in range(rounds):
-        clocks = {key: NodeClock() for key in streams}
-        t0 = time.perf_counter()
-        for key, pairs in streams.items():
-            update = clocks[key].update
-            for device, host in pairs:
-                update(device, host)
-        best = min(best, time.perf_counter() - t0)
-    return best / len(samples) * 1e6
+    return update_cost(streams, rounds)
 
 
 class TrueDriftFloor:
