@@ -22,7 +22,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import zmq
 
@@ -102,17 +102,27 @@ class Needs:
     """What a recording says about the gateway that made it."""
 
 
-OUTPUTS: dict[str, tuple[str, str]] = {
-    # name:      (its section of the configuration, its module)
-    "zeromq": ("publish", "zeromq"),
-    "metrics": ("metrics", "metrics"),
-    "live": ("live", "live"),
-    "recording": ("record", "recorder"),
+class Row(NamedTuple):
+    """An output's row of :data:`OUTPUTS`."""
+
+    section: str
+    """Its section of the configuration: it is built when that is there."""
+    module: str
+    """Its module in this package, imported only then."""
+    in_status: bool
+    """It says something of itself: the status report has its name as a key (its
+    ``status()``; null when it is not configured)."""
+
+
+OUTPUTS: dict[str, Row] = {
+    "zeromq": Row("publish", "zeromq", in_status=False),  # (status' gateway section)
+    "metrics": Row("metrics", "metrics", in_status=False),
+    "live": Row("live", "live", in_status=True),
+    "recording": Row("record", "recorder", in_status=True),
 }
-"""Every output, in the order they are built: one is built when its section is
-configured, and only then is its module imported (prometheus-client takes 64 ms to
-import and 1.8 MiB, foxglove-sdk more). The name is the status report's key for what
-it says of itself."""
+"""Every output, by name, in the order they are built: one is built when its section
+is configured, and only then is its module imported (prometheus-client takes 64 ms to
+import and 1.8 MiB, foxglove-sdk more)."""
 
 
 FAILED_START_CLOSE_S = 1.0
@@ -126,7 +136,7 @@ def build(needs: Needs) -> dict[str, Output]:
     that failed, in-process and in the log)."""
     built: dict[str, Output] = {}
     try:
-        for name, (section, module) in OUTPUTS.items():
+        for name, (section, module, _) in OUTPUTS.items():
             configured = getattr(needs.config, section)
             if configured is None:
                 continue
