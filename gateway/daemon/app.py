@@ -40,7 +40,7 @@ from .control import ControlServer
 from .errors import StartupError
 from .health import SAMPLE_PERIOD, Health
 from .operations import Operations
-from .outputs import Needs, Outputs, build
+from .outputs import Needs, Output, Outputs, build, close_built
 from .sd_notify import Notifier
 from .station.replay import ReplayLink
 from .station.replayread import ReplayReaders
@@ -78,9 +78,10 @@ class Gateway:
             self._auth = AsyncioAuthenticator(self._context)
             self._auth.start()
             self._auth.configure_curve_callback("*", self.allow_list)
+        built: dict[str, Output] = {}
         try:
-            self.outputs = Outputs(build(Needs(config, self._context, server,
-                                               self._recording_metadata)))
+            built = build(Needs(config, self._context, server, self._recording_metadata))
+            self.outputs = Outputs(built)
             replays = ReplayReaders()  # (a recording of several stations: read once)
             self.stations = Stations(
                 Station(station, self.outputs,
@@ -103,6 +104,7 @@ class Gateway:
                 raise StartupError(f"cannot bind {endpoint}: {error.strerror or error}") \
                     from None
         except StartupError:
+            close_built(built.values())  # (the live view and metrics serve already)
             self._stop_auth()
             self._context.destroy(linger=0)
             raise

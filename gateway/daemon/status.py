@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from aspp.timing import BITS_PER_BYTE
 from gateway.common.version import VERSION
 
+from .outputs import OUTPUTS
 from .station.replay import ReplayLink
 
 if TYPE_CHECKING:
@@ -64,16 +65,21 @@ def report(gateway: Reported) -> dict[str, Any]:
         "nodes": [{**node.status(now), **health.status(node, monotonic),
                    "by_record": published.get(node.address, {})}
                   for node in gateway.nodes.values()],
-        "recording": output_status(gateway, "recording"),
         "replay": replay_status([s.link for s in gateway.stations]),
-        "live": output_status(gateway, "live"),
+        **outputs_status(gateway.outputs),
     }
 
 
-def output_status(gateway: Reported, name: str) -> dict[str, Any] | None:
-    """What an output says of itself; None when it is not configured."""
-    output = gateway.outputs.get(name)
-    return output.status() if output is not None else None
+def outputs_status(outputs: Outputs) -> dict[str, dict[str, Any] | None]:
+    """What each output of the table that says something of itself says, under its
+    name (``recording``, ``live``, ...): None when it is not configured. A new output
+    is here by its row alone."""
+    said: dict[str, dict[str, Any] | None] = {}
+    for name, row in OUTPUTS.items():
+        if row.in_status:
+            output = outputs.get(name)
+            said[name] = output.status() if output is not None else None
+    return said
 
 
 def one_station_link(station: dict[str, Any]) -> dict[str, Any]:

@@ -18,10 +18,11 @@ from __future__ import annotations
 import asyncio
 import importlib
 import logging
+import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import zmq
 
@@ -101,36 +102,76 @@ class Needs:
     """What a recording says about the gateway that made it."""
 
 
-OUTPUTS: dict[str, tuple[str, str]] = {
-    # name:      (its section of the configuration, its module)
-    "zeromq": ("publish", "zeromq"),
-    "metrics": ("metrics", "metrics"),
-    "live": ("live", "live"),
-    "recording": ("record", "recorder"),
+class Row(NamedTuple):
+    """An output's row of :data:`OUTPUTS`."""
+
+    section: str
+    """Its section of the configuration: it is built when that is there."""
+    module: str
+    """Its module in this package, imported only then."""
+    in_status: bool
+    """It says something of itself: the status report has its name as a key (its
+    ``status()``; null when it is not configured)."""
+
+
+OUTPUTS: dict[str, Row] = {
+    "zeromq": Row("publish", "zeromq", in_status=False),  # (status' gateway section)
+    "metrics": Row("metrics", "metrics", in_status=False),
+    "live": Row("live", "live", in_status=True),
+    "recording": Row("record", "recorder", in_status=True),
 }
-"""Every output, in the order they are built: one is built when its section is
-configured, and only then is its module imported (prometheus-client takes 64 ms to
-import and 1.8 MiB, foxglove-sdk more). The name is the status report's key for what
-it says of itself."""
+"""Every output, by name, in the order they are built: one is built when its section
+is configured, and only then is its module imported (prometheus-client takes 64 ms to
+import and 1.8 MiB, foxglove-sdk more)."""
+
+
+FAILED_START_CLOSE_S = 1.0
+"""Seconds a failed start may spend closing the outputs it had already built (the
+metrics and live view servers each stop within 0.5 s)."""
 
 
 def build(needs: Needs) -> dict[str, Output]:
-    """The configured outputs, by name. A port one cannot bind: StartupError."""
+    """The configured outputs, by name. A port one cannot bind: StartupError, with the
+    outputs built before it closed (a server left listening would outlive the start
+    that failed, in-process and in the log)."""
     built: dict[str, Output] = {}
-    for name, (section, module) in OUTPUTS.items():
-        configured = getattr(needs.config, section)
-        if configured is None:
-            continue
-        make = importlib.import_module(f"{__name__}.{module}").make
-        try:
-            output: Output = make(needs)
-        except (zmq.ZMQError, OSError) as error:
-            endpoint = getattr(configured, "endpoint", section)
-            raise StartupError(f"cannot bind {endpoint}: {error.strerror or error}") \
-                from None
-        output.name = name
-        built[name] = output
+    try:
+        for name, (section, module, _) in OUTPUTS.items():
+            configured = getattr(needs.config, section)
+            if configured is None:
+                continue
+            make = importlib.import_module(f"{__name__}.{module}").make
+            try:
+                output: Output = make(needs)
+            except (zmq.ZMQError, OSError) as error:
+                endpoint = getattr(configured, "endpoint", section)
+                raise StartupError(f"cannot bind {endpoint}: {error.strerror or error}") \
+                    from None
+            output.name = name
+            built[name] = output
+    except BaseException:
+        close_built(built.values())
+        raise
     return built
+
+
+def close_built(outputs: Iterable[Output], seconds: float = FAILED_START_CLOSE_S) -> None:
+    """Close outputs a start that failed had built: all at once, each in a daemon thread
+    of its own, all waited for ``seconds`` at most (nothing else runs yet: the loop, if
+    any, has nothing to do until the StartupError reaches the caller). A failure to
+    close one is logged, never raised over the StartupError that is on its way."""
+    def close(output: Output) -> None:
+        try:
+            output.close(seconds)
+        except Exception as error:
+            log.error("output %s: closing it failed: %s", output.name, error)
+    closing = [threading.Thread(target=close, args=(output,), daemon=True,
+                                name=f"gx2-close-{output.name}") for output in outputs]
+    for thread in closing:
+        thread.start()
+    done_by = time.monotonic() + seconds
+    for thread in closing:
+        thread.join(max(0.0, done_by - time.monotonic()))
 
 
 class Outputs:

@@ -201,6 +201,8 @@ class Recorder(Output):
         """Write what is queued and finish the file, within ``timeout`` s (see the
         module's docstring for what the file holds when the disk is slower), and end
         the thread."""
+        if self._thread.ident is None:  # never started (a start that failed): no file
+            return
         self._drain_until = time.monotonic() + DRAIN_SHARE * timeout
         self._closing = True
         self._stop.set()
