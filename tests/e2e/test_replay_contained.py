@@ -59,10 +59,11 @@ def test_a_message_the_live_view_fails_on_still_goes_to_zeromq_and_the_replay_en
         viewer.subscribe(viewer.topics()[TOPIC])
         viewer.until(lambda v: v.messages, 5, "a record in the live view")
         assert viewer.messages[0].payload["seq"] < 200  # (it watched the huge one come)
-        wait_for(lambda: (sub.drain(0.05), gw.proc.poll())[1] is not None, 10,
-                 "the replay to end (exit=true)")
+        viewer.until(lambda _: "output live failed" in gw.log(), 5, "the live view to fail")
     finally:
         viewer.close()
+    wait_for(lambda: (sub.drain(0.05), gw.proc.poll())[1] is not None, 10,
+             "the replay to end (exit=true)")
     sub.drain(0.2)
     assert gw.proc.returncode == 0, gw.log()
     assert [p["seq"] for p in sub.records(76)] == [s for s in range(300) if s != 200]
