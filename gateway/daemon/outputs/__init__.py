@@ -7,7 +7,9 @@ Foxglove live view (:mod:`.live`), Prometheus metrics (:mod:`.metrics`). Its lif
 the contract of :class:`Output`: built with all it needs (nothing is wired into it
 afterwards), started, given each published message on the loop (``take``: never
 blocks, awaits or raises; an output whose work is slow queues it, bounded, and drops
-and counts what does not fit), given each status report (``report``), asked its
+and counts what does not fit; one that raises all the same is contained by the
+fan-out: counted in ``take_failures``, logged once a kind of error, and the other
+outputs still get the message), given each status report (``report``), asked its
 ``status``, and closed with the rest against one deadline. An output never calls back
 into a station: stations see the fan-out only as the protocols of
 :mod:`gateway.daemon.station.outlet`.
