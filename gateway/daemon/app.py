@@ -214,7 +214,10 @@ class Gateway:
         replays = [s.link for s in self.stations if isinstance(s.link, ReplayLink)]
         if not all(link.finished for link in replays):
             return  # (the others' recordings are still playing)
-        if station.replay is not None and station.replay.exit and self._stop is not None:
+        # every station done, and any of them asked to exit: the order they end in is
+        # no matter (a station of a shorter recording or delay ends first)
+        asked = any(s.replay is not None and s.replay.exit for s in self.stations)
+        if asked and self._stop is not None:
             log.info("the recording is done: exiting (exit=true)")
             if any(link.partial for link in replays):
                 self.exit_status = PARTIAL

@@ -7,7 +7,9 @@ Foxglove live view (:mod:`.live`), Prometheus metrics (:mod:`.metrics`). Its lif
 the contract of :class:`Output`: built with all it needs (nothing is wired into it
 afterwards), started, given each published message on the loop (``take``: never
 blocks, awaits or raises; an output whose work is slow queues it, bounded, and drops
-and counts what does not fit), given each status report (``report``), asked its
+and counts what does not fit; one that raises all the same is contained by the
+fan-out: counted in ``take_failures``, logged once a kind of error, and the other
+outputs still get the message), given each status report (``report``), asked its
 ``status``, and closed with the rest against one deadline. An output never calls back
 into a station: stations see the fan-out only as the protocols of
 :mod:`gateway.daemon.station.outlet`.
@@ -191,6 +193,10 @@ class Outputs:
         publication = self._publication
         self._takes = tuple(output.take for output in self.by_name.values()
                             if output.takes_messages and output is not publication)
+        self.take_failures: dict[str, int] = {}
+        """Output name -> messages its ``take`` raised on (a bug, contained: the other
+        outputs still got them)."""
+        self._logged: set[tuple[str, type[BaseException]]] = set()
         self._topics: dict[tuple[int, str], list[Any]] = {}
         """(node, record) -> [its topic, messages published on it]."""
         self.reads_reports = any(type(output).report is not Output.report
@@ -215,7 +221,11 @@ class Outputs:
         if self._takes:
             message = Message(entry[0], payload)
             for take in self._takes:
-                take(message)
+                # (a try costs nothing on Python 3.11+ until it catches)
+                try:
+                    take(message)
+                except Exception as error:  # (one output's bug, contained)
+                    self._take_failed(take, message, error)
         if self._publication.send(entry[0], payload):
             entry[1] += 1
             return True
@@ -248,8 +258,24 @@ class Outputs:
         if self._takes:
             message = Message(name, payload)
             for take in self._takes:
-                take(message)
+                try:
+                    take(message)
+                except Exception as error:  # (one output's bug, contained)
+                    self._take_failed(take, message, error)
         return self._publication.send(name, payload)  # type: ignore[no-any-return]
+
+    def _take_failed(self, take: Callable[[Message], None], message: Message,
+                     error: Exception) -> None:
+        """An output's ``take`` raised (it must not): counted for that output, logged
+        once a kind of error, and the message still goes to every other output."""
+        name = getattr(getattr(take, "__self__", None), "name", "") or "?"
+        self.take_failures[name] = self.take_failures.get(name, 0) + 1
+        kind = (name, type(error))
+        if kind not in self._logged:
+            self._logged.add(kind)
+            log.error("output %s failed to take a message on %s: %s: %s (counted; not "
+                      "logged again for this output and error)", name,
+                      message.topic.decode(errors="replace"), type(error).__name__, error)
 
     def report(self, status: Mapping[str, Any]) -> None:
         """The gateway's latest status report, to every output."""

@@ -53,6 +53,9 @@ class Publisher(Output):
         self._socket_send = compiled_send(self.socket)
         self.sent = 0
         self.failed = 0
+        """Messages not published: refused by ZeroMQ or unpackable (of them)."""
+        self.unpackable = 0
+        """Messages msgpack could not pack (the first logged, the rest counted)."""
 
     def take(self, message: Message) -> None:
         self.send(message.topic, message.payload)
@@ -60,9 +63,22 @@ class Publisher(Output):
     def send(self, name: bytes, payload: dict[str, Any]) -> bool:
         """Send one message; False if ZeroMQ refused it (counted and logged, never
         raised): the fan-out's answer for the message (:class:`.Outputs`)."""
+        # packed before the first frame goes: a payload msgpack cannot pack (an int
+        # over 64 bits, say) raised between the two frames, and the topic frame, sent
+        # with SNDMORE, was glued onto the next message's
+        try:
+            packed = self._pack(payload)
+        except (TypeError, ValueError, OverflowError) as error:
+            self.failed += 1
+            if not self.unpackable:
+                log.warning("publish on %s refused: msgpack cannot pack it (%s); "
+                            "such messages are counted in publish_failures, not logged "
+                            "again", name.decode(errors="replace"), error)
+            self.unpackable += 1
+            return False
         try:
             self._socket_send(name, _MORE)
-            self._socket_send(self._pack(payload), _LAST)
+            self._socket_send(packed, _LAST)
         except zmq.ZMQError as error:
             self.failed += 1
             log.warning("publish on %s failed: %s", name.decode(), error)

@@ -240,6 +240,22 @@ class ReplayLink:
         self.since = time.time()
         self._on_state(True)
         self._task = asyncio.get_running_loop().create_task(self._play())
+        self._task.add_done_callback(self._played)
+
+    def _played(self, task: asyncio.Task[None]) -> None:
+        """The play ended. Ended by an error (a bug), it must still end as a replay
+        does: said in a line, its place in the shared reading left (else the reading
+        waits on its full queue, and every other station with it), and the end handled
+        (else a replay with exit=true never exits): partial, as a file not read whole."""
+        if task.cancelled() or task.exception() is None:
+            return
+        error = task.exception()
+        self.last_error = f"the replay stopped: {type(error).__name__}: {error}"
+        log.error("replay: %s (a bug: please report it)", self.last_error)
+        self.partial = True
+        self.finished = True
+        self._source.leave(self)
+        self._on_end()
 
     def write(self, data: bytes) -> None:
         raise OSError("replaying a recording: nothing is sent to the base station")

@@ -8,6 +8,8 @@ and hands each entry to every station that plays that file, through a bounded qu
 per station. A station that falls behind holds the reading up (the queue is full),
 never loses an entry; one that stops playing leaves, and the reading goes on without
 it. The stations keep all their own rules (which channel, which marks, the pace).
+Only stations that play at one pace share a reading (the same files, speed and delay):
+a station of another pace would hold the others to its own.
 """
 
 from __future__ import annotations
@@ -15,10 +17,13 @@ from __future__ import annotations
 import asyncio
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from gateway.recording.reader import Entry, read
 from gateway.recording.reports import FileReport, Reading
+
+if TYPE_CHECKING:
+    from .replay import Replay
 
 QUEUED = 256
 """Entries read ahead for one station, at most."""
@@ -106,13 +111,15 @@ class ReplayReader:
 
 
 class ReplayReaders:
-    """The gateway's readers, one per recording (the files a replay:// URL names)."""
+    """The gateway's readers, one per recording played at one pace (the files a
+    replay:// URL names, its speed and its delay: ``exit`` is no matter of pace)."""
 
     def __init__(self) -> None:
-        self._readers: dict[tuple[Path, ...], ReplayReader] = {}
+        self._readers: dict[tuple[tuple[Path, ...], float, float], ReplayReader] = {}
 
-    def of(self, files: tuple[Path, ...]) -> ReplayReader:
-        reader = self._readers.get(files)
+    def of(self, replay: Replay) -> ReplayReader:
+        key = (replay.files, replay.speed, replay.delay)
+        reader = self._readers.get(key)
         if reader is None:
-            reader = self._readers[files] = ReplayReader(files)
+            reader = self._readers[key] = ReplayReader(replay.files)
         return reader

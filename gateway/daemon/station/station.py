@@ -95,7 +95,7 @@ class Station:
                                    self._replay_ended, self._publisher.replayed,
                                    station=self.name, marks=self._replays_marks,
                                    start=self.recorded,
-                                   source=self._replays.of(self.replay.files))
+                                   source=self._replays.of(self.replay))
         else:
             self.link = SerialLink(self.port.path, self.config.baudrate, on_data,
                                    self._link_state)

@@ -102,3 +102,27 @@ def test_every_output_is_closed_at_once_within_one_deadline() -> None:
     fan = Outputs({"zeromq": Publication(), **{str(i): c for i, c in enumerate(closing)}})
     asyncio.run(fan.close(time.monotonic() + 1.5))
     assert all(c.given is not None and 1.0 < c.given <= 1.5 for c in closing)
+
+
+class Raises(Output):
+    def take(self, message: Message) -> None:
+        raise ValueError("a bug in one output")
+
+
+def test_an_output_that_raises_is_counted_and_logged_once_and_the_others_get_the_message(
+        caplog: pytest.LogCaptureFixture) -> None:
+    publication, after = Publication(), Writes()
+    raises = Raises()
+    raises.name = "live"
+    fan = Outputs({"zeromq": publication, "live": raises, "recording": after})
+    for seq in range(3):
+        assert fan.publish(76, "euler", {"seq": seq})
+    assert fan.mark({"text": "a knock"})
+    assert [payload for _, payload in publication.sent] == [
+        {"seq": 0}, {"seq": 1}, {"seq": 2}, {"text": "a knock"}]
+    assert len(after.messages) == 4
+    assert fan.take_failures == {"live": 4}
+    said = [r.message for r in caplog.records if "failed to take" in r.message]
+    assert said == ["output live failed to take a message on gx2/76/euler: ValueError: "
+                    "a bug in one output (counted; not logged again for this output "
+                    "and error)"]

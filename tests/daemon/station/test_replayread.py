@@ -87,3 +87,38 @@ def test_a_station_that_stops_playing_leaves_the_others_the_whole_recording(
     played, walks = play(path, STATIONS, leaving="north")
     assert walks == 1 and len(played["north"]) == 10
     assert played["south"] == [f"south {i};".encode() for i in range(READS)]
+
+
+def test_a_station_whose_play_fails_leaves_the_reading_and_ends(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """North's play dies of an error (a bug: here its reader raises): it still leaves
+    the reading, so south plays the whole recording, and it still ends (partial, said
+    in a line), so a replay with exit=true exits."""
+    path = tmp_path / "two.mcap"
+    two_stations_recorded(path)
+    played: dict[str, int] = {name: 0 for name in STATIONS}
+
+    async def run() -> dict[str, ReplayLink]:
+        replay = Replay((path,), speed=0, delay=0)
+        source = ReplayReader(replay.files)
+        ended = {name: asyncio.Event() for name in STATIONS}
+        links = {}
+        for name in STATIONS:
+            def on_data(data: bytes, host: float, mono: float, name: str = name) -> None:
+                played[name] += 1
+                if name == "north" and played[name] == 10:
+                    raise RuntimeError("a reader's bug")
+            links[name] = ReplayLink(replay, on_data, lambda up: None, ended[name].set,
+                                     lambda topic, payload: True, station=name,
+                                     source=source)
+        for link in links.values():
+            link.start()
+        await asyncio.wait_for(asyncio.gather(*(e.wait() for e in ended.values())), 5)
+        return links
+    links = asyncio.run(run())
+    assert played == {"north": 10, "south": READS}
+    north = links["north"]
+    assert north.finished and north.partial
+    assert "RuntimeError: a reader's bug" in north.last_error
+    assert [r.message for r in caplog.records if "a reader's bug" in r.message] == [
+        "replay: the replay stopped: RuntimeError: a reader's bug (a bug: please report it)"]

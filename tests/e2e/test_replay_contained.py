@@ -1,0 +1,72 @@
+"""One output's trouble with a message stays its own: a replayed message msgpack cannot
+pack (an int over 64 bits) is refused by ZeroMQ alone, counted and logged once; a
+message the live view fails to take (the same) is still given to ZeroMQ; and the replay
+plays on to its end and exits as asked."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from gateway.recording.writer import RecordingWriter
+from tests.helpers.ports import free_port
+from tests.helpers.viewer import Viewer
+from tests.helpers.waiting import wait_for
+
+TOPIC = "gx2/76/accel_angrate"
+NODES = [{"address": 76, "stream": "accel_angrate"}]
+HUGE = 10**400
+"""A JSON number no float holds and msgpack cannot pack."""
+
+
+def recording(path: Path, count: int, huge: set[int]) -> None:
+    """``count`` published records at 100 Hz; those at ``huge`` with a ``time`` of HUGE
+    (as a foreign program may have written them)."""
+    with path.open("wb") as output:
+        writer = RecordingWriter(output, {})
+        for seq in range(count):
+            at = 1.7e9 + seq / 100
+            payload = {"node": 76, "record": "accel_angrate", "seq": seq,
+                       "host_time": at, "time": at}
+            data = json.dumps({**payload, "time": HUGE}).encode() if seq in huge else None
+            writer.message(TOPIC, payload, data)
+        writer.finish()
+
+
+def test_a_message_zeromq_cannot_pack_is_refused_alone_counted_and_logged_once(
+        gateway, tmp_path):
+    path = tmp_path / "huge.mcap"
+    recording(path, 300, {100, 200})
+    gw = gateway(f"replay://{path}?speed=0&delay=1", NODES)
+    sub = gw.subscribe(TOPIC)  # (its recv takes exactly two frames: topic, payload)
+    sub.until(lambda got: any(p["seq"] == 299 for _, p in got), 10, "the last record")
+    assert [p["seq"] for p in sub.records(76)] == [s for s in range(300) if s not in (100, 200)]
+    assert gw.status()["gateway"]["publish_failures"] == 2
+    assert gw.log().count("msgpack cannot pack") == 1, gw.log()
+    assert "Traceback" not in gw.log(), gw.log()
+
+
+def test_a_message_the_live_view_fails_on_still_goes_to_zeromq_and_the_replay_ends(
+        gateway, tmp_path):
+    path = tmp_path / "huge.mcap"
+    recording(path, 300, {200})
+    gw = gateway(f"replay://{path}?speed=1&delay=1&exit=true", NODES,
+                 live={"endpoint": f"127.0.0.1:{free_port()}"})
+    sub = gw.subscribe(TOPIC)
+    viewer = Viewer(f"ws://{gw.config['live']['endpoint']}")
+    try:
+        viewer.until(lambda v: TOPIC in v.topics(), 5, "the channel advertised")
+        viewer.subscribe(viewer.topics()[TOPIC])
+        viewer.until(lambda v: v.messages, 5, "a record in the live view")
+        assert viewer.messages[0].payload["seq"] < 200  # (it watched the huge one come)
+        viewer.until(lambda _: "output live failed" in gw.log(), 5, "the live view to fail")
+    finally:
+        viewer.close()
+    wait_for(lambda: (sub.drain(0.05), gw.proc.poll())[1] is not None, 10,
+             "the replay to end (exit=true)")
+    sub.drain(0.2)
+    assert gw.proc.returncode == 0, gw.log()
+    assert [p["seq"] for p in sub.records(76)] == [s for s in range(300) if s != 200]
+    log = gw.log()
+    assert log.count("output live failed to take a message") == 1, log
+    assert log.count("msgpack cannot pack") == 1, log  # (ZeroMQ was given it too)
