@@ -13,6 +13,7 @@ from pathlib import Path
 
 from gateway.recording.plot import picture, records_of
 from gateway.recording.reports import Reading
+from tests.helpers.gateway import RunningGateway, Subscriber
 from tests.helpers.processes import STARTUP, Running, gx2ctl, script, spawn_run
 from tests.helpers.waiting import wait_for
 
@@ -42,17 +43,7 @@ def test_an_unplugged_station_s_missed_samples_are_not_radio_loss(gateway, tmp_p
                                                                     ("south", 78))])
         gw.wait_streaming(76, 78)
         sub = gw.subscribe("gx2/76/accel_angrate")
-        sub.until(lambda m: len(m) >= 50, 10, "north's records")
-        unplug = spawn_run([script("gx2-sim"), "unplug", "north", "--seconds",
-                            f"{UNPLUGGED:g}", "--pid", str(sim.proc.pid)],
-                           capture_output=True, text=True, timeout=30,
-                           stdin=subprocess.DEVNULL)
-        assert unplug.returncode == 0, unplug
-        wait_for(lambda: gw.status()["stations"][0]["state"] != "up", 5, "north down")
-        wait_for(lambda: gw.status()["stations"][0]["state"] == "up", 15, "north back")
-        gw.wait_streaming(76)
-        before = len(sub.messages)
-        sub.until(lambda m: len(m) >= before + 50, 10, "north's records again")
+        unplug_north_while_streaming(sim, gw, sub)
 
         steps = [b["device_time"] - a["device_time"]
                  for (_, a), (_, b) in zip(sub.messages, sub.messages[1:], strict=False)]
@@ -101,17 +92,7 @@ def test_the_summaries_of_a_recording_say_an_unplug_apart_from_radio_loss(
         capture = tmp_path / "capture.mcap"
         record = Running("gx2ctl", "--control", gw.control_endpoint, "record", str(capture))
         sub = gw.subscribe("gx2/76/accel_angrate")
-        sub.until(lambda m: len(m) >= 50, 10, "north's records")
-        unplug = spawn_run([script("gx2-sim"), "unplug", "north", "--seconds",
-                            f"{UNPLUGGED:g}", "--pid", str(sim.proc.pid)],
-                           capture_output=True, text=True, timeout=30,
-                           stdin=subprocess.DEVNULL)
-        assert unplug.returncode == 0, unplug
-        wait_for(lambda: gw.status()["stations"][0]["state"] != "up", 5, "north down")
-        wait_for(lambda: gw.status()["stations"][0]["state"] == "up", 15, "north back")
-        gw.wait_streaming(76)
-        before = len(sub.messages)
-        sub.until(lambda m: len(m) >= before + 50, 10, "north's records again")
+        unplug_north_while_streaming(sim, gw, sub)
         record.proc.send_signal(signal.SIGINT)
         assert record.finish(10) == 0, record.stderr
         status, _ = gw.terminate()
@@ -152,3 +133,18 @@ def test_the_summaries_of_a_recording_say_an_unplug_apart_from_radio_loss(
         if record is not None:
             record.kill()
         sim.kill()
+
+
+def unplug_north_while_streaming(sim: Running, gw: RunningGateway, sub: Subscriber) -> None:
+    """Station north unplugged for UNPLUGGED seconds with ``gx2-sim unplug``, between
+    50 of node 76's records before and 50 after it is back."""
+    sub.until(lambda m: len(m) >= 50, 10, "north's records")
+    unplug = spawn_run([script("gx2-sim"), "unplug", "north", "--seconds",
+                        f"{UNPLUGGED:g}", "--pid", str(sim.proc.pid)],
+                       capture_output=True, text=True, timeout=30, stdin=subprocess.DEVNULL)
+    assert unplug.returncode == 0, unplug
+    wait_for(lambda: gw.status()["stations"][0]["state"] != "up", 5, "north down")
+    wait_for(lambda: gw.status()["stations"][0]["state"] == "up", 15, "north back")
+    gw.wait_streaming(76)
+    before = len(sub.messages)
+    sub.until(lambda m: len(m) >= before + 50, 10, "north's records again")
