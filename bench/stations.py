@@ -39,6 +39,13 @@ waits for this process's GIL after its write stamps late, which shortens a laten
 that wait (how often: about the share of a core this process uses, shown as "bench").
 The relays' side is N processes, the gateway's one: at N=4 the relays can use both
 cores, the gateway's event loop one (its ZeroMQ and recorder threads another).
+
+``--priority NICE`` (for example -10; lowering a nice value needs root) runs the
+measuring side at that nice value: this process (the simulators and their write taps)
+and the subscriber, while the measured processes (relays, gateway) run at 0. The
+simulators then write, and the subscriber receives, as soon as they are due, so what
+is left of the latency is the measured side's own, its waits for a core included;
+the difference from a run without it is what the measuring side's waits added.
 """
 
 from __future__ import annotations
@@ -67,6 +74,11 @@ from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
 
 SIDES = {"A": "relays", "B": "gateway"}
+
+
+def nice_zero() -> None:
+    """In a measured process, before it runs: nice 0, whatever the bench's own is."""
+    os.setpriority(os.PRIO_PROCESS, 0, 0)
 
 
 def station_nodes(index: int) -> list[NodeSettings]:
@@ -118,7 +130,7 @@ class Lines:
         for index, command in enumerate(commands):
             with open(self.work / f"stderr-{index}", "wb") as stderr:
                 self.procs.append(subprocess.Popen(command, stdout=subprocess.DEVNULL,
-                                                   stderr=stderr))
+                                                   stderr=stderr, preexec_fn=nice_zero))
 
     def gateway_config(self, links: list[Path]) -> Path:
         metrics = f"127.0.0.1:{free_port()}"
@@ -304,9 +316,19 @@ def main() -> int:
                         help="with --live: a Foxglove viewer subscribed to every channel")
     parser.add_argument("--settle", type=float, default=8.0,
                         help="seconds from start to the window (default: 8)")
+    parser.add_argument("--priority", type=int, default=0, choices=range(-20, 20),
+                        metavar="NICE", help="the simulators' and the subscriber's nice "
+                        "value, the measured processes at 0 (default: 0; below 0 needs "
+                        "root)")
     args = parser.parse_args()
     if args.seconds < 3 or args.settle < 1:
         parser.error("--seconds must be at least 3 and --settle at least 1")
+    try:
+        # Linux keeps a nice value per thread; set here, before any simulator thread
+        # or subscriber process starts, every one of them inherits it.
+        os.setpriority(os.PRIO_PROCESS, 0, args.priority)
+    except PermissionError:
+        parser.error(f"--priority {args.priority}: lowering a nice value needs root")
     loads, steal0 = os.getloadavg(), cpu_steal()
     runs: Runs = {n: {"A": [], "B": []} for n in args.stations}
     turn = 0
@@ -328,7 +350,9 @@ def main() -> int:
           f"{args.settle:g} s settling; each station 3 nodes of 0xC2 at 96 Hz (115200 baud, "
           "saturated); gateway recording, metrics scraped every second"
           f"{', live view served' if args.live else ''}"
-          f"{' to a viewer of every channel' if args.viewer else ''}; CPU in % of one "
+          f"{' to a viewer of every channel' if args.viewer else ''}"
+          f"{f'; simulators and subscriber at nice {args.priority}' if args.priority else ''}"
+          "; CPU in % of one "
           "core (relays summed), medians of the rounds; bench = this process (the "
           "simulators)\n")
     print("\n".join(table(runs)))
