@@ -32,12 +32,14 @@ def mat_modules() -> tuple[Any, Any]:
     return numpy, scipy.io
 
 
-def variable_name(table: str) -> str:
-    """The struct's name for a table (``76_accel_angrate`` -> ``n76_accel_angrate``): a
-    MATLAB name starts with a letter and holds letters, digits and ``_``."""
-    name = re.sub(r"\W", "_", table, flags=re.ASCII)
+def matlab_name(text: str, prefix: str = "n") -> str:
+    """A name MATLAB takes: letters, digits and ``_``, a letter first (``prefix``
+    before one that does not start with a letter): ``76_accel_angrate`` ->
+    ``n76_accel_angrate``, the struct of that table. A known record's columns are
+    such names already; a foreign record's may not be."""
+    name = re.sub(r"\W", "_", text, flags=re.ASCII)
     if not name[:1].isalpha():
-        name = f"n{name}"
+        name = f"{prefix}{name}"
     return name[:MATLAB_NAME]
 
 
@@ -60,15 +62,18 @@ class MatWriter:
 
     def close(self) -> None:
         np = self._numpy
+        names = [matlab_name(column.name, "f") for column in self._columns]
         struct: dict[str, Any] = {}
-        for column, values in zip(self._columns, self._values, strict=True):
+        for name, column, values in zip(names, self._columns, self._values, strict=True):
             if column.kind == "text":
-                struct[column.name] = np.array(values, dtype=object).reshape(-1, 1)
+                struct[name] = np.array(values, dtype=object).reshape(-1, 1)
             else:
-                struct[column.name] = np.frombuffer(values, dtype=np.float64).reshape(-1, 1)
-        struct["units"] = {c.name: c.unit for c in self._columns}
-        struct["descriptions"] = {c.name: c.meaning for c in self._columns}
-        name = variable_name(self._path.name.removeprefix(".").split(".")[0])
+                struct[name] = np.frombuffer(values, dtype=np.float64).reshape(-1, 1)
+        struct["units"] = {n: c.unit for n, c in zip(names, self._columns, strict=True)}
+        struct["descriptions"] = {n: c.meaning
+                                  for n, c in zip(names, self._columns, strict=True)}
+        # the table's name: the file's, without export's temporary dot and suffixes
+        name = matlab_name(self._path.name.removeprefix(".").split(".")[0])
         with self._path.open("wb") as file:
             self._io.savemat(file, {name: struct}, long_field_names=True,
                              do_compression=False, oned_as="column")

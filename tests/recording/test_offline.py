@@ -483,3 +483,23 @@ def test_a_status_that_is_not_a_json_object_is_passed_over_by_export(tmp_path):
     ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
     assert ran.status == 0, ran.stderr
     assert len(rows(tmp_path / "out" / "76_euler.csv")) == 50
+
+
+def test_a_record_this_version_does_not_know_exports_typed_and_named_for_matlab(tmp_path):
+    """Its fields typed by their first value, its names made MATLAB's."""
+    foreign = {"node": 76, "record": "custom", "seq": 1, "host_time": T0, "lqi": 9,
+               "rssi": -40, "2nd-value": 7, "label": "left"}
+    path = write(tmp_path / "foreign.mcap", [("gx2/76/custom", foreign),
+                                             ("gx2/76/custom", {**foreign, "seq": 2,
+                                                                "2nd-value": 7.5})])
+    for form in ("parquet", "mat"):
+        ran = gx2ctl("export", str(path), "--out", str(tmp_path / form), "--format", form)
+        assert ran.status == 0, ran.stderr
+    table = pq.read_table(tmp_path / "parquet" / "76_custom.parquet")
+    assert table.schema.field("2nd-value").type == pa.float64()
+    assert table.schema.field("label").type == pa.string()
+    assert table.to_pydict()["2nd-value"] == [7.0, 7.5]
+    struct = loadmat(tmp_path / "mat" / "76_custom.mat", simplify_cells=True)["n76_custom"]
+    assert struct["f2nd_value"].tolist() == [7.0, 7.5]
+    assert struct["label"].tolist() == ["left", "left"]
+    assert struct["units"]["rssi"] == "dBm"
