@@ -19,7 +19,7 @@ from typing import Any
 
 from aspp.fields import U8, Field
 from aspp.frame import MAX_NODE, MIN_NODE
-from aspp.records import CommandSpec, all_specs
+from aspp.records import BY_NAME, CommandSpec, all_specs
 
 from .topics import MARK_TOPIC, STATUS_TOPIC, parse
 
@@ -67,10 +67,11 @@ def field_schema(field: Field) -> Schema:
         value = _array(_unsigned(kind.max_int), kind.items)
     else:  # text: latin-1, one character a byte, trailing spaces and NULs stripped
         value = {"type": "string", "maxLength": kind.size}
-    meaning = field.meaning
-    if field.elements:
-        meaning = f"{meaning}: {', '.join(field.elements)}"
-    return _described(value, meaning, field.unit)
+    return _described(value, _meaning(field), field.unit)
+
+
+def _meaning(field: Field) -> str:
+    return f"{field.meaning}: {', '.join(field.elements)}" if field.elements else field.meaning
 
 
 # the fields every published record carries besides its own (docs/interface.md, section
@@ -168,6 +169,37 @@ def status_schema() -> Schema:
     }
 
 
+_MARK: tuple[tuple[str, Schema, str, str], ...] = (
+    ("text", {"type": "string"}, "what happened (one line)", ""),
+    ("time", _FLOAT, "UNIX time the gateway took it, on the clock of every record's time",
+     "s"),
+    ("host_time", _FLOAT, "the same moment, as a record's host_time", "s"),
+    ("nodes", {"type": "array", "items": {
+        "type": "integer", "minimum": MIN_NODE, "maximum": MAX_NODE}},
+     "the addresses it concerns; empty: the whole experiment", ""),
+)
+
+Notes = dict[str, tuple[str, str]]
+"""(meaning, unit) by field name: the schema's description with its unit kept apart."""
+
+
+def record_notes(record: str) -> Notes:
+    """What each field of ``record`` means and its unit, as its schema says: the fields
+    every record carries (a timed record's two included), then the record's own (none
+    for a record this version does not know). For tables that keep units apart: gx2ctl
+    export's Parquet field metadata and .mat ``units``."""
+    notes = {name: (meaning, unit) for name, _, meaning, unit in _COMMON + _TIMED}
+    spec = BY_NAME.get(record)
+    if spec is not None and spec.reply is not None:
+        notes.update((f.name, (_meaning(f), f.unit)) for f in spec.reply)
+    return notes
+
+
+def mark_notes() -> Notes:
+    """What each field of a mark means and its unit, as its schema says."""
+    return {name: (meaning, unit) for name, _, meaning, unit in _MARK}
+
+
 def mark_schema() -> Schema:
     """A mark (``gx2ctl mark``), published on gx2/gateway/mark."""
     return {
@@ -175,16 +207,8 @@ def mark_schema() -> Schema:
         "title": MARK_NAME,
         "description": f"a mark made with gx2ctl mark; {_NULL_IS_NAN}",
         "type": "object",
-        "properties": {
-            "text": _described({"type": "string"}, "what happened (one line)"),
-            "time": _described(_FLOAT, "UNIX time the gateway took it, on the clock of "
-                               "every record's time", "s"),
-            "host_time": _described(_FLOAT, "the same moment, as a record's host_time",
-                                    "s"),
-            "nodes": _described({"type": "array", "items": {
-                "type": "integer", "minimum": MIN_NODE, "maximum": MAX_NODE}},
-                "the addresses it concerns; empty: the whole experiment"),
-        },
+        "properties": {name: _described(value, meaning, unit)
+                       for name, value, meaning, unit in _MARK},
         "required": ["text", "time", "host_time", "nodes"],
         "additionalProperties": False,
     }

@@ -29,15 +29,16 @@ if TYPE_CHECKING:
 def add_commands(commands: Any) -> None:
     exporter = commands.add_parser(
         "export", help="write one table per node and record from MCAP recordings",
-        description="Write DIR/<address>_<record>.csv (or .parquet): a row per record, "
+        description="Write DIR/<address>_<record>.csv (or .parquet, .mat): a row per record, "
         "columns time, host_time, device_time, seq, lqi, rssi, then the record's fields "
         "(vectors as _x/_y/_z, matrices as _11.._33), and DIR/marks.csv if there are "
         "marks. FILE may be a directory of recordings (read in name order, which is "
         "time order). Exit 1 if something unreadable was skipped (said on stderr).")
     exporter.add_argument("files", nargs="+", metavar="FILE.mcap")
     exporter.add_argument("--out", required=True, metavar="DIR", help="created if missing")
-    exporter.add_argument("--format", dest="form", choices=("csv", "parquet"), default="csv",
-                          help="csv (default), or parquet (needs gx2-gateway[parquet])")
+    exporter.add_argument("--format", dest="form", choices=("csv", "parquet", "mat"),
+                          default="csv", help="csv (default), parquet (needs "
+                          "gx2-gateway[parquet]), or mat: MATLAB (needs gx2-gateway[mat])")
     plotter = commands.add_parser(
         "plot", help="draw a node's recorded stream to a PNG",
         description="One panel per field group against time, units on the axes, the "

@@ -19,7 +19,9 @@ experiment), ``text``.
 
 Rows are written as they are read, once the WINDOW rows of their table after them are
 read too (the steps that tell the stream's period): a CSV export holds that many rows a
-table in memory, a Parquet one a batch of BATCH rows more. Each table is written under a temporary
+table in memory, a Parquet one a batch of rows more (:mod:`.parquetfile`), a .mat one
+the whole table (scipy's writer takes a struct whole: :mod:`.matfile`). The types the
+formats give the columns: :mod:`.columns`. Each table is written under a temporary
 name (TEMPORARY) and given its own when it is whole, so an export that fails or is
 interrupted leaves no cut table where a whole one is expected, and replaces the table
 of an earlier export only with a whole one.
@@ -37,8 +39,11 @@ from typing import IO, Any
 from aspp.records import BY_NAME
 from gateway.common.topics import parse
 
+from .columns import Column, mark_columns, record_columns
 from .files import MARK, STATUS, RecordingError
 from .losses import Counted, Losses
+from .matfile import MatWriter, mat_modules
+from .parquetfile import MissingExtra, ParquetWriter, parquet_modules
 from .reader import Entry, Mark, read_all
 from .reports import Reading
 from .summary import Summary
@@ -46,18 +51,11 @@ from .summary import Summary
 LEADING = ("time", "host_time", "device_time", "seq", "lost_before", "lqi", "rssi")
 LOST_BEFORE = LEADING.index("lost_before")
 BOOKKEEPING = frozenset((*LEADING, "node", "record", "command"))
-FORMATS = ("csv", "parquet")
-BATCH = 10_000
+FORMATS = ("csv", "parquet", "mat")
 AXES = ("x", "y", "z")
 MATRIX = tuple(f"{row}{column}" for row in (1, 2, 3) for column in (1, 2, 3))
-INSTALL_PARQUET = "pip install 'gx2-gateway[parquet]'"
 MARKS = "marks"
-MARK_COLUMNS = ["time", "host_time", "nodes", "text"]
 TEMPORARY = ".{name}.partial"
-
-
-class MissingExtra(Exception):
-    """An optional dependency is not installed: one line saying how to install it."""
 
 
 def field_columns(record: str, payload: Mapping[str, Any]) -> list[tuple[str, str, int]]:
@@ -111,7 +109,8 @@ class Table:
     def __init__(self, node: int, record: str, first: Mapping[str, Any]) -> None:
         self.node, self.record = node, record
         self.fields = field_columns(record, first)
-        self.columns = [*LEADING, *(column for column, _, _ in self.fields)]
+        self.columns = record_columns(record, LEADING, self.fields, first)
+        """Its columns' names, kinds, meanings and units."""
         self.losses = Summary()
         """Its rows (``received``), what was missed while its base station was down,
         and what the file lost of them (the radio's and the gateway's losses are in
@@ -135,10 +134,10 @@ class Writer:
 
 
 class CsvWriter(Writer):
-    def __init__(self, path: Path, columns: list[str]) -> None:
+    def __init__(self, path: Path, columns: list[Column]) -> None:
         self._file: IO[str] = path.open("w", newline="", encoding="utf-8")
         self._csv = csv.writer(self._file)
-        self._csv.writerow(columns)
+        self._csv.writerow([column.name for column in columns])
 
     def add(self, row: list[Any]) -> None:
         # repr of a float reads back to the same float; None (null, NaN) is empty
@@ -149,63 +148,16 @@ class CsvWriter(Writer):
         self._file.close()
 
 
-class ParquetWriter(Writer):
-    def __init__(self, path: Path, columns: list[str]) -> None:
-        self._pa, self._pq = parquet_modules()
-        self._path, self._columns = path, columns
-        self._rows: list[list[Any]] = []
-        self._writer: Any = None
-
-    def add(self, row: list[Any]) -> None:
-        self._rows.append(row)
-        if len(self._rows) >= BATCH:
-            self._flush()
-
-    def _flush(self) -> None:
-        if not self._rows:
-            return
-        columns = list(zip(*self._rows, strict=True))
-        arrays = [self._pa.array(_column(values)) for values in columns]
-        batch = self._pa.table(arrays, names=self._columns)
-        if self._writer is None:
-            self._writer = self._pq.ParquetWriter(self._path, batch.schema)
-        elif batch.schema != self._writer.schema:
-            batch = batch.cast(self._writer.schema)
-        self._writer.write_table(batch)
-        self._rows = []
-
-    def close(self) -> None:
-        self._flush()
-        if self._writer is not None:
-            self._writer.close()
-
-
-def _column(values: tuple[Any, ...]) -> list[Any]:
-    """A column pyarrow types as float64 if any value is a float (ints become floats),
-    else as it finds it."""
-    if any(isinstance(v, float) for v in values):
-        return [float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
-                else None for v in values]
-    return list(values)
-
-
-def parquet_modules() -> tuple[Any, Any]:
-    try:
-        import pyarrow
-        import pyarrow.parquet
-    except ImportError:
-        raise MissingExtra(f"Parquet export needs pyarrow: {INSTALL_PARQUET}") from None
-    return pyarrow, pyarrow.parquet
-
-
-WRITERS: dict[str, Callable[[Path, list[str]], Writer]] = {
-    "csv": CsvWriter, "parquet": ParquetWriter}
+WRITERS: dict[str, Callable[[Path, list[Column]], Writer]] = {
+    "csv": CsvWriter, "parquet": ParquetWriter, "mat": MatWriter}
+EXTRAS: dict[str, Callable[[], object]] = {"parquet": parquet_modules, "mat": mat_modules}
+"""What each format needs beyond the gateway's own dependencies: MissingExtra if absent."""
 
 
 class Output:
     """One table's file: written under its temporary name, renamed when whole."""
 
-    def __init__(self, out: Path, name: str, form: str, columns: list[str],
+    def __init__(self, out: Path, name: str, form: str, columns: list[Column],
                  outputs: list[Output]) -> None:
         self.path = out / name
         self.temporary = out / TEMPORARY.format(name=name)
@@ -242,10 +194,10 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
     node's table, in the order first seen, and the number of marks (in ``marks.csv``).
     Each table written whole is added to ``written`` as it is. What reading skipped is
     in ``reading``. RecordingError for a message that is not a record's JSON object;
-    MissingExtra for Parquet without pyarrow; on any error, or Ctrl-C, no table that
-    was not whole is left."""
-    if form == "parquet":
-        parquet_modules()
+    MissingExtra for a format whose extra is not installed (Parquet: pyarrow, .mat:
+    scipy); on any error, or Ctrl-C, no table that was not whole is left."""
+    if form in EXTRAS:
+        EXTRAS[form]()
     out.mkdir(parents=True, exist_ok=True)
     tables: dict[tuple[int, str], tuple[Table, Output]] = {}
     losses: Losses[tuple[Table, Output, list[Any]]] = Losses()
@@ -266,7 +218,7 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
                 continue
             if entry.topic == MARK:
                 if marks is None:
-                    marks = Output(out, f"{MARKS}.{form}", form, MARK_COLUMNS, outputs)
+                    marks = Output(out, f"{MARKS}.{form}", form, mark_columns(), outputs)
                 marks.add(mark_row(Mark.of(entry)))
                 continue
             where = parse(entry.topic)

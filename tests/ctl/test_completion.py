@@ -118,7 +118,7 @@ def configured() -> list[str]:
     ("gx2ctl eeprom ", ["read", "write"]),
     ("gx2ctl bias c", ["capture"]),
     ("gx2ctl --print-completion ", ["bash", "zsh"]),
-    ("gx2ctl export --format ", ["csv", "parquet"]),
+    ("gx2ctl export --format ", ["csv", "mat", "parquet"]),
     ("gx2ctl poll 76 firm", ["firmware_version"]),
     ("gx2ctl store 76 ", ["accel", "gyro"]),
     ("gx2-gateway --log-level ", ["DEBUG", "ERROR", "INFO", "WARNING"]),

@@ -12,10 +12,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 from matplotlib import pyplot
+from mcap.reader import make_reader
 from mcap.writer import Writer
+from scipy.io import loadmat
 
 from aspp.orientation import matrix_from_euler
 from aspp.records import BY_NAME, decode, encode
@@ -128,17 +131,112 @@ def test_export_csv_columns_values_and_empty_cells(recording, tmp_path):
     assert "195 rows" in ran.stdout
 
 
-def test_export_parquet_has_the_same_table(recording, tmp_path):
+def seconds_text(ns: int) -> str:
+    """Nanoseconds written as the shortest decimal of seconds, as a message's JSON
+    writes a float of seconds."""
+    whole, fraction = divmod(ns, 1_000_000_000)
+    return f"{whole}.{fraction:09d}".rstrip("0").rstrip(".") if fraction else f"{whole}.0"
+
+
+def test_export_parquet_types_units_and_values(recording, tmp_path):
     path, streamed = recording
     ran = gx2ctl("export", str(path), "--out", str(tmp_path), "--format", "parquet")
     assert ran.status == 0, ran.stderr
-    table = pq.read_table(tmp_path / "76_accel_angrate_mag.parquet").to_pydict()
-    assert list(table)[:8] == ["time", "host_time", "device_time", "seq", "lost_before",
-                               "lqi", "rssi", "accel_x"]
-    assert table["lost_before"] == [None, *[0] * 49, 3, *[0] * 66, 2, *[0] * 77]
-    assert table["seq"] == [p["seq"] for p in streamed]
-    assert table["accel_x"] == [p["accel"][0] for p in streamed]
-    assert table["mag_z"] == [None] * len(streamed)
+    table = pq.read_table(tmp_path / "76_accel_angrate_mag.parquet")
+    schema = table.schema
+    assert schema.names[:8] == ["time", "host_time", "device_time", "seq", "lost_before",
+                                "lqi", "rssi", "accel_x"]
+    assert schema.field("time").type == pa.timestamp("ns", tz="UTC")
+    assert schema.field("host_time").type == pa.timestamp("ns", tz="UTC")
+    assert schema.field("device_time").type == pa.duration("ns")
+    assert [schema.field(n).type for n in ("seq", "lqi", "rssi", "timer", "accel_x")] == [
+        pa.int64(), pa.uint8(), pa.int8(), pa.uint32(), pa.float64()]
+    # units and meanings from the record table, through the recordings' JSON Schemas
+    notes = {n: schema.field(n).metadata for n in ("accel_x", "ang_rate_z", "time", "rssi",
+                                                   "timer", "lost_before")}
+    assert [notes[n][b"unit"] for n in notes] == [b"g", b"rad/s", b"s", b"dBm", b"ticks",
+                                                  b"samples"]
+    assert b"UNIX time when the sample was taken" in notes["time"][b"description"]
+    values = {n: table.column(n).cast(pa.int64()).to_pylist()
+              for n in ("time", "host_time", "device_time")}
+    # every time is the decimal its message held, to the nanosecond (round(t * 1e9)
+    # is off by up to 128 ns for most of them)
+    assert [seconds_text(t) for t in values["host_time"]] == [
+        repr(p["host_time"]) for p in streamed]
+    assert [seconds_text(t) for t in values["time"]] == [repr(p["time"]) for p in streamed]
+    assert [round(d / 1e9, 6) for d in values["device_time"]] == [
+        round(p["device_time"], 6) for p in streamed]
+    rows = table.select(["seq", "lost_before", "accel_x", "mag_z"]).to_pydict()
+    assert rows["lost_before"] == [None, *[0] * 49, 3, *[0] * 66, 2, *[0] * 77]
+    assert rows["seq"] == [p["seq"] for p in streamed]
+    assert rows["accel_x"] == [p["accel"][0] for p in streamed]
+    assert rows["mag_z"] == [None] * len(streamed)
+    untimed = pq.read_table(tmp_path / "76_firmware_version.parquet").to_pydict()
+    assert untimed["time"] == untimed["device_time"] == [None]
+    assert untimed["version"] == [2104]
+
+
+def test_export_parquet_host_time_is_the_recordings_log_time(recording, tmp_path):
+    """To within the 256 ns the recorder's own rounding of host_time allows."""
+    path, _ = recording
+    ran = gx2ctl("export", str(path), "--out", str(tmp_path), "--format", "parquet")
+    assert ran.status == 0, ran.stderr
+    host = pq.read_table(tmp_path / "76_accel_angrate_mag.parquet").column(
+        "host_time").cast(pa.int64()).to_pylist()
+    with path.open("rb") as file:
+        logged = [message.log_time for _, channel, message in
+                  make_reader(file).iter_messages(topics=["gx2/76/accel_angrate_mag"])]
+    assert len(host) == len(logged) and all(
+        abs(h - t) <= 256 for h, t in zip(host, logged, strict=True))
+
+
+def test_export_marks_parquet_and_mat(tmp_path):
+    mark = {"text": "start", "time": T0 + 0.5, "host_time": T0 + 0.5, "nodes": [76, 77]}
+    path = write(tmp_path / "marks.mcap", [("gx2/gateway/mark", mark), (
+        "gx2/76/euler", payload(76, "euler", 1, T0, timer=1, roll=0.1, pitch=0.2,
+                                yaw=0.3))])
+    for form in ("parquet", "mat"):
+        ran = gx2ctl("export", str(path), "--out", str(tmp_path / form), "--format", form)
+        assert ran.status == 0, ran.stderr
+        assert f"marks.{form}  1 marks" in ran.stdout
+    marks = pq.read_table(tmp_path / "parquet" / "marks.parquet")
+    assert marks.schema.field("time").type == pa.timestamp("ns", tz="UTC")
+    assert marks.schema.field("time").metadata[b"unit"] == b"s"
+    assert marks.to_pydict()["nodes"] == ["76 77"]
+    assert marks.column("time").cast(pa.int64()).to_pylist() == [1_795_000_000_500_000_000]
+    loaded = loadmat(tmp_path / "mat" / "marks.mat", simplify_cells=True)["marks"]
+    assert loaded["time"] == T0 + 0.5 and loaded["text"] == "start"
+    assert loaded["nodes"] == "76 77" and loaded["units"]["time"] == "s"
+
+
+def test_export_mat_holds_a_struct_a_table_with_units(recording, tmp_path):
+    path, streamed = recording
+    ran = gx2ctl("export", str(path), "--out", str(tmp_path), "--format", "mat")
+    assert ran.status == 0, ran.stderr
+    assert sorted(p.name for p in tmp_path.iterdir() if p.suffix == ".mat") == [
+        "76_accel_angrate_mag.mat", "76_firmware_version.mat", "77_orientation.mat"]
+    assert f"76_accel_angrate_mag.mat  {len(streamed)} rows" in ran.stdout
+    content = loadmat(tmp_path / "76_accel_angrate_mag.mat")
+    assert [k for k in content if not k.startswith("__")] == ["n76_accel_angrate_mag"]
+    struct = content["n76_accel_angrate_mag"][0, 0]
+    assert struct["time"].shape == (len(streamed), 1)  # column vectors of doubles
+    assert struct["time"].dtype.name == "float64"
+    assert struct["time"][:, 0].tolist() == [p["time"] for p in streamed]
+    assert struct["seq"][:, 0].tolist() == [p["seq"] for p in streamed]
+    assert struct["accel_x"][:, 0].tolist() == [p["accel"][0] for p in streamed]
+    assert all(math.isnan(v) for v in struct["mag_z"][:, 0])  # NaN stays NaN
+    lost = struct["lost_before"][:, 0].tolist()
+    assert math.isnan(lost[0]) and lost[50] == 3 and lost[117] == 2
+    units = struct["units"][0, 0]
+    assert units["accel_x"][0] == "g" and units["ang_rate_y"][0] == "rad/s"
+    assert units["time"][0] == "s" and units["timer"][0] == "ticks"
+    assert "UNIX time" in struct["descriptions"][0, 0]["time"][0]
+    untimed = loadmat(tmp_path / "76_firmware_version.mat", simplify_cells=True)
+    assert math.isnan(untimed["n76_firmware_version"]["time"])
+    assert untimed["n76_firmware_version"]["version"] == 2104
+    matrix = loadmat(tmp_path / "77_orientation.mat", simplify_cells=True)["n77_orientation"]
+    assert [matrix[f"orientation_{r}{c}"] for r in (1, 2, 3) for c in (1, 2, 3)] == [
+        1.0, 0.0, 0.0, 0.0, 0.5, -0.5, 0.0, 0.5, 0.5]
 
 
 def test_a_file_cut_short_and_several_files_export_in_order(tmp_path):
@@ -171,19 +269,23 @@ def test_errors_are_one_line_and_exit_2(recording, tmp_path):
         assert words in ran.stderr and len(ran.stderr.strip().splitlines()) == 1, ran.stderr
 
 
-def test_parquet_without_pyarrow_says_how_to_install_it(recording, tmp_path):
+@pytest.mark.parametrize(("form", "module", "extra"), [("parquet", "pyarrow", "parquet"),
+                                                       ("mat", "scipy", "mat")])
+def test_a_format_without_its_extra_says_how_to_install_it(recording, tmp_path, form,
+                                                           module, extra):
     path, _ = recording
     shim = tmp_path / "shim"
     shim.mkdir()
-    (shim / "pyarrow.py").write_text("raise ImportError('not installed')\n")
+    (shim / f"{module}.py").write_text("raise ImportError('not installed')\n")
     env = {**os.environ, "PYTHONPATH": str(shim)}
     main = "import sys; from gateway.ctl.cli import main; sys.exit(main())"
     ran = subprocess.run([sys.executable, "-c", main, "export", str(path),
-                          "--out", str(tmp_path / "out"), "--format", "parquet"],
+                          "--out", str(tmp_path / "out"), "--format", form],
                          capture_output=True, text=True, env=env, timeout=60)
     assert ran.returncode == 2, ran
-    assert "pip install 'gx2-gateway[parquet]'" in ran.stderr
+    assert f"pip install 'gx2-gateway[{extra}]'" in ran.stderr
     assert len(ran.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
 
 
 def test_plot_writes_a_png_with_name_rate_losses_and_gaps(recording, tmp_path):
@@ -381,3 +483,23 @@ def test_a_status_that_is_not_a_json_object_is_passed_over_by_export(tmp_path):
     ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
     assert ran.status == 0, ran.stderr
     assert len(rows(tmp_path / "out" / "76_euler.csv")) == 50
+
+
+def test_a_record_this_version_does_not_know_exports_typed_and_named_for_matlab(tmp_path):
+    """Its fields typed by their first value, its names made MATLAB's."""
+    foreign = {"node": 76, "record": "custom", "seq": 1, "host_time": T0, "lqi": 9,
+               "rssi": -40, "2nd-value": 7, "label": "left"}
+    path = write(tmp_path / "foreign.mcap", [("gx2/76/custom", foreign),
+                                             ("gx2/76/custom", {**foreign, "seq": 2,
+                                                                "2nd-value": 7.5})])
+    for form in ("parquet", "mat"):
+        ran = gx2ctl("export", str(path), "--out", str(tmp_path / form), "--format", form)
+        assert ran.status == 0, ran.stderr
+    table = pq.read_table(tmp_path / "parquet" / "76_custom.parquet")
+    assert table.schema.field("2nd-value").type == pa.float64()
+    assert table.schema.field("label").type == pa.string()
+    assert table.to_pydict()["2nd-value"] == [7.0, 7.5]
+    struct = loadmat(tmp_path / "mat" / "76_custom.mat", simplify_cells=True)["n76_custom"]
+    assert struct["f2nd_value"].tolist() == [7.0, 7.5]
+    assert struct["label"].tolist() == ["left", "left"]
+    assert struct["units"]["rssi"] == "dBm"
