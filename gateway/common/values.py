@@ -83,12 +83,15 @@ def _addresses(text: Any) -> tuple[int, ...]:
     """``1-100,200,300-310`` -> every address it names, ascending, each once."""
     if not isinstance(text, str):
         raise ValueError(f"address ranges are text such as 1-100,200, not {text!r}")
+    if not text.strip():
+        raise ValueError("no addresses given (such as 1-100,200,300-310)")
     addresses: set[int] = set()
     for part in text.split(","):
         first, dash, last = (side.strip() for side in part.partition("-"))
         if not first or (dash and not last):
-            raise ValueError(f"{part.strip()!r} in {text!r} is not an address or a range "
-                             "of them (such as 1-100,200,300-310)")
+            within = f" in {text!r}" if part.strip() != text.strip() else ""
+            raise ValueError(f"{part.strip()!r}{within} is not an address or a range of "
+                             "them (such as 1-100,200,300-310)")
         low = NODE.from_text(first)
         high = NODE.from_text(last) if dash else low
         if high < low:
