@@ -182,3 +182,17 @@ def test_ctrl_c_stops_the_scan_and_prints_what_it_found(simulator, gateway):
     # was on its way as the cancel came)
     assert gx2ctl("--config", str(gw.path), "ping", "76").status == 0
     assert pings(sim)[stopped:][-1:] == [76] and len(pings(sim)) <= stopped + 2
+
+
+def test_a_gateway_with_no_nodes_yet_scans_the_channel(simulator, gateway):
+    """Where a new user starts, not knowing the nodes' addresses: the base station
+    alone (``nodes: []``), then a scan."""
+    sim = simulator(*present())
+    gw = gateway(sim.path, [])
+    assert "0 nodes" in gx2ctl("--config", str(gw.path), "status").stdout + gw.log()
+    ran = gx2ctl("--config", str(gw.path), "--json", "scan", "--addresses", "70-95")
+    assert ran.status == 0, ran
+    found = json.loads(ran.stdout)["found"]
+    assert [(e["address"], e["configured"]) for e in found] == \
+        [(76, False), (77, False), (81, False), (90, False)]
+    assert [e["streaming"] for e in found] == [None, "euler", "euler", None]
