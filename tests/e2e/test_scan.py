@@ -6,12 +6,16 @@ A station down, bad ranges, --json and Ctrl-C (a real SIGINT) as a user meets th
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import re
 import signal
+import subprocess
 
 from aspp.host_side import CommandPacket, PingRequest
 from gateway.sim.node import FIRMWARE_VERSION, NodeSettings
-from tests.helpers.processes import Running, gx2ctl
+from tests.helpers.processes import Running, gx2ctl, script, spawn_run
 from tests.helpers.waiting import wait_for
 
 INTERRUPTED = 130
@@ -196,3 +200,50 @@ def test_a_gateway_with_no_nodes_yet_scans_the_channel(simulator, gateway):
     assert [(e["address"], e["configured"]) for e in found] == \
         [(76, False), (77, False), (81, False), (90, False)]
     assert [e["streaming"] for e in found] == [None, "euler", "euler", None]
+
+
+def test_every_station_is_scanned_at_once_and_each_node_says_which(simulator, gateway):
+    north = simulator(NodeSettings(76), NodeSettings(12), name="north")
+    south = simulator(NodeSettings(78), NodeSettings(14), name="south")
+    gw = gateway(None, [], base_stations=[
+        {"name": "north", "port": north.path, "nodes": [{"address": 76}]},
+        {"name": "south", "port": south.path, "nodes": [{"address": 78}]}])
+    ran = gx2ctl("--config", str(gw.path), "--json", "scan", "--addresses", "1-80")
+    assert ran.status == 0, ran
+    result = json.loads(ran.stdout)
+    assert result["stations"] == ["north", "south"] and result["scanned"] == 80
+    assert [(e["address"], e["station"], e["configured"]) for e in result["found"]] == [
+        (12, "north", False), (14, "south", False), (76, "north", True),
+        (78, "south", True)]
+    # each channel pinged every address once, the two at the same time: no longer than
+    # one channel's scan takes alone
+    assert sorted(pings(north)) == sorted(pings(south)) == list(range(1, 81))
+    alone = gx2ctl("--config", str(gw.path), "--json", "scan", "south", "--addresses",
+                   "1-80")
+    assert [e["address"] for e in json.loads(alone.stdout)["found"]] == [14, 78]
+    assert result["seconds"] < 1.6 * json.loads(alone.stdout)["seconds"]
+
+
+def test_on_a_terminal_the_progress_is_shown_in_place_on_stderr(simulator, gateway):
+    sim = simulator(NodeSettings(3))
+    gw = gateway(sim.path, [])
+    main, other = os.openpty()
+    try:
+        run = spawn_run([script("gx2ctl"), "--config", str(gw.path), "scan",
+                         "--addresses", "1-40"], stdout=subprocess.PIPE, stderr=other,
+                        stdin=subprocess.DEVNULL, text=True, timeout=60)
+        os.close(other)
+        shown = b""
+        with contextlib.suppress(OSError):  # (EIO once the terminal's last writer is gone)
+            while chunk := os.read(main, 4096):
+                shown += chunk
+    finally:
+        os.close(main)
+    assert run.returncode == 0, run
+    text = shown.decode()
+    steps = re.findall(r"\r\x1b\[Kgx2ctl: scan: (\d+) of 40 addresses, (\d) found"
+                       r"(?:, about \d+ s left)?", text)
+    done = [int(d) for d, _ in steps]
+    assert done[0] == 0 and done[-1] == 40 and done == sorted(done) and len(done) >= 5, text
+    assert "about" in text and text.endswith("\r\x1b[K"), text  # cleared at the end
+    assert run.stdout.splitlines()[0].startswith("3  station1  LQI ")
