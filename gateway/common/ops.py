@@ -241,8 +241,8 @@ OPS: tuple[Op, ...] = (
        "every base station is scanned at once. Exit 0 when the scan completed (nodes "
        "found or not), 1 when a base station it scans is down, 2 for malformed ranges "
        "or an address outside 1..65534. An absent address takes about 40 ms (the base "
-       "station's own wait), a node found about 0.2 s more at 100 Hz: 1-100 takes "
-       "about 5 s."),
+       "station's own wait), a node found about 0.1 s more at 100 Hz: 1-100 takes "
+       "4 to 5 s."),
 )
 
 BY_NAME: dict[str, Op] = {op.name: op for op in OPS}

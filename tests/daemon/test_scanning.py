@@ -72,6 +72,29 @@ def test_the_scan_takes_turns_with_other_commands() -> None:
     run(scenario)
 
 
+def test_a_configured_node_that_reboots_during_a_scan_is_armed_again_meanwhile() -> None:
+    """The supervisor's own commands (background work) take turns with the scan's
+    pings: a node that lost its stream gets it back while the scan goes on."""
+    async def scenario() -> None:
+        async with Wired([NodeSettings(76)], [{"address": 76, "stream": "euler"}]) as gw:
+            while gw.nodes[76].state.value != "streaming":
+                await asyncio.sleep(0.01)
+            scan = asyncio.ensure_future(gw.run("scan", addresses="100-400", timeout=60.0))
+            while gw.station.stats.pings < 10:
+                await asyncio.sleep(0.01)
+            gw.station.reboot(76, time.monotonic())  # its stream is gone
+            while gw.node(76).continuous:
+                await asyncio.sleep(0.01)
+            start = time.monotonic()
+            while gw.node(76).continuous != 0xCE:
+                assert time.monotonic() - start < 2.0, "76 not armed again during the scan"
+                await asyncio.sleep(0.01)
+            assert not scan.done()
+            scan.cancel()
+            await asyncio.wait([scan])
+    run(scenario)
+
+
 def test_a_request_scans_what_fits_in_its_time_and_says_how_many() -> None:
     async def scenario() -> None:
         async with Wired([NodeSettings(1)], []) as gw:
