@@ -74,6 +74,8 @@ class Param:
     default: Any = REQUIRED
     option: str | None = None
     positional: bool = False
+    metavar: str | None = None
+    """What gx2ctl's help calls its value (default: the name in capitals)."""
 
     @property
     def required(self) -> bool:
@@ -228,7 +230,7 @@ OPS: tuple[Op, ...] = (
        (Param("station", STATION, "the base station whose channel to scan (default: every "
               "one, at once)", default=None, positional=True),
         Param("addresses", ADDRESS_RANGES, "the addresses to ping, such as "
-              "1-100,200,300-310", default=SCAN_DEFAULT)),
+              "1-100,200,300-310", default=SCAN_DEFAULT, metavar="RANGES")),
        on_cancel="it only reads: no node was changed",
        description="Find the nodes on a base station's channel: ping each address "
        "(--addresses, 1-100 by default) through the base station, as gx2ctl ping does, "

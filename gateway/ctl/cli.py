@@ -123,7 +123,7 @@ def add_op(commands: Any, groups: dict[str, Any], op: Op,
                             description=op.description or op.help)
     sub.set_defaults(op=op)
     for param in op.params:
-        metavar = param.name.upper()
+        metavar = param.metavar or param.name.upper()
         listed = param.help
         if param.kind.choices:
             listed += f"; one of: {', '.join(param.kind.choices)}"
