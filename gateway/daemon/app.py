@@ -114,7 +114,8 @@ class Gateway:
         self.health = Health(self.nodes.values(), config.health,
                              lines=[(None if len(self.stations) == 1 else station.name,
                                      station.line) for station in self.stations],
-                             recorder=self.recorder)
+                             recorder=self.recorder,
+                             take_failures=self.outputs.take_failures)
         # only once nothing above can fail: the embedded simulator makes a directory
         for station in self.stations:
             station.open(self.recorder)

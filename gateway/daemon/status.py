@@ -66,6 +66,7 @@ def report(gateway: Reported) -> dict[str, Any]:
                    "by_record": published.get(node.address, {})}
                   for node in gateway.nodes.values()],
         "replay": replay_status([s.link for s in gateway.stations]),
+        "outputs": gateway.outputs.guard_status(),
         **outputs_status(gateway.outputs),
     }
 
