@@ -4,7 +4,6 @@ the order written, and a report of what could not be read (:mod:`.reports`)."""
 from __future__ import annotations
 
 import json
-import math
 import os
 import struct
 import zlib
@@ -15,6 +14,8 @@ from typing import IO, Any
 
 import zstandard
 from mcap.opcode import Opcode
+
+from gateway.common.reading import number
 
 from .files import (
     CHUNK_HEAD,
@@ -95,9 +96,8 @@ class Mark:
 
 
 def _seconds(value: Any, default: float) -> float:
-    if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
-        return float(value)
-    return default
+    real = number(value)
+    return default if real is None else real
 
 
 def read(path: Path, reading: Reading, topics: Iterable[str] | None = None
