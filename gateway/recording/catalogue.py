@@ -18,6 +18,7 @@ from typing import Any
 from gateway.common.topics import default_station_name, parse
 
 from .files import MARK, SERIAL_READS, WRITTEN, is_serial_reads
+from .index import walked_span
 from .reader import Mark, index_of, read
 from .reports import Reading
 
@@ -100,12 +101,20 @@ def _marked(entry: Any) -> Marked:
     return Marked(mark.time, mark.text, entry.log_time)
 
 
-def describe(path: Path) -> Described:
+def describe(path: Path, whole: bool = True) -> Described:
     """One file: from its summary (and its mark chunks) if it has a whole one, else
-    read through."""
+    read through; or, not ``whole``, only its span from its chunks' headers (what a
+    read without a window needs to drop duplicates: a file without summary is not
+    read twice)."""
     described = Described(path, path.stat().st_size if path.exists() else 0)
-    index, _ = index_of(path)
+    index, report = index_of(path)
     reading = Reading()
+    if index is None and not whole:
+        if not report.skipped:
+            span = walked_span(path)
+            if span is not None:
+                described.start, described.end = span
+        return described
     if index is not None:
         described.indexed = True
         described.start, described.end = index.start, index.end
@@ -129,10 +138,10 @@ def describe(path: Path) -> Described:
     return described
 
 
-def catalogue(paths: Iterable[Path]) -> list[Described]:
-    """The files, described, sorted by their start (those holding nothing last), with
-    overlapping and repeated files said."""
-    found = sorted((describe(path) for path in paths),
+def catalogue(paths: Iterable[Path], whole: bool = True) -> list[Described]:
+    """The files, described (``whole``: see describe), sorted by their start (those
+    holding nothing last), with overlapping and repeated files said."""
+    found = sorted((describe(path, whole) for path in paths),
                    key=lambda d: (d.start is None, d.start or 0, str(d.path)))
     for i, one in enumerate(found):
         for other in found[i + 1:]:

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from mcap.opcode import Opcode
 
-from .files import RECORD_HEAD
+from .files import MAGIC, MESSAGE_HEAD, RECORD_HEAD
 
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
@@ -114,3 +115,35 @@ def parse(summary: bytes) -> FileIndex:
         at += RECORD_HEAD.size + length
     index.chunks.sort(key=lambda chunk: chunk.offset)
     return index
+
+
+def walked_span(path: Path) -> tuple[int, int] | None:
+    """(first, last) log_time (ns) of a file without summary, from its chunks' headers
+    (and its unchunked messages' heads): nothing decompressed. The walk stops where
+    the framing breaks (the reader, scanning past it, may find later messages); None
+    if it met no message."""
+    first = last = None
+    with path.open("rb") as stream:
+        stream.seek(len(MAGIC))
+        while True:
+            head = stream.read(RECORD_HEAD.size)
+            if len(head) < RECORD_HEAD.size:
+                break
+            opcode, length = RECORD_HEAD.unpack(head)
+            if opcode == Opcode.DATA_END:
+                break
+            if opcode in (Opcode.CHUNK, Opcode.MESSAGE):
+                body = stream.read(min(length, MESSAGE_HEAD.size))
+                if len(body) < MESSAGE_HEAD.size:
+                    break
+                if opcode == Opcode.CHUNK:
+                    start, end = struct.unpack_from("<QQ", body)
+                else:
+                    start = end = MESSAGE_HEAD.unpack_from(body)[2]
+                if start <= end and (start or end):
+                    first = start if first is None else min(first, start)
+                    last = end if last is None else max(last, end)
+                stream.seek(length - len(body), 1)
+            else:
+                stream.seek(length, 1)
+    return None if first is None or last is None else (first, last)

@@ -235,3 +235,16 @@ def test_a_window_read_decompresses_only_the_chunks_it_touches(tmp_path: Path,
     # channels (second 0, and second 5 the mark's)
     assert reading.files[0].decompressed == (3 if finished else 5)
     assert not reading.partial
+
+
+def test_a_file_cut_short_given_twice_is_exported_once(tmp_path: Path) -> None:
+    cut = make_file(tmp_path / "gx2-cut.mcap", 0, 4, finish=False)
+    copy = tmp_path / "copy.mcap"
+    shutil.copy(cut, copy)
+    whole = messages([make_file(tmp_path / "whole.mcap", 0, 4)])  # (the same messages)
+    out = tmp_path / "out"
+    ran = gx2ctl("export", str(cut), str(copy), "--out", str(out))
+    assert ran.status == 0, ran.stderr
+    assert column(out / "11_accel_angrate.csv", "host_time") == host_times(
+        whole, "gx2/11/accel_angrate")
+    assert f"dropped {len(whole):,} duplicate messages" in ran.stdout
