@@ -116,7 +116,7 @@ def _windows(args: argparse.Namespace, paths: list[Path]
     asked = Asked(args.start, args.stop, tuple(args.between) if args.between else None,
                   args.trial, tuple(getattr(args, "nodes", ())),
                   tuple(getattr(args, "records", ())))
-    files = catalogue(paths, whole=asked.timed)  # (marks and counts only for a window)
+    files = catalogue(paths, whole=asked.marked)  # (marks read only when they name it)
     try:
         return files, windows(asked, files)
     except WindowError as error:

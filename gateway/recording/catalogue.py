@@ -103,23 +103,25 @@ def _marked(entry: Any) -> Marked:
 
 def describe(path: Path, whole: bool = True) -> Described:
     """One file: from its summary (and its mark chunks) if it has a whole one, else
-    read through; or, not ``whole``, only its span from its chunks' headers (what a
-    read without a window needs to drop duplicates: a file without summary is not
-    read twice)."""
+    read through. Not ``whole``: its span only, and no mark (what a window of times
+    and a read without a window need: the summary, else the chunks' headers; so a
+    file without summary is not read twice)."""
     described = Described(path, path.stat().st_size if path.exists() else 0)
     index, report = index_of(path)
     reading = Reading()
-    if index is None and not whole:
+    if index is not None:
+        described.indexed = True
+        described.start, described.end = index.start, index.end
+        _counted(described, index.topic_counts())
+        if not whole:
+            return described
+        described.marks = [_marked(entry) for entry in read(path, reading, [MARK])]
+    elif not whole:
         if not report.skipped:
             span = walked_span(path)
             if span is not None:
                 described.start, described.end = span
         return described
-    if index is not None:
-        described.indexed = True
-        described.start, described.end = index.start, index.end
-        _counted(described, index.topic_counts())
-        described.marks = [_marked(entry) for entry in read(path, reading, [MARK])]
     else:
         counts: dict[str, int] = {}
         for entry in read(path, reading):

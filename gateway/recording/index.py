@@ -9,6 +9,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 from mcap.opcode import Opcode
 
@@ -20,12 +21,12 @@ _U64 = struct.Struct("<Q")
 _ID_COUNT = struct.Struct("<HQ")
 """An entry of a map from a channel id (u16) to a u64: counts, offsets."""
 _STATISTICS = struct.Struct("<QHIIIIQQ")
-_CHUNK_INDEX = struct.Struct("<QQQQ")
+_CHUNK_INDEX = struct.Struct("<QQQQI")
+"""A chunk index's head: its times, offset and length, and its offsets' byte length."""
 
 
-@dataclass(frozen=True)
-class ChunkSpan:
-    """One chunk as its index gives it."""
+class ChunkSpan(NamedTuple):
+    """One chunk as its index gives it (a tuple: a day of files has 86,400 of them)."""
 
     start: int
     """log_time (ns) of its first message, and of its last."""
@@ -33,12 +34,17 @@ class ChunkSpan:
     offset: int
     """Where its record starts in the file, and the record's whole length."""
     length: int
-    channels: frozenset[int]
-    """The ids of the channels it holds messages of."""
+    offsets: bytes
+    """Its message indexes' offsets, by channel id (as the file has them: parsed only
+    when asked which channels it holds)."""
 
     def touches(self, span: tuple[int, int] | None) -> bool:
         """Whether any of its messages can be in ``span`` (ns, end excluded)."""
         return span is None or (self.end >= span[0] and self.start < span[1])
+
+    def holds(self, channels: frozenset[int]) -> bool:
+        """Whether it holds messages of any of ``channels``."""
+        return any(channel in channels for channel, _ in _ID_COUNT.iter_unpack(self.offsets))
 
 
 @dataclass
@@ -108,10 +114,11 @@ def parse(summary: bytes) -> FileIndex:
                 index.start, index.end = start, end
             index.counts, _ = _map(body, _STATISTICS.size)
         elif opcode == Opcode.CHUNK_INDEX:
-            start, end, offset, chunk_length = _CHUNK_INDEX.unpack_from(body)
-            offsets, _ = _map(body, _CHUNK_INDEX.size)
-            index.chunks.append(ChunkSpan(start, end, offset, chunk_length,
-                                          frozenset(offsets)))
+            start, end, offset, chunk_length, width = _CHUNK_INDEX.unpack_from(body)
+            offsets = body[_CHUNK_INDEX.size:_CHUNK_INDEX.size + width]
+            if len(offsets) != width or width % _ID_COUNT.size:
+                raise struct.error("a chunk index's offsets run past it")
+            index.chunks.append(ChunkSpan(start, end, offset, chunk_length, offsets))
         at += RECORD_HEAD.size + length
     index.chunks.sort(key=lambda chunk: chunk.offset)
     return index

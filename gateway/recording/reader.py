@@ -257,7 +257,7 @@ class _Walk:
         ids = None if wanted is None else frozenset(
             channel for channel, topic in self.index.channels.items() if topic in wanted)
         for chunk in self.index.chunks:
-            if not chunk.touches(self._span) or (ids is not None and not chunk.channels & ids):
+            if not chunk.touches(self._span) or (ids is not None and not chunk.holds(ids)):
                 continue
             head = self._at(chunk.offset, RECORD_HEAD.size)
             length = chunk.length - RECORD_HEAD.size
@@ -268,7 +268,10 @@ class _Walk:
             if found is None:
                 self._lost(chunk.offset, chunk.length, chunk=True)
                 continue
+            low, high = self._span or (0, 2 ** 64)
             for channel, log_time, publish_time, data in found:
+                if (ids is not None and channel not in ids) or not low <= log_time < high:
+                    continue  # (not made an entry only to be dropped: this is the hot path)
                 entry = self._entry(channel, log_time, publish_time, data)
                 if entry is not None:
                     yield entry

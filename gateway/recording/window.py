@@ -40,8 +40,10 @@ class Asked:
     records: tuple[str, ...] = ()
 
     @property
-    def timed(self) -> bool:
-        return bool(self.start or self.stop or self.between)
+    def marked(self) -> bool:
+        """Whether the window is named by marks (the files' marks must be read)."""
+        return self.between is not None or any(
+            text is not None and _named(text) for text in (self.start, self.stop))
 
 
 @dataclass(frozen=True)
@@ -83,19 +85,32 @@ def _listed(marks: list[Marked]) -> str:
     return "marks: " + ", ".join(repr(t) for t in texts[:MARKS_LISTED]) + more
 
 
+def _number(text: str) -> float | None:
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+def _dated(text: str) -> bool:
+    """Whether a bound is written as a date (else it names a mark)."""
+    return text[:4].isdigit() and text[4:5] == "-"
+
+
+def _named(text: str) -> bool:
+    return _number(text) is None and not _dated(text)
+
+
 def bound(text: str, origin: int | None, marks: list[Marked], end: bool) -> int:
     """A ``--from``/``--to`` as a log_time (ns): ISO 8601 with a zone, seconds from
     ``origin`` (the recordings' start), or the first mark with that text."""
     name = "--to" if end else "--from"
-    try:
-        seconds = float(text)
-    except ValueError:
-        seconds = None
+    seconds = _number(text)
     if seconds is not None:
         if not math.isfinite(seconds) or origin is None:
             raise WindowError(f"{name} {text}: not a time in these recordings")
         return origin + round(seconds * 1e9)
-    if text[:4].isdigit() and text[4:5] == "-":
+    if _dated(text):
         try:
             moment = datetime.fromisoformat(text)
         except ValueError:

@@ -188,9 +188,10 @@ def _window(url: str, files: list[Path], options: dict[str, list[str]]
         if not text.isdecimal() or int(text) < 1:
             raise ValueError(f"{url!r}: trial must be a number from 1, not {text!r}")
         trial = int(text)
-    described = catalogue(files)
+    asked = Asked(last("from"), last("to"), between, trial)
+    described = catalogue(files, whole=asked.marked)
     try:
-        found = windows(Asked(last("from"), last("to"), between, trial), described)
+        found = windows(asked, described)
     except WindowError as error:
         raise ValueError(f"{url!r}: {error}") from None
     if len(found) > 1:
