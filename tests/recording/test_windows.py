@@ -248,3 +248,17 @@ def test_a_file_cut_short_given_twice_is_exported_once(tmp_path: Path) -> None:
     assert column(out / "11_accel_angrate.csv", "host_time") == host_times(
         whole, "gx2/11/accel_angrate")
     assert f"dropped {len(whole):,} duplicate messages" in ran.stdout
+
+
+def test_the_catalogue_lists_the_configured_record_directory(recordings: Path,
+                                                             tmp_path: Path) -> None:
+    config = tmp_path / "nodes.yaml"
+    config.write_text("base_station: {port: 'sim://'}\nnodes: [{address: 11}]\n"
+                      f"record: {{directory: '{recordings}'}}\n")
+    ran = gx2ctl("--config", str(config), "recordings", "--json")
+    assert ran.status == 0, ran.stderr
+    assert [f["path"] for f in json.loads(ran.stdout)["files"]] == [
+        str(p) for p in sorted(recordings.iterdir())]
+    config.write_text("base_station: {port: 'sim://'}\nnodes: [{address: 11}]\n")
+    ran = gx2ctl("--config", str(config), "recordings")
+    assert ran.status == 2 and "does not record" in ran.stderr, ran.stderr
