@@ -28,7 +28,7 @@ from .files import (
     RecordingError,
     unreadable,
 )
-from .index import FileIndex, channel_of, parse
+from .index import ChunkSpan, FileIndex, channel_of, parse
 from .reports import FileReport, Loss, Reading
 
 # --- reading --------------------------------------------------------------------------------
@@ -266,7 +266,8 @@ class _Walk:
                     Opcode.CHUNK, length) and chunk.offset + chunk.length <= end):
                 found = self._chunk(self._at(chunk.offset + RECORD_HEAD.size, length))
             if found is None:
-                self._lost(chunk.offset, chunk.length, chunk=True)
+                loss = self._lost(chunk.offset, chunk.length, chunk=True)
+                loss.messages = self._indexed_count(chunk, ids)
                 continue
             low, high = self._span or (0, 2 ** 64)
             for channel, log_time, publish_time, data in found:
@@ -276,6 +277,28 @@ class _Walk:
                 if entry is not None:
                     yield entry
         self._report.whole = True
+
+    def _indexed_count(self, chunk: ChunkSpan, ids: frozenset[int] | None) -> int | None:
+        """The messages a damaged chunk held in the span (of the wanted channels), from
+        its message indexes (written after it, each a log_time and an offset per
+        message); None if one of them does not read."""
+        low, high = self._span or (0, 2 ** 64)
+        count = 0
+        for channel, offset in _INDEX_OFFSET.iter_unpack(chunk.offsets):
+            if ids is not None and channel not in ids:
+                continue
+            head = self._at(offset, _INDEX_HEAD.size)
+            if len(head) < _INDEX_HEAD.size:
+                return None
+            opcode, length, indexed, width = _INDEX_HEAD.unpack(head)
+            if opcode != Opcode.MESSAGE_INDEX or indexed != channel or width + 6 != length:
+                return None
+            entries = self._at(offset + _INDEX_HEAD.size, width)
+            if len(entries) != width or width % 16:
+                return None
+            count += sum(low <= log_time < high
+                         for log_time, _ in struct.iter_unpack("<QQ", entries))
+        return count
 
     # The footer's summary start is only a hint: a flipped bit or a stray write there
     # would otherwise end the data section wherever it points, and every chunk after
@@ -489,6 +512,10 @@ class _Walk:
 
 
 _OPCODES = frozenset(int(opcode) for opcode in Opcode)
+_INDEX_OFFSET = struct.Struct("<HQ")
+"""A chunk index's entry: a channel, and where that channel's message index is."""
+_INDEX_HEAD = struct.Struct("<BQHI")
+"""A message index record's head: opcode, length, channel, its entries' byte length."""
 _DATA_END_BYTES = RECORD_HEAD.size + 4
 """A data end record: its head and a CRC."""
 
