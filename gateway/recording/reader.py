@@ -217,7 +217,6 @@ class _Walk:
                 continue
             if opcode == Opcode.CHUNK:
                 self._passed = None
-            if opcode == Opcode.CHUNK:
                 found = self._chunk(self._at(at + RECORD_HEAD.size, length))
                 if found is None:
                     at = self._damaged_chunk(at, after, end)
