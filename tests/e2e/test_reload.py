@@ -13,10 +13,11 @@ from itertools import pairwise
 import yaml
 
 from gateway.sim.node import NodeSettings
+from gateway.sim.physics import Motion
 from tests.e2e.test_recording import node_records, recorded
 from tests.helpers.ports import free_port
-from tests.helpers.processes import gx2ctl
-from tests.helpers.simulated import continuous
+from tests.helpers.processes import Running, gx2ctl
+from tests.helpers.simulated import continuous, received
 from tests.helpers.waiting import wait_for
 
 DIVIDER = 512
@@ -143,3 +144,29 @@ def test_a_bad_reload_keeps_the_running_configuration_and_says_so_in_one_line(
                                       "not_stopped": []}
     wait_for(lambda: continuous(sim, 78) == 0xC2, 10, "78 armed with its new stream")
     assert continuous(sim, 76) == 0xC2
+
+
+def test_a_reload_waits_for_a_capture_on_a_node_it_removes_and_never_for_another(
+        simulator, gateway):
+    sim = simulator(*(NodeSettings(a, divider=DIVIDER, motion=Motion(yaw_rate=0.0))
+                      for a in (76, 77)))
+    gw = gateway(sim.path, [KEPT, {"address": 77, "stream": "euler"}])
+    gw.wait_streaming(76, 77)
+    config = str(gw.path)
+    long = Running("gx2ctl", "--config", config, "bias", "capture", "76", "--ms", "8000")
+    short = Running("gx2ctl", "--config", config, "bias", "capture", "77", "--ms", "2000")
+    try:
+        wait_for(lambda: {n["node"]: n["state"] for n in gw.status()["nodes"]}
+                 == {76: "busy", 77: "busy"}, 10, "both captures under way")
+        rewrite(gw, nodes=[KEPT])
+        ran = gx2ctl("--config", config, "--timeout", "10", "reload")
+        assert ran.status == 0 and ran.stdout.splitlines() == ["removed: 77"], ran
+        assert long.proc.poll() is None, "the reload waited for another node's capture"
+        assert short.finish(10) == 0, short.stderr  # (ended whole before 77 was removed)
+        assert long.finish(15) == 0, long.stderr
+    finally:
+        long.kill()
+        short.kill()
+    assert addresses(gw) == {76}
+    assert continuous(sim, 77) == 0 and continuous(sim, 76) == 0xC2
+    assert [c.arguments["sampling_time"] for c in received(sim, 76, 0xCD)] == [8000]
