@@ -88,7 +88,10 @@ class Operations:
         try:
             return await HANDLERS[op](self, request)
         finally:
-            self._running.subtract(named)
+            for address in named:
+                self._running[address] -= 1
+                if not self._running[address]:
+                    del self._running[address]
             for event in self._waiting:
                 event.set()
 

@@ -156,9 +156,11 @@ class Reloader:
         task.add_done_callback(self._done)
 
     def _done(self, task: asyncio.Task[dict[str, Any]]) -> None:
+        """A reload ended: a refusal is logged already; a bug is raised here, where
+        the loop logs it (its caller, if any, has it too)."""
         self._tasks.discard(task)
         if not task.cancelled() and not isinstance(task.exception(), (Invalid, Refused)):
-            task.result()  # (a bug: raised here, so the loop logs it)
+            task.result()
 
     async def reload(self) -> dict[str, Any]:
         """Reload, to the end even if the caller gives up: a reload half applied
@@ -166,7 +168,7 @@ class Reloader:
         file does not check) or Refused (it needs a restart), logged in one line."""
         task = asyncio.get_running_loop().create_task(self._reload())
         self._tasks.add(task)
-        task.add_done_callback(self._tasks.discard)
+        task.add_done_callback(self._done)
         return await asyncio.shield(task)
 
     def close(self) -> None:
