@@ -268,6 +268,8 @@ class Supervisor:
         if self.link_up:
             node.link_back()
             self._pursue(node)
+        else:
+            node.link_lost()
 
     def rearm(self, node: Node) -> None:
         """A node whose configured stream a reload changed: it pursues the new one."""
