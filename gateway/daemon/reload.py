@@ -151,9 +151,19 @@ class Reloader:
 
     def soon(self) -> None:
         """SIGHUP: reload in the background (its outcome is logged)."""
-        task = asyncio.get_running_loop().create_task(self.reload())
+        self._start()
+
+    async def reload(self) -> dict[str, Any]:
+        """Reload, to the end even if the caller gives up: a reload half applied
+        would leave a configuration the file never held. What changed, or Invalid (the
+        file does not check) or Refused (it needs a restart), logged in one line."""
+        return await asyncio.shield(self._start())
+
+    def _start(self) -> asyncio.Task[dict[str, Any]]:
+        task = asyncio.get_running_loop().create_task(self._reload())
         self._tasks.add(task)
         task.add_done_callback(self._done)
+        return task
 
     def _done(self, task: asyncio.Task[dict[str, Any]]) -> None:
         """A reload ended: a refusal is logged already; a bug is raised here, where
@@ -161,15 +171,6 @@ class Reloader:
         self._tasks.discard(task)
         if not task.cancelled() and not isinstance(task.exception(), (Invalid, Refused)):
             task.result()
-
-    async def reload(self) -> dict[str, Any]:
-        """Reload, to the end even if the caller gives up: a reload half applied
-        would leave a configuration the file never held. What changed, or Invalid (the
-        file does not check) or Refused (it needs a restart), logged in one line."""
-        task = asyncio.get_running_loop().create_task(self._reload())
-        self._tasks.add(task)
-        task.add_done_callback(self._done)
-        return await asyncio.shield(task)
 
     def close(self) -> None:
         for task in list(self._tasks):
