@@ -273,6 +273,17 @@ class Health:
                         verdict.level, f": {'; '.join(verdict.reasons)}"
                         if verdict.reasons else "")
 
+    def add(self, node: Node) -> None:
+        """A node added by a reload: judged from now on."""
+        self.nodes.append(node)
+        self._windows[node.address] = Window(self.limits.window_s)
+
+    def remove(self, address: int) -> None:
+        """A node removed by a reload: forgotten, its window and its verdict."""
+        self.nodes = [node for node in self.nodes if node.address != address]
+        self._windows.pop(address, None)
+        self._verdicts.pop(address, None)
+
     def recent(self, node: Node, now: float) -> Recent:
         return self._windows[node.address].recent(node, now)
 

@@ -107,7 +107,7 @@ def station_link(station: Station, monotonic: float) -> dict[str, Any]:
             "retries": scheduler.stats.retries,
             "failures": scheduler.stats.failures,
             "unexpected_answers": scheduler.stats.unexpected,
-            "nodes": list(station.nodes)}
+            "nodes": station.configured}
 
 
 def replay_status(links: list[Any]) -> dict[str, Any] | None:
