@@ -88,7 +88,8 @@ def add_commands(commands: Any) -> None:
         "record directory of the gateway's --config, else the gateway's default record "
         "directory. Exit 1 if a file is damaged, 2 if none is a recording.")
     catalogue.add_argument("paths", nargs="*", metavar="DIR | FILE.mcap")
-    catalogue.add_argument("--json", action="store_true",
+    # (SUPPRESS: given before the command, as in ``gx2ctl --json status``, it holds too)
+    catalogue.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
                            help='one line: {"files": [{"path", "start", "end", ...}]}')
 
 

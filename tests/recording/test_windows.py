@@ -264,3 +264,11 @@ def test_the_catalogue_lists_the_configured_record_directory(recordings: Path,
     config.write_text("base_station: {port: 'sim://'}\nnodes: [{address: 11}]\n")
     ran = gx2ctl("--config", str(config), "recordings")
     assert ran.status == 2 and "does not record" in ran.stderr, ran.stderr
+
+
+def test_json_before_the_command_is_json_too(recordings: Path) -> None:
+    """``gx2ctl --json recordings``, as ``gx2ctl --json status`` is written."""
+    before, after = (gx2ctl(*args) for args in (("--json", "recordings", str(recordings)),
+                                                ("recordings", "--json", str(recordings))))
+    assert before.status == after.status == 0, (before.stderr, after.stderr)
+    assert json.loads(before.stdout) == json.loads(after.stdout)
