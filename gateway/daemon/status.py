@@ -66,6 +66,7 @@ def report(gateway: Reported) -> dict[str, Any]:
                    "by_record": published.get(node.address, {})}
                   for node in gateway.nodes.values()],
         "replay": replay_status([s.link for s in gateway.stations]),
+        "outputs": gateway.outputs.guard_status(),
         **outputs_status(gateway.outputs),
     }
 
@@ -106,7 +107,7 @@ def station_link(station: Station, monotonic: float) -> dict[str, Any]:
             "retries": scheduler.stats.retries,
             "failures": scheduler.stats.failures,
             "unexpected_answers": scheduler.stats.unexpected,
-            "nodes": list(station.nodes)}
+            "nodes": station.configured}
 
 
 def replay_status(links: list[Any]) -> dict[str, Any] | None:
