@@ -5,17 +5,21 @@ decoder cuts it into events, and each reply record is decoded, tallied by its no
 (seq, device time, losses), published, shown to the supervisor (is the node doing what
 it should?) and handed to the scheduler (is anyone waiting for it?), in that order and
 without climbing back up. ACKs, NACKs and ping answers go to the scheduler; a
-discovery packet to the supervisor.
+discovery packet to the supervisor. A record from an address not configured here is
+counted, and handed to whoever listens to that address (a scan reading a node it
+found): the configured nodes' records never pay for it.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+from collections.abc import Callable
 
 from aspp import Ack, Decoder, Event, Frame, Nack, PingOk, Reply, decode
 from aspp.errors import RecordError
 from aspp.frame import HEADER_SIZE
+from aspp.records import Record
 from aspp.timing import BITS_PER_BYTE
 
 from .nodes import Delivery, Node
@@ -43,6 +47,9 @@ class Reader:
         self._pending_read: tuple[float, float] | None = None
         """When the read that left bytes in the decoder was made."""
         self.unknown_node_packets = 0
+        self.listeners: dict[int, Callable[[Reply, Record], None]] = {}
+        """Addresses not configured here that an op listens to: each valid record from
+        one is handed to its listener (:func:`gateway.daemon.scanning`)."""
         self.bad_records = 0
         self._idle: asyncio.TimerHandle | None = None
 
@@ -106,6 +113,8 @@ class Reader:
         node = self.nodes.get(event.node)
         if node is None:
             self.unknown_node_packets += 1
+            if self.listeners:
+                self._to_listener(event)
             return
         raw = event.raw
         try:
@@ -121,3 +130,16 @@ class Reader:
             self.supervisor.after_record(node, record)
         if self.scheduler.expects(node.address, record.spec.code):
             self.scheduler.on_reply(node.address, record.spec.code, Delivery(record, payload))
+
+    def _to_listener(self, event: Reply) -> None:
+        """A record from an address not configured here, to the op listening to it."""
+        listener = self.listeners.get(event.node)
+        if listener is None:
+            return
+        try:
+            record = decode(event.payload)
+        except RecordError as error:
+            self.bad_records += 1
+            log.debug("node %d (not configured): %s", event.node, error)
+            return
+        listener(event, record)
