@@ -154,7 +154,7 @@ def test_to_pandas_without_pandas_says_how_to_install_it(recordings: Path) -> No
 def test_paths_and_windows_that_cannot_be_read_say_why_in_a_line(recordings: Path,
                                                                   tmp_path: Path) -> None:
     (tmp_path / "empty").mkdir()
-    with pytest.raises(RecordingError, match="no .mcap files in this directory"):
+    with pytest.raises(RecordingError, match=r"no \.mcap files in this directory"):
         Recording(tmp_path / "empty")
     with pytest.raises(WindowError, match=r"--from knock: no such mark \(marks: 'start', "
                                           r"'stop', 'event'\)"):
