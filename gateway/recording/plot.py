@@ -58,6 +58,9 @@ SKIPPED = frozenset(("timer", "seq", "lqi", "rssi", "node", "command", "lost_bef
 EULER = ("roll", "pitch", "yaw")
 NAN = float("nan")
 MARK_COLOUR = "tab:red"
+FORMATS = {".png": "Description", ".pdf": "Subject"}
+"""What a picture's name may end with (its format), and the metadata key its marks go
+under (its title goes under ``Title`` in both)."""
 
 
 @dataclass
@@ -171,9 +174,13 @@ def count(payloads: list[dict]) -> Counts:
 
 
 def picture(node: int, record: str, payloads: list[dict], name: str | None,
-            marks: list[Mark] | None = None, counts: Counts | None = None) -> Picture:
+            marks: list[Mark] | None = None, counts: Counts | None = None,
+            window: bool = False) -> Picture:
     """The panels, title and marks for ``payloads`` (one node's records of one kind),
-    whose losses are ``counts`` (by default counted from the payloads alone)."""
+    whose losses are ``counts`` (by default counted from the payloads alone). The marks
+    drawn are those within the samples' time, or, for a ``window`` of the recordings
+    (the marks given being the window's), all of them: a trial's closing mark comes
+    after its last sample."""
     counts = counts or count(payloads)
     clock = "time" if any(isinstance(p.get("time"), (int, float)) for p in payloads) \
         else "device_time"
@@ -202,7 +209,7 @@ def picture(node: int, record: str, payloads: list[dict], name: str | None,
     when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(start)) if clock == "time" \
         else "the node's timer"
     shown = [(mark.time - start, mark.text) for mark in marks or ()
-             if clock == "time" and x[0] <= mark.time - start <= x[-1]]
+             if clock == "time" and (window or x[0] <= mark.time - start <= x[-1])]
     return Picture(broken(x, panels, gaps), panels, title,
                    f"seconds from {when} ({clock})", shown, summary)
 
@@ -382,11 +389,28 @@ def _fit(label: Any, bottom: float) -> None:
     label.set_text(text[:low].rstrip() + ELLIPSIS)
 
 
+def unwritable(out: Path) -> str:
+    """Why a plot cannot be written to ``out`` (its name's ending); empty if it can."""
+    if out.suffix.lower() in FORMATS:
+        return ""
+    return f"{out}: a plot is written as {' or '.join(FORMATS)} (chosen by the name's ending)"
+
+
 def draw(image: Picture, out: Path) -> None:
-    """Render ``image`` to a PNG at ``out``."""
+    """Render ``image`` to ``out``, a PNG or a PDF as its name ends (ValueError for
+    another ending); the title and the marks go in the file's metadata too, so the
+    file says what it shows without being looked at."""
+    problem = unwritable(out)
+    if problem:
+        raise ValueError(problem)
+    key = FORMATS[out.suffix.lower()]
+    metadata = {"Title": " · ".join(image.title.splitlines())}
+    if image.marks:
+        metadata[key] = "marks: " + ", ".join(f"{text} at {at:.3f} s"
+                                              for at, text in image.marks)
     figure = figure_of(image)
     from matplotlib import pyplot
     try:
-        figure.savefig(out, dpi=100)
+        figure.savefig(out, dpi=100, metadata=metadata)
     finally:
         pyplot.close(figure)
