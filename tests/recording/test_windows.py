@@ -159,6 +159,35 @@ def test_trials_between_marks_each_in_their_folder(recordings: Path, tmp_path: P
     assert [p.name for p in second.iterdir()] == [folders[1]]
 
 
+def test_a_middle_file_deleted_leaves_windows_of_exactly_what_is_left(recordings: Path,
+                                                                       tmp_path: Path) -> None:
+    # seconds 20 to 40 gone (deleted by hand, as a user tidying up would): the second
+    # trial's start with them
+    files = sorted(recordings.iterdir())
+    files[1].unlink()
+    left = [files[0], files[2]]
+    listed = gx2ctl("recordings", "--json", str(recordings))
+    assert [f["path"] for f in json.loads(listed.stdout)["files"]] == list(map(str, left))
+    out = tmp_path / "out"
+    ran = gx2ctl("export", str(recordings), "--out", str(out), "--from", "10", "--to", "50")
+    assert ran.status == 0 and ran.stderr == "", ran.stderr
+    inside = messages(left, T0 + 10, T0 + 50)
+    assert column(out / "11_accel_angrate.csv", "host_time") == host_times(
+        inside, "gx2/11/accel_angrate")
+    assert len(host_times(inside, "gx2/11/accel_angrate")) == 20 * RATE
+    assert column(out / "marks.csv", "time") == [T0 + 12.0, T0 + 45.0]
+    trials = tmp_path / "trials"
+    ran = gx2ctl("export", str(recordings), "--out", str(trials), "--between-marks",
+                 "start", "stop")
+    assert ran.status == 0, ran.stderr
+    assert [p.name for p in trials.iterdir()] == ["trial-1_2026-11-18T11-06-45Z"]
+    # a window inside the hole holds nothing: said in one line
+    empty = gx2ctl("export", str(recordings), "--out", str(tmp_path / "none"), "--from",
+                   "25", "--to", "35")
+    assert empty.status == 2 and len(empty.stderr.strip().splitlines()) == 1, empty.stderr
+    assert "in that window" in empty.stderr
+
+
 def test_a_message_met_twice_is_exported_once(recordings: Path, tmp_path: Path) -> None:
     paths = sorted(recordings.iterdir())
     copy = tmp_path / "copy.mcap"
