@@ -177,8 +177,9 @@ def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
 
 def run_plot(args: argparse.Namespace) -> int:
     from gateway.recording.export import MissingExtra
+    from gateway.recording.figure import draw, unwritable
     from gateway.recording.files import RecordingError
-    from gateway.recording.plot import draw, picture, records_of, unwritable
+    from gateway.recording.plot import picture, records_of
     from gateway.recording.reports import Reading
     from gateway.recording.window import Reader
     if args.out and unwritable(Path(args.out)):
