@@ -30,7 +30,7 @@ from gateway.recording.catalogue import catalogue
 from gateway.recording.files import MARK, STATUS, RecordingError, usable_files
 from gateway.recording.reader import Entry, Mark, read_all
 from gateway.recording.reports import Reading
-from gateway.recording.window import Asked, Reader, Window, windows
+from gateway.recording.window import Asked, Reader, Window, touched, windows
 
 from .messages import Event, Malformed, Numbering, Status, nan_for_null
 
@@ -48,8 +48,8 @@ class Recording:
     ``between_marks=(START, STOP)`` (every trial; ``trial=N`` the Nth, 1 the first).
 
     RecordingError if no path is a recording; WindowError (a ValueError) for a window
-    that cannot be taken; both say why in one line, as gx2ctl does. Iterating reads the
-    files again each time.
+    that cannot be taken; both say why in one line, as gx2ctl does. The files are those
+    found when it is made; iterating reads them again each time.
     """
 
     def __init__(self, paths: str | Path | Iterable[str | Path], nodes: Iterable[int] = (),
@@ -132,8 +132,8 @@ class Recording:
         experiment), in time order."""
         found = []
         for window in self.windows:
-            for entry in read_all([d.path for d in self.files], Reading(), [MARK],
-                                  window.span):
+            for entry in read_all([d.path for d in touched(self.files, window)], Reading(),
+                                  [MARK], window.span):
                 mark = Mark.of(entry)
                 if not self.nodes or not mark.nodes or self.nodes & set(mark.nodes):
                     found.append(mark)
