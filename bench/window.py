@@ -1,5 +1,7 @@
 #!/usr/bin/env python3
-"""One minute out of a day of recordings: how long ``gx2ctl export`` takes (issue 34).
+"""One minute out of a day of recordings: how long ``gx2ctl export`` takes, and reading
+it through the subscriber library (``gateway.client.Recording``, and its
+``to_pandas``) (issue 34).
 
     .venv/bin/python bench/window.py --dir /tmp/gx2-day [--hours 24] [--runs 5]
 
@@ -14,7 +16,9 @@ Timed: the installed console script, ``gx2ctl export DIR --from X --to X+60s --o
 OUT`` with X half an hour into the middle file (a minute inside one file), and again
 with X a few seconds before an hour (a minute across two files); the wall time of each
 run, from just before the process starts until it exits, as the median and the range
-of ``--runs`` runs. The serial reads a gateway records too are left out: they would
+of ``--runs`` runs. Then the minute inside one file read in this process through
+``Recording`` (iterated), and made a DataFrame (``to_pandas``, pandas imported before
+timing), if pandas is installed. The serial reads a gateway records too are left out: they would
 double the files' size, not the minute's chunks (a window read seeks past the rest).
 """
 
@@ -108,6 +112,27 @@ def timed(gx2ctl: str, folder: Path, start: float, runs: int) -> list[float]:
     return walls
 
 
+def library(folder: Path, start: float, runs: int) -> tuple[list[float], list[float]]:
+    """Seconds to iterate the minute through Recording, and to make its DataFrame."""
+    from gateway.client import Recording
+    try:
+        import pandas  # (imported before timing: its import is not the minute's)
+    except ImportError:
+        pandas = None
+    iterated, framed = [], []
+    for _ in range(runs):
+        began = time.perf_counter()
+        count = sum(1 for _ in Recording(folder, start=iso(start), stop=iso(start + 60)))
+        iterated.append(time.perf_counter() - began)
+        if count != 60 * RATE * len(NODES):
+            sys.exit(f"expected {60 * RATE * len(NODES)} messages, Recording gave {count}")
+        if pandas is not None:
+            began = time.perf_counter()
+            Recording(folder, start=iso(start), stop=iso(start + 60)).to_pandas()
+            framed.append(time.perf_counter() - began)
+    return iterated, framed
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dir", type=Path, required=True,
@@ -124,8 +149,16 @@ def main() -> None:
     for what, start in [("inside one file", middle + 1800),
                         ("across two files", middle - 30)]:
         walls = timed(gx2ctl, args.dir, start, args.runs)
-        print(f"export of one minute {what}: median {statistics.median(walls):.2f} s "
-              f"(min {min(walls):.2f}, max {max(walls):.2f}, {len(walls)} runs)")
+        print(f"export of one minute {what}: {summary(walls)}")
+    iterated, framed = library(args.dir, middle + 1800, args.runs)
+    print(f"Recording of that minute inside one file, iterated: {summary(iterated)}")
+    if framed:
+        print(f"Recording of that minute, to_pandas: {summary(framed)}")
+
+
+def summary(walls: list[float]) -> str:
+    return (f"median {statistics.median(walls):.2f} s (min {min(walls):.2f}, "
+            f"max {max(walls):.2f}, {len(walls)} runs)")
 
 
 if __name__ == "__main__":

@@ -91,7 +91,8 @@ def named_in_the_map() -> dict[str, set[str]]:
     return named
 
 
-@pytest.mark.parametrize("directory", ["aspp/", "gateway/", "gateway/common/",
+@pytest.mark.parametrize("directory", ["aspp/", "gateway/", "gateway/client/",
+                                       "gateway/common/",
                                        "gateway/daemon/", "gateway/daemon/station/",
                                        "gateway/daemon/outputs/", "gateway/ctl/",
                                        "gateway/recording/", "gateway/sim/", "bench/"])

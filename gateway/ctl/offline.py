@@ -67,7 +67,7 @@ def add_commands(commands: Any) -> None:
                           "gx2-gateway[parquet]), or mat: MATLAB (needs gx2-gateway[mat])")
     add_window_options(exporter)
     plotter = commands.add_parser(
-        "plot", help="draw a node's recorded stream to a PNG",
+        "plot", help="draw a node's recorded stream to a PNG or a PDF",
         description="One panel per field group against time, units on the axes, the "
         "node's name, rate and losses in the title, gaps left as gaps, marks as "
         "labelled vertical lines. FILE may be a directory of recordings. Needs "
@@ -76,8 +76,9 @@ def add_commands(commands: Any) -> None:
     plotter.add_argument("node", type=node_address, metavar="NODE")
     plotter.add_argument("--record", metavar="R",
                          help="the record to draw (default: the one the node has most of)")
-    plotter.add_argument("--out", metavar="FILE.png",
-                         help="default: <address>_<record>.png here")
+    plotter.add_argument("--out", metavar="FILE.png|FILE.pdf",
+                         help="a PNG or a PDF, by its ending (default: "
+                         "<address>_<record>.png here)")
     add_window_options(plotter, nodes=False)
     catalogue = commands.add_parser(
         "recordings", help="list what recordings hold, from their summaries",
@@ -177,10 +178,13 @@ def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
 
 def run_plot(args: argparse.Namespace) -> int:
     from gateway.recording.export import MissingExtra
+    from gateway.recording.figure import draw, unwritable
     from gateway.recording.files import RecordingError
-    from gateway.recording.plot import draw, picture, records_of
+    from gateway.recording.plot import picture, records_of
     from gateway.recording.reports import Reading
     from gateway.recording.window import Reader
+    if args.out and unwritable(Path(args.out)):
+        raise CtlError(f"--out {unwritable(Path(args.out))}", Exit.USAGE)
     paths = _files([args.file])
     files, chosen = _windows(args, paths)
     if len(chosen) > 1:
@@ -191,7 +195,7 @@ def run_plot(args: argparse.Namespace) -> int:
         found = records_of(paths, args.node, args.record, reading,
                            Reader(files, reading).entries(chosen[0]))
         image = picture(args.node, found.record, found.payloads, found.name, found.marks,
-                        found.counts)
+                        found.counts, window=chosen[0].span is not None)
     except (ValueError, RecordingError) as error:
         _report(reading)
         raise CtlError(str(error), Exit.USAGE) from None

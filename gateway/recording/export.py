@@ -91,7 +91,7 @@ def _shape(value: Any) -> str:
     return "scalar"
 
 
-def _element(value: Any, index: int) -> Any:
+def element(value: Any, index: int) -> Any:
     """Element ``index`` of a vector, a matrix (row-major) or a list; None if absent."""
     if index < 0:
         return None if isinstance(value, (list, dict)) else value
@@ -122,7 +122,7 @@ class Table:
 
     def row(self, payload: Mapping[str, Any]) -> list[Any]:
         return [*(payload.get(name) for name in LEADING),
-                *(_element(payload.get(name), index) for _, name, index in self.fields)]
+                *(element(payload.get(name), index) for _, name, index in self.fields)]
 
 
 class Writer:

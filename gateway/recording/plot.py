@@ -17,10 +17,11 @@ gives the rate, and the samples lost by the radio (the timer's steps) and by the
 gateway (``seq``) apart, as counts and shares, and those missed while the node's base
 station was down (the recorded status messages) apart again. Each panel's legend is beside it, off
 the data. Marks (``gx2ctl mark``) of the node or of the whole experiment, made within
-the samples' time, are vertical lines labelled with their text, inside the top panel
+the samples' time (or within the window read: a trial's closing mark comes after its
+last sample), are vertical lines labelled with their text, inside the top panel
 (shortened with an ellipsis where it is too long for it), none against
-``device_time`` (a mark's time is UNIX time). matplotlib is an optional extra,
-imported only here.
+``device_time`` (a mark's time is UNIX time). How it is drawn, to a PNG or a PDF:
+:mod:`.figure`.
 """
 
 from __future__ import annotations
@@ -33,31 +34,25 @@ from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from aspp.orientation import euler_from_matrix
 from aspp.records import BY_NAME
 from gateway.common.topics import parse
 
-from .export import MissingExtra
 from .files import MARK, STATUS
 from .losses import Counted, Losses, Stream
 from .reader import Entry, Mark, read_all
 from .reports import Reading
 from .summary import Summary
 
-if TYPE_CHECKING:
-    from matplotlib.figure import Figure
-
 GAP_FACTOR = 1.5
 HALF_TURN = 180.0
 """Degrees an angle may step between two samples before the step is taken for a wrap."""
-INSTALL_PLOT = "pip install 'gx2-gateway[plot]'"
 SKIPPED = frozenset(("timer", "seq", "lqi", "rssi", "node", "command", "lost_before", "time",
                      "host_time", "device_time"))
 EULER = ("roll", "pitch", "yaw")
 NAN = float("nan")
-MARK_COLOUR = "tab:red"
 
 
 @dataclass
@@ -171,9 +166,13 @@ def count(payloads: list[dict]) -> Counts:
 
 
 def picture(node: int, record: str, payloads: list[dict], name: str | None,
-            marks: list[Mark] | None = None, counts: Counts | None = None) -> Picture:
+            marks: list[Mark] | None = None, counts: Counts | None = None,
+            window: bool = False) -> Picture:
     """The panels, title and marks for ``payloads`` (one node's records of one kind),
-    whose losses are ``counts`` (by default counted from the payloads alone)."""
+    whose losses are ``counts`` (by default counted from the payloads alone). The marks
+    drawn are those within the samples' time, or, for a ``window`` of the recordings
+    (the marks given being the window's), all of them: a trial's closing mark comes
+    after its last sample."""
     counts = counts or count(payloads)
     clock = "time" if any(isinstance(p.get("time"), (int, float)) for p in payloads) \
         else "device_time"
@@ -202,7 +201,7 @@ def picture(node: int, record: str, payloads: list[dict], name: str | None,
     when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(start)) if clock == "time" \
         else "the node's timer"
     shown = [(mark.time - start, mark.text) for mark in marks or ()
-             if clock == "time" and x[0] <= mark.time - start <= x[-1]]
+             if clock == "time" and (window or x[0] <= mark.time - start <= x[-1])]
     return Picture(broken(x, panels, gaps), panels, title,
                    f"seconds from {when} ({clock})", shown, summary)
 
@@ -309,84 +308,3 @@ def _panels(record: str, rows: list[dict]) -> list[Series]:
         panel.lines[name] = [_number(p.get(name)) for p in rows]
     return [p for p in panels if any(not math.isnan(v) for vs in p.lines.values()
                                      for v in vs)]
-
-
-def figure_of(image: Picture) -> Figure:
-    """The figure of ``image``: a panel a row, each legend to the right of its panel
-    (constrained layout makes room for it), the marks, the title."""
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        from matplotlib import pyplot
-    except ImportError:
-        raise MissingExtra(f"plotting needs matplotlib: {INSTALL_PLOT}") from None
-    count = max(len(image.panels), 1)
-    figure, axes = pyplot.subplots(count, 1, sharex=True, squeeze=False, layout="constrained",
-                                   figsize=(12, 2.4 * count + 1.4))
-    for axis, panel in zip(axes[:, 0], image.panels, strict=False):
-        for label, values in panel.lines.items():
-            axis.plot(image.x, values, linewidth=0.8, label=label)
-        axis.set_ylabel(f"{panel.title}\n({panel.unit})" if panel.unit else panel.title)
-        axis.grid(True, alpha=0.3)
-        axis.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0,
-                    fontsize="small")
-        for at, _ in image.marks:
-            axis.axvline(at, color=MARK_COLOUR, linewidth=1.0, linestyle="--")
-    top = axes[0, 0]
-    middle = (image.x[0] + image.x[-1]) / 2 if image.x else 0.0
-    labels = []
-    for at, text in image.marks:
-        # the label once, at the top panel's top edge (x in data, y in the axes' own
-        # 0..1), so it stays put whatever the panel's values; on the line's inner side
-        # (left of a mark in the right half), so it does not run past the panel's edge
-        right = at <= middle
-        label = top.annotate(text, (at, 1.0), xycoords=("data", "axes fraction"),
-                             xytext=(2 if right else -2, -2), textcoords="offset points",
-                             rotation=90, va="top", ha="left" if right else "right",
-                             fontsize="small", color=MARK_COLOUR)
-        label.set_in_layout(False)  # (else a long one squashes the panels to make room)
-        labels.append(label)
-    axes[-1, 0].set_xlabel(image.x_label)
-    figure.suptitle(image.title)
-    if labels:
-        figure.draw_without_rendering()  # the layout (everything else in), whose
-        bottom = top.get_window_extent().y0  # panel the labels are fitted into
-        for label in labels:
-            _fit(label, bottom)
-    return figure
-
-
-ELLIPSIS = "\u2026"
-
-
-def _fit(label: Any, bottom: float) -> None:
-    """Shorten a mark's label (hung from the top panel's top edge) with an ellipsis
-    until it ends above ``bottom``, the panel's lower edge (display units)."""
-    text = label.get_text()
-
-    def fits(shown: str) -> bool:
-        label.set_text(shown)
-        return label.get_window_extent().y0 >= bottom
-
-    if fits(text):
-        return
-    # the longest prefix that fits with the ellipsis: found by halving (fitting is
-    # monotone in the prefix's length)
-    low, high = 0, len(text)
-    while low < high:
-        half = (low + high + 1) // 2
-        if fits(text[:half].rstrip() + ELLIPSIS):
-            low = half
-        else:
-            high = half - 1
-    label.set_text(text[:low].rstrip() + ELLIPSIS)
-
-
-def draw(image: Picture, out: Path) -> None:
-    """Render ``image`` to a PNG at ``out``."""
-    figure = figure_of(image)
-    from matplotlib import pyplot
-    try:
-        figure.savefig(out, dpi=100)
-    finally:
-        pyplot.close(figure)

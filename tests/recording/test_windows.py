@@ -16,6 +16,7 @@ from mcap.reader import make_reader
 from gateway.recording.files import MARK
 from gateway.recording.reader import read
 from gateway.recording.reports import Reading
+from gateway.recording.writer import RecordingWriter
 from tests.helpers.processes import gx2ctl
 from tests.helpers.recorded import FILE_SECONDS, RATE, T0, make_file
 
@@ -158,6 +159,35 @@ def test_trials_between_marks_each_in_their_folder(recordings: Path, tmp_path: P
     assert [p.name for p in second.iterdir()] == [folders[1]]
 
 
+def test_a_middle_file_deleted_leaves_windows_of_exactly_what_is_left(recordings: Path,
+                                                                       tmp_path: Path) -> None:
+    # seconds 20 to 40 gone (deleted by hand, as a user tidying up would): the second
+    # trial's start with them
+    files = sorted(recordings.iterdir())
+    files[1].unlink()
+    left = [files[0], files[2]]
+    listed = gx2ctl("recordings", "--json", str(recordings))
+    assert [f["path"] for f in json.loads(listed.stdout)["files"]] == list(map(str, left))
+    out = tmp_path / "out"
+    ran = gx2ctl("export", str(recordings), "--out", str(out), "--from", "10", "--to", "50")
+    assert ran.status == 0 and ran.stderr == "", ran.stderr
+    inside = messages(left, T0 + 10, T0 + 50)
+    assert column(out / "11_accel_angrate.csv", "host_time") == host_times(
+        inside, "gx2/11/accel_angrate")
+    assert len(host_times(inside, "gx2/11/accel_angrate")) == 20 * RATE
+    assert column(out / "marks.csv", "time") == [T0 + 12.0, T0 + 45.0]
+    trials = tmp_path / "trials"
+    ran = gx2ctl("export", str(recordings), "--out", str(trials), "--between-marks",
+                 "start", "stop")
+    assert ran.status == 0, ran.stderr
+    assert [p.name for p in trials.iterdir()] == ["trial-1_2026-11-18T11-06-45Z"]
+    # a window inside the hole holds nothing: said in one line
+    empty = gx2ctl("export", str(recordings), "--out", str(tmp_path / "none"), "--from",
+                   "25", "--to", "35")
+    assert empty.status == 2 and len(empty.stderr.strip().splitlines()) == 1, empty.stderr
+    assert "in that window" in empty.stderr
+
+
 def test_a_message_met_twice_is_exported_once(recordings: Path, tmp_path: Path) -> None:
     paths = sorted(recordings.iterdir())
     copy = tmp_path / "copy.mcap"
@@ -272,3 +302,72 @@ def test_json_before_the_command_is_json_too(recordings: Path) -> None:
                                                 ("recordings", "--json", str(recordings))))
     assert before.status == after.status == 0, (before.stderr, after.stderr)
     assert json.loads(before.stdout) == json.loads(after.stdout)
+
+
+def pdf_info(path: Path, key: str) -> str:
+    """A PDF's document information ``key`` (matplotlib writes it as a literal string
+    in UTF-16 with its byte order mark where it is not ASCII, ``( ) \\`` escaped)."""
+    data = path.read_bytes()
+    at = data.index(b"/" + key.encode() + b" (") + len(key) + 3
+    text = bytearray()
+    while data[at:at + 1] != b")":
+        if data[at:at + 1] == b"\\":
+            at += 1
+            text += {b"n": b"\n", b"r": b"\r"}.get(data[at:at + 1], data[at:at + 1])
+        else:
+            text += data[at:at + 1]
+        at += 1
+    return bytes(text).decode("utf-16" if text[:2] == b"\xfe\xff" else "ascii")
+
+
+@pytest.mark.parametrize("form", ["png", "pdf"])
+def test_plot_of_a_trial_has_its_marks_and_only_its_losses(tmp_path: Path,
+                                                           form: str) -> None:
+    # node 11 at RATE Hz for 30 s; the radio lost samples at 3 s (3 of them) and at
+    # 15 s (1); marks before, inside and after the trial from 10 s to 20 s
+    marks = {5.0: "before", 10.0: "start", 15.2: "knock", 20.0: "stop", 25.0: "after"}
+    lost = {3 * RATE, 3 * RATE + 1, 3 * RATE + 2, 15 * RATE}
+    path = tmp_path / "gx2-20261125T000000.000Z.mcap"
+    with path.open("wb") as output:
+        writer = RecordingWriter(output)
+        seq = 0
+        for k in range(30 * RATE):
+            at = T0 + k / RATE
+            if k / RATE in marks:
+                writer.message(MARK, {"time": at, "host_time": at, "nodes": [],
+                                      "text": marks[k / RATE]})
+            if k in lost:
+                continue
+            seq += 1
+            writer.message("gx2/11/accel_angrate", {
+                "node": 11, "record": "accel_angrate", "command": 0xC2, "seq": seq,
+                "host_time": at, "time": at - 0.002, "device_time": k / RATE,
+                "timer": k * 786_432, "lqi": 200, "rssi": -50, "accel": [0.0, 0.1, -1.0],
+                "ang_rate": [0.1, 0.2, 0.3]})
+        writer.finish()
+    out = tmp_path / f"trial.{form}"
+    ran = gx2ctl("plot", str(path), "11", "--between-marks", "start", "stop", "--out",
+                 str(out))
+    assert ran.status == 0, ran.stderr
+    if form == "png":
+        from PIL import Image
+        assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        text = Image.open(out).text
+        title, described = text["Title"], text["Description"]
+    else:
+        assert out.read_bytes()[:5] == b"%PDF-"
+        title, described = pdf_info(out, "Title"), pdf_info(out, "Subject")
+    # 10 s of samples (and the one with the stop mark), less the one the radio lost
+    # in it; the three lost before it are not this window's
+    assert title == (f"node 11: accel_angrate, {RATE:.1f} Hz, {10 * RATE:,} records · "
+                     f"radio: 1 lost ({1 / (10 * RATE + 1):.2%}) · gateway: 0 lost (0.00%)")
+    assert described == "marks: start at 0.002 s, knock at 5.202 s, stop at 10.002 s"
+
+
+def test_plot_to_another_format_is_one_line_and_exit_2(recordings: Path,
+                                                       tmp_path: Path) -> None:
+    ran = gx2ctl("plot", str(recordings), "11", "--out", str(tmp_path / "trial.svg"))
+    assert ran.status == 2
+    assert ran.stderr.strip() == (f"gx2ctl: --out {tmp_path / 'trial.svg'}: a plot is "
+                                  "written as .png or .pdf (chosen by the name's ending)")
+    assert not (tmp_path / "trial.svg").exists()

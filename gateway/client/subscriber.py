@@ -1,11 +1,4 @@
-"""Subscribing to gx2-gateway from Python: the records of chosen nodes, from one gateway
-or several, with their losses counted.
-
-    from gateway.client import Subscriber
-
-    with Subscriber("tcp://127.0.0.1:5555", nodes=[76], records=["accel_angrate"]) as sub:
-        for message in sub:
-            print(message.node, message.time, message["accel"], message.gap)
+"""The live subscriber: records from one or more gateways' publish endpoints.
 
 Each gateway numbers every node's messages (``seq``, +1 per message), so a gap is
 messages that never reached this subscriber (over ZeroMQ, or on a slow subscriber
@@ -21,87 +14,23 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass, field
-from typing import Any, Literal
+from collections.abc import Callable, Iterable, Iterator
+from typing import Literal
 
 import msgpack
 import zmq
 
 from gateway.common import curve
-from gateway.common.jsontext import json_line
 from gateway.common.protocol import MAX_REPLY_BYTES
 from gateway.common.topics import PREFIX, STATUS_TOPIC, node_prefix, parse
 
-__all__ = ["GatewayError", "Malformed", "Message", "Status", "Subscriber"]
+from .messages import Event, Malformed, Numbering, Status
+
 log = logging.getLogger("gx2.client")
-BOOKKEEPING = frozenset(("node", "record", "command", "seq", "host_time", "time",
-                         "device_time", "lqi", "rssi"))
-"""Keys every record carries besides its own fields."""
 
 
 class GatewayError(Exception):
     """The subscriber cannot be set up (a bad endpoint or key): one line."""
-
-
-class Malformed(Exception):
-    """A message that is not ``[topic, msgpack map]`` of the gateway's shape."""
-
-
-@dataclass(frozen=True, slots=True)
-class Message:
-    """One record of one node, as its gateway published it."""
-
-    gateway: str
-    """The endpoint it came from."""
-    node: int
-    record: str
-    seq: int
-    host_time: float
-    time: float | None
-    """When the node took the sample (UNIX s, host clock); None for an untimed record."""
-    device_time: float | None
-    lqi: int | None
-    rssi: int | None
-    payload: Mapping[str, Any] = field(repr=False)
-    """Everything published, the record's own fields and the keys above."""
-    gap: int = 0
-    """Messages of this node that did not reach this subscriber just before this one."""
-    restarted: bool = False
-    """The first message after the gateway restarted (its ``seq`` began again)."""
-
-    def __getitem__(self, name: str) -> Any:
-        return self.payload[name]
-
-    def __contains__(self, name: object) -> bool:
-        return name in self.payload
-
-    @property
-    def fields(self) -> dict[str, Any]:
-        """The record's own fields (``accel``, ``timer``, ...)."""
-        return {k: v for k, v in self.payload.items() if k not in BOOKKEEPING}
-
-    def json(self) -> str:
-        """The payload as one strict JSON line (NaN as null)."""
-        return json_line(self.payload)
-
-
-@dataclass(frozen=True, slots=True)
-class Status:
-    """The gateway's heartbeat (``gx2/gateway/status``): the map ``gx2ctl status`` shows."""
-
-    gateway: str
-    payload: Mapping[str, Any] = field(repr=False)
-    restarted: bool = False
-    """The gateway started again since its last status."""
-
-    @property
-    def nodes(self) -> list[dict[str, Any]]:
-        nodes = self.payload.get("nodes")
-        return [n for n in nodes if isinstance(n, dict)] if isinstance(nodes, list) else []
-
-
-Event = Message | Status
 
 
 class Subscriber:
@@ -136,11 +65,11 @@ class Subscriber:
         self._next = 0
         """Where the next take starts in ``_order``: the socket after the last one taken from."""
         self._poller = zmq.Poller()
-        self._last_seq: dict[tuple[str, int], int] = {}
-        self._uptime: dict[str, float] = {}
-        self.lost: dict[tuple[str, int], int] = {}
+        self._numbering = Numbering()
+        self.lost = self._numbering.lost
         """Per (gateway, node): messages that never reached this subscriber."""
-        self.restarts: dict[str, int] = dict.fromkeys(self.endpoints, 0)
+        self.restarts = self._numbering.restarts
+        self.restarts.update(dict.fromkeys(self.endpoints, 0))
         self.heard: dict[str, float] = {}
         """Per gateway: when it last published anything (``time.monotonic()``)."""
         self._created = time.monotonic()
@@ -238,50 +167,15 @@ class Subscriber:
             raise Malformed(f"on {topic}: the payload is a {type(payload).__name__}, "
                             "not a map")
         if frames[0] == STATUS_TOPIC:
-            status = Status(endpoint, payload, self._gateway_started(endpoint, payload))
+            status = Status(endpoint, payload, self._numbering.started(endpoint, payload))
             return status if self.yield_status else None
         where = parse(topic)
         if where is None:
             return None  # another topic under gx2/: not a record
         node, record = where
-        seq = payload.get("seq")
-        if not isinstance(seq, int) or isinstance(seq, bool):
-            raise Malformed(f"on {topic}: no integer seq")
-        gap, restarted = self._count(endpoint, node, seq)
-        if (self.nodes and node not in self.nodes) or (self.records
-                                                       and record not in self.records):
-            return None
-        return Message(endpoint, node, record, seq, _number(payload.get("host_time")) or 0.0,
-                       _number(payload.get("time")), _number(payload.get("device_time")),
-                       _integer(payload.get("lqi")), _integer(payload.get("rssi")),
-                       payload, gap, restarted)
-
-    def _count(self, endpoint: str, node: int, seq: int) -> tuple[int, bool]:
-        key = (endpoint, node)
-        last = self._last_seq.get(key)
-        self._last_seq[key] = seq
-        if last is None:
-            return 0, False
-        if seq <= last:  # the gateway's numbering began again
-            return 0, True
-        gap = seq - last - 1
-        if gap:
-            self.lost[key] = self.lost.get(key, 0) + gap
-        return gap, False
-
-    def _gateway_started(self, endpoint: str, payload: Mapping[str, Any]) -> bool:
-        """Whether this status is the first since the gateway started again: its uptime
-        went back (a step of the host clock moves neither)."""
-        gateway = payload.get("gateway")
-        uptime = _number(gateway.get("uptime")) if isinstance(gateway, dict) else None
-        if uptime is None:
-            return False
-        before = self._uptime.get(endpoint)
-        self._uptime[endpoint] = uptime
-        if before is not None and uptime < before:
-            self.restarts[endpoint] += 1
-            return True
-        return False
+        wanted = (not self.nodes or node in self.nodes) and (
+            not self.records or record in self.records)
+        return self._numbering.message(endpoint, node, record, payload, topic, wanted)
 
     def silent_for(self, endpoint: str | None = None) -> float:
         """Seconds since ``endpoint`` (default: the first) last published anything, or
@@ -303,15 +197,6 @@ class Subscriber:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def _number(value: Any) -> float | None:
-    return float(value) if isinstance(value, (int, float)) and not isinstance(
-        value, bool) else None
-
-
-def _integer(value: Any) -> int | None:
-    return value if isinstance(value, int) and not isinstance(value, bool) else None
 
 
 def _log_malformed(endpoint: str, problem: Malformed) -> None:

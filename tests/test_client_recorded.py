@@ -1,0 +1,161 @@
+"""gateway.client's Recording: recordings read back as the live subscriber's messages,
+windows as gx2ctl's, checked against the mcap package's reader; the offline example of
+docs/subscribing.md run as written (its loop the live example's); to_pandas."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from gateway.client import Message, Recording, RecordingError, WindowError, to_pandas
+from gateway.recording.writer import RecordingWriter
+from tests.helpers.recorded import FILE_SECONDS, MARKS, T0, make_file
+
+REPO = Path(__file__).resolve().parents[1]
+DOC = REPO / "docs" / "subscribing.md"
+
+
+@pytest.fixture
+def recordings(tmp_path: Path) -> Path:
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    for k in range(3):
+        make_file(folder / f"gx2-2026112{k}T000000.000Z.mcap", k * FILE_SECONDS, FILE_SECONDS)
+    return folder
+
+
+def recorded(folder: Path, start: float, end: float) -> list[tuple[str, dict]]:
+    """(topic, payload) of the messages the mcap package reads with log_time in
+    [start, end] (UNIX s), in the order written."""
+    found = []
+    for path in sorted(folder.glob("*.mcap")):
+        with path.open("rb") as stream:
+            for _, channel, message in make_reader(stream).iter_messages(
+                    starting_at=round(start * 1e9), ending_at=round(end * 1e9),
+                    log_time_order=False):
+                found.append((channel.topic, json.loads(message.data)))
+    return found
+
+
+def loop_body(block: str) -> str:
+    return block[block.index("    for message in sub:"):]
+
+
+def test_the_docs_offline_example_is_the_live_loop_and_reads_the_trial(recordings: Path
+                                                                        ) -> None:
+    blocks = re.findall(r"```python\n(.*?)```", DOC.read_text(), re.DOTALL)
+    live, offline = blocks[0], blocks[1]
+    assert "Subscriber(" in live and "Recording(" in offline
+    assert loop_body(offline) == loop_body(live)  # the same loop, word for word
+    code = offline.replace('"/var/lib/gx2-gateway/recordings"', repr(str(recordings)))
+    code = code.replace("nodes=[76, 77]", "nodes=[11, 12]")
+    ran = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=60, cwd=REPO)
+    assert ran.returncode == 0, ran.stderr
+    (start, _), (stop, _) = MARKS[0], MARKS[1]  # the first trial
+    expected = [f"{p['node']} {p['time']} {p['accel'][0]} {p['accel'][1]} {p['accel'][2]}"
+                for topic, p in recorded(recordings, T0 + start, T0 + stop)
+                if topic in ("gx2/11/accel_angrate", "gx2/12/accel_angrate")]
+    assert len(expected) == 2 * (7 * 25 + 1)  # (the records logged with the stop mark held)
+    assert ran.stdout.splitlines() == expected
+
+
+def write(path: Path, payloads: list[dict]) -> Path:
+    with path.open("wb") as output:
+        writer = RecordingWriter(output)
+        for payload in payloads:
+            writer.message(f"gx2/{payload['node']}/{payload['record']}", payload)
+        writer.finish()
+    return path
+
+
+def payload(at: int, seq: int, record: str = "accel_angrate_mag") -> dict:
+    return {"node": 76, "record": record, "command": 0xC7, "seq": seq,
+            "host_time": T0 + at / 100, "time": T0 + at / 100 - 0.002,
+            "device_time": at / 100, "lqi": 200, "rssi": -50, "accel": [0.0, 0.1, -1.0],
+            "ang_rate": [0.1, 0.2, 0.3], "mag": [math.nan] * 3, "timer": seq * 1966}
+
+
+def test_messages_carry_gaps_restarts_and_nan_as_a_live_subscriber_gives_them(
+        tmp_path: Path) -> None:
+    # a poll took seq 3; 6 and 7 were lost; then the gateway restarted
+    seqs = [1, 2, 3, 4, 5, 8, 9, 2, 3]
+    payloads = [payload(i + 1, seq, "temperatures" if seq == 3 and i == 2 else
+                        "accel_angrate_mag") for i, seq in enumerate(seqs)]
+    path = write(tmp_path / "run.mcap", payloads)
+    with Recording(path, records=["accel_angrate_mag"]) as sub:
+        got = list(sub)
+    assert all(isinstance(m, Message) for m in got)
+    assert [m.seq for m in got] == [1, 2, 4, 5, 8, 9, 2, 3]
+    # the temperatures record took seq 3: filtered out, it is no gap
+    assert [m.gap for m in got] == [0, 0, 0, 0, 2, 0, 0, 0]
+    assert [m.restarted for m in got] == [False] * 6 + [True, False]
+    assert sub.lost == {(str(path), 76): 2}
+    first = got[0]
+    assert first.gateway == str(path) and first.node == 76
+    assert first.host_time == T0 + 0.01 and first.device_time == 0.01 and first.rssi == -50
+    assert first["accel"] == [0.0, 0.1, -1.0]
+    assert all(math.isnan(v) for v in first["mag"])  # null in the file, NaN as published
+    assert json.loads(first.json()) == payloads[0] | {"mag": [None] * 3}
+
+
+def test_each_trial_is_counted_afresh_and_read_once(recordings: Path) -> None:
+    sub = Recording([recordings, recordings], nodes=[11], between_marks=("start", "stop"))
+    got = list(sub)
+    assert [w.label for w in sub.windows] == ["trial-1_2026-11-18T11-06-45Z",
+                                              "trial-2_2026-11-18T11-07-05Z"]
+    # the seconds between the trials are not a gap; the second copy of each file is
+    # not read twice
+    assert all(m.gap == 0 for m in got) and sub.lost == {}
+    assert sub.duplicates > 0
+    expected = [p["host_time"] for (begin, _), (end, _) in (MARKS[0:2], MARKS[2:4])
+                for topic, p in recorded(recordings, T0 + begin, T0 + end)
+                if topic == "gx2/11/accel_angrate"]
+    assert [m.host_time for m in got] == expected
+    second = sub.trials()[1]
+    assert [m.host_time for m in second] == [t for t in expected if t >= T0 + 25]
+    assert [m.text for m in second.marks()] == ["start", "stop"]
+
+
+def test_to_pandas_gives_export_columns_and_utc_times(recordings: Path) -> None:
+    sub = Recording(recordings, nodes=[11], start="10", stop="12")
+    frame = sub.to_pandas()
+    expected = [p for topic, p in recorded(recordings, T0 + 10, T0 + 12)
+                if topic == "gx2/11/accel_angrate" and p["host_time"] < T0 + 12]
+    assert len(frame) == len(expected) == 50
+    assert str(frame["time"].dtype) == "datetime64[ns, UTC]"
+    assert str(frame["device_time"].dtype) == "timedelta64[ns]"
+    assert list(frame.columns[-7:]) == ["accel_x", "accel_y", "accel_z", "ang_rate_x",
+                                        "ang_rate_y", "ang_rate_z", "timer"]
+    first = frame.iloc[0]
+    assert first["host_time"].value == round(expected[0]["host_time"] * 1e9)
+    assert first["accel_z"] == -1.0 and first["seq"] == expected[0]["seq"]
+    # a live subscriber's messages make the same frame
+    assert to_pandas(list(sub)).equals(frame)
+
+
+def test_to_pandas_without_pandas_says_how_to_install_it(recordings: Path) -> None:
+    code = ("import sys; sys.modules['pandas'] = None\n"
+            "from gateway.client import Recording, MissingExtra\n"
+            f"try:\n    Recording({str(recordings)!r}).to_pandas()\n"
+            "except MissingExtra as e:\n    print(e)\n")
+    ran = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=60, check=True)
+    assert ran.stdout == "to_pandas needs pandas: pip install 'gx2-gateway[pandas]'\n"
+
+
+def test_paths_and_windows_that_cannot_be_read_say_why_in_a_line(recordings: Path,
+                                                                  tmp_path: Path) -> None:
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(RecordingError, match=r"no \.mcap files in this directory"):
+        Recording(tmp_path / "empty")
+    with pytest.raises(WindowError, match=r"--from knock: no such mark \(marks: 'start', "
+                                          r"'stop', 'event'\)"):
+        Recording(recordings, start="knock")
