@@ -166,3 +166,45 @@ def host_times_of(path: Path, form: str) -> list[float]:
     from scipy.io import loadmat
     table = loadmat(path, simplify_cells=True)["n77_euler"]
     return [float(v) for v in table["host_time"]]
+
+
+def test_two_stations_recorded_are_catalogued_by_station_and_a_trial_read_per_node(
+        gateway, tmp_path: Path) -> None:
+    """A gateway of two base stations (each its own serial channel in the files): the
+    catalogue names both and each one's nodes; a trial of one node of the second
+    station is exactly that node's records logged between the marks."""
+    directory = tmp_path / "recordings"
+    gw = gateway(None, [], base_stations=[
+        {"name": "north", "port": "sim://", "nodes": [NODES[0]]},
+        {"name": "south", "port": "sim://", "nodes": [NODES[1]]}],
+        record={"directory": str(directory)})
+    gw.wait_streaming(76, 77)
+    samples = gw.subscribe("gx2/77/")
+    control = ("--control", gw.control_endpoint)
+    for text in ("start", "stop", None):
+        seen = len(samples.messages)
+        samples.until(lambda m, seen=seen: len(m) >= seen + 30, 10, "records between marks")
+        if text is not None:
+            assert gx2ctl(*control, "mark", text).status == 0
+    assert gw.terminate()[0] == 0, gw.log()
+    (path,) = sorted(directory.glob("*.mcap"))
+    messages = read_back(path)
+
+    ran = gx2ctl("recordings", "--json", str(directory))
+    assert ran.status == 0, ran.stderr
+    (described,) = json.loads(ran.stdout)["files"]
+    assert sorted(described["stations"]) == ["north", "south"]
+    assert set(described["nodes"]) == {"76", "77"}
+    assert described["nodes"]["77"]["euler"] == sum(
+        1 for topic, _, _ in messages if topic == "gx2/77/euler")
+
+    out = tmp_path / "trial"
+    exported = gx2ctl("export", str(path), "--out", str(out), "--between-marks", "start",
+                      "stop", "--node", "77")
+    assert exported.status == 0, exported.stderr
+    begin, end = sorted(t for topic, t, _ in messages if topic == "gx2/gateway/mark")
+    inside = [p["host_time"] for topic, t, p in messages
+              if topic == "gx2/77/euler" and begin <= t <= end]
+    (folder,) = out.iterdir()
+    assert sorted(p.name for p in folder.iterdir()) == ["77_euler.csv", "marks.csv"]
+    assert host_times_of(folder / "77_euler.csv", "csv") == inside and len(inside) > 20
