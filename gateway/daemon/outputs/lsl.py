@@ -1,0 +1,402 @@
+"""A Lab Streaming Layer outlet (``lsl:``): every node's records as LSL streams, so that
+LabRecorder writes them into one XDF file beside the lab's EEG, EMG and motion capture.
+
+One stream per node and record (``<prefix>-<node>-<record>``), made when its first
+sample comes: float32, one channel per scalar of the record's fields (the timer and
+the link fields left out), named as ``gx2ctl export`` names its columns, with units and
+types in the stream's ``desc`` (docs/labrecorder.md). Each sample is stamped with the
+gateway's ``time`` for it, put on LSL's clock (:class:`LslClock`): the instant the
+node sampled it, never the moment it was pushed. Samples lost over the radio are not
+invented: the stream has a gap there, as ``can_drop_samples`` says.
+
+``take`` runs on the loop and only appends to a bounded deque (dropped and counted when
+it is full); a thread of its own makes the outlets and pushes into liblsl, whose own
+threads serve the inlets. Imported only when ``lsl:`` is configured, and pylsl only
+then (:func:`load_pylsl`).
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import socket
+import statistics
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from types import ModuleType
+from typing import Any, NamedTuple
+
+from aspp.records import BY_NAME, STREAMABLE
+from aspp.timing import data_rate
+from gateway.recording.export import field_columns
+
+from ..config import LslConfig
+from ..errors import StartupError
+from . import Message, Needs, Output
+
+log = logging.getLogger("gx2.lsl")
+
+INSTALL_LIBLSL = (
+    "lsl: needs pylsl and its liblsl: pip install 'gx2-gateway[lsl]' (its wheel ships "
+    "liblsl on x86_64 Linux; elsewhere install liblsl from "
+    "https://github.com/sccn/liblsl/releases or conda-forge and set PYLSL_LIB to it)")
+WAKE_S = 0.02
+"""Seconds the thread sleeps between pushes: a sample waits at most this long for
+liblsl (LSL's own inlets pull in chunks of tens of milliseconds)."""
+PENDING_S = 2.5
+"""Seconds a new stream's samples wait for a status report that says it is its node's
+stream (and so its rate): two reports at least. A record no report names by then (a
+polled one) gets a stream of irregular rate."""
+MAX_BUFFERED_S = 60
+"""Seconds of samples an outlet keeps for an inlet that reads slowly (liblsl's
+``max_buffered``; its default is six minutes)."""
+CLOSE_S = 1.0
+
+STREAM_TYPES: dict[str, str] = {
+    "raw_sensors": "IMU", "accel_angrate": "IMU", "delta_angle_velocity": "IMU",
+    "accel_angrate_orientation": "IMU", "accel_angrate_mag": "IMU",
+    "accel_angrate_mag_orientation": "IMU", "stab_accel_angrate_mag": "IMU",
+    "delta_angle_velocity_mag": "IMU",
+    "orientation": "Orientation", "orientation_update": "Orientation",
+    "euler": "Orientation", "euler_angrate": "Orientation",
+    "mag": "Magnetometer", "temperatures": "Temperature",
+}
+"""Each streamable record's LSL stream type: what it mainly carries (IMU: acceleration
+and angular rate, or their deltas; Orientation: a matrix or Euler angles)."""
+CHANNEL_TYPES: dict[str, str] = {
+    "accel": "Acceleration", "stab_accel": "Acceleration", "raw_accel": "Acceleration",
+    "ang_rate": "AngularVelocity", "raw_ang_rate": "AngularVelocity",
+    "mag": "MagneticField", "stab_mag": "MagneticField",
+    "orientation": "OrientationMatrix", "orientation_update": "OrientationMatrix",
+    "roll": "Orientation", "pitch": "Orientation", "yaw": "Orientation",
+    "delta_angle": "DeltaAngle", "delta_velocity": "DeltaVelocity",
+    "temperature": "Temperature",
+}
+"""Each field's channel type in ``desc/channels/channel/type``."""
+LEFT_OUT = frozenset(("timer",))
+"""Fields of the record table that are no channel (the link fields, lqi and rssi, and
+the bookkeeping are not in the record table's fields to begin with)."""
+
+
+def load_pylsl() -> ModuleType:
+    """pylsl, with liblsl loaded; StartupError in one line (INSTALL_LIBLSL) when it
+    cannot be (pylsl missing, or no liblsl for this machine: it raises RuntimeError)."""
+    try:
+        return importlib.import_module("pylsl")
+    except (ImportError, RuntimeError, OSError) as error:
+        why = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise StartupError(f"{INSTALL_LIBLSL} ({why})") from None
+
+
+def refusal() -> str | None:
+    """Why ``lsl:`` could not start here (one line), or None: for ``--check``."""
+    try:
+        load_pylsl()
+    except StartupError as error:
+        return str(error)
+    return None
+
+
+class LslClock:
+    """The gateway's ``time`` (UNIX seconds) put on LSL's clock.
+
+    How ``time`` is made (gateway/daemon/station/nodes.py, ``Node.tally``): each node's
+    line (aspp/clock.py) maps device time to ``time.monotonic()``, and the result goes
+    out as ``monotonic estimate + (host_time - monotonic)``, the two clocks read one
+    after the other at the packet's read. So ``time`` less the UNIX clock's offset from
+    the monotonic clock is the sample's instant on the monotonic clock, exactly, and a
+    step of the UNIX clock (NTP) moves ``time`` and that offset alike.
+
+    LSL's clock, ``local_clock()``, is liblsl's ``lsl_local_clock``: C++'s
+    ``std::chrono::steady_clock`` (liblsl, src/common.cpp), which is CLOCK_MONOTONIC on
+    Linux, as Python's ``time.monotonic()`` is (PEP 418). The two are one clock then,
+    but that is not assumed: their difference is measured once at start (``shift``,
+    the median of a few bracketed reads; 0 here to a microsecond).
+
+    An LSL timestamp is therefore ``time - (time.time() - time.monotonic()) + shift``,
+    the UNIX offset read when the record is taken, on the loop, right after its read:
+    the same offset the record's ``time`` was made with, but for the UNIX clock's slew
+    between the two (NTP slews at 500 ppm at most: under a microsecond for the
+    milliseconds between a read and its take)."""
+
+    def __init__(self, local_clock: Callable[[], float]) -> None:
+        self.shift = statistics.median(self._bracketed(local_clock) for _ in range(7))
+        """LSL's clock less the monotonic clock (seconds)."""
+
+    @staticmethod
+    def _bracketed(local_clock: Callable[[], float]) -> float:
+        before = time.monotonic()
+        lsl = local_clock()
+        after = time.monotonic()
+        return lsl - (before + after) / 2
+
+    @staticmethod
+    def unix_offset() -> float:
+        """The UNIX clock less the monotonic clock, now."""
+        return time.time() - time.monotonic()
+
+    def stamp(self, sample_time: float, unix_offset: float) -> float:
+        return sample_time - unix_offset + self.shift
+
+
+class Stream:
+    """One node's record as one LSL outlet, and how a payload becomes its sample."""
+
+    def __init__(self, pylsl: ModuleType, name: str, info: Any,
+                 picks: list[tuple[str, int]], rate: float) -> None:
+        self.name = name
+        self.rate = rate
+        self.picks = picks
+        """(field, index) of each channel: index -1 for a scalar field."""
+        self.outlet = pylsl.StreamOutlet(info, max_buffered=MAX_BUFFERED_S)
+        self.pushed = 0
+
+    def sample(self, payload: Mapping[str, Any]) -> list[float]:
+        values: list[float] = []
+        for field, index in self.picks:
+            value = payload[field]
+            if index < 0:
+                values.append(value)
+            elif isinstance(value[0], (list, tuple)):  # a matrix, row-major
+                values.append(value[index // 3][index % 3])
+            else:
+                values.append(value[index])
+        return values
+
+    def push(self, samples: list[list[float]], stamps: list[float]) -> None:
+        self.outlet.push_chunk(samples, stamps)
+        self.pushed += len(samples)
+
+
+class Channel(NamedTuple):
+    """One channel of a stream: one scalar of one of the record's fields."""
+
+    label: str
+    """As ``gx2ctl export`` names its column (``accel_x``, ``orientation_12``)."""
+    unit: str
+    kind: str
+    """Its ``type`` in the stream's desc (CHANNEL_TYPES)."""
+    field: str
+    index: int
+    """Its element of the field's value (row-major for a matrix); -1: the value."""
+
+
+def channels(record: str, payload: Mapping[str, Any]) -> list[Channel]:
+    """A record's channels: its fields' scalars in the record table's order, the timer
+    left out (the link fields and the bookkeeping are no fields of the table)."""
+    spec = BY_NAME.get(record)
+    units = {f.name: f.unit for f in spec.reply or ()} if spec is not None else {}
+    return [Channel(column, units.get(field, ""), CHANNEL_TYPES.get(field, field), field,
+                    index)
+            for column, field, index in field_columns(record, payload)
+            if field not in LEFT_OUT]
+
+
+def source_id(host: str, station: str, node: int, record: str) -> str:
+    """What LabRecorder re-finds a stream by when it comes back (a gateway restarted):
+    the same on every start for the same host, station, node and record."""
+    return f"{host}/{station}/{node}/{record}"
+
+
+def describe(pylsl: ModuleType, prefix: str, payload: Mapping[str, Any],
+             node_status: Mapping[str, Any] | None, rate: float, host: str,
+             latency_ms: float | None) -> tuple[str, Any, list[tuple[str, int]]]:
+    """The StreamInfo of a node's record, from its first payload: (name, info, picks)."""
+    node, record = payload["node"], payload["record"]
+    station = payload.get("station", "")
+    name = f"{prefix}-{node}-{record}"
+    spec = BY_NAME.get(record)
+    layout = channels(record, payload)
+    info = pylsl.StreamInfo(name, STREAM_TYPES.get(record, "IMU"), len(layout), rate,
+                            pylsl.cf_float32, source_id(host, station, node, record))
+    desc = info.desc()
+    desc.append_child_value("manufacturer", "MicroStrain")
+    desc.append_child_value("model", "3DM-GX2")
+    described = desc.append_child("channels")
+    for channel in layout:
+        element = described.append_child("channel")
+        element.append_child_value("label", channel.label)
+        element.append_child_value("unit", channel.unit)
+        element.append_child_value("type", channel.kind)
+    sync = desc.append_child("synchronization")
+    # XDF's meta-data conventions (the "synchronization" block of a stream's desc)
+    sync.append_child_value("can_drop_samples", "true")
+    sync.append_child_value(
+        "time_source", "sample instants: the gateway's time of each record (the node's "
+        "timer through its clock line to the host's monotonic clock), less "
+        "base_station.latency_ms; not when the gateway pushed it")
+    clock = (node_status or {}).get("clock") or {}
+    sync.append_child_value("clock_locked", str(bool(clock.get("locked"))).lower())
+    if clock.get("drift_ppm") is not None:
+        sync.append_child_value("clock_drift_ppm", str(clock["drift_ppm"]))
+    if latency_ms is not None:
+        sync.append_child_value("latency_ms", str(latency_ms))
+    gx2 = desc.append_child("gx2")
+    gx2.append_child_value("node", str(node))
+    gx2.append_child_value("name", str((node_status or {}).get("name") or ""))
+    gx2.append_child_value("station", str(station))
+    gx2.append_child_value("record", record)
+    if spec is not None:
+        gx2.append_child_value("command", f"0x{spec.code:02X}")
+    gx2.append_child_value("gateway", host)
+    return name, info, [(channel.field, channel.index) for channel in layout]
+
+
+class LslOutput(Output):
+    """``take`` on the loop; outlets and pushes in its thread."""
+
+    def __init__(self, config: LslConfig, latency_ms: dict[str, float],
+                 pylsl: ModuleType) -> None:
+        self.pylsl = pylsl
+        self.prefix = config.prefix
+        self.capacity = config.queue
+        self.latency_ms = latency_ms
+        """Each station's base_station.latency_ms, by name (said in each desc)."""
+        self.host = socket.gethostname()
+        self.clock = LslClock(pylsl.local_clock)
+        self._queue: deque[tuple[Message, float]] = deque()
+        self._report: Mapping[str, Any] = {}
+        """The latest status report (set on the loop; one reference, read whole)."""
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="gx2-lsl", daemon=True)
+        self._streams: dict[tuple[int, str], Stream] = {}
+        self._waiting: dict[tuple[int, str], tuple[float, list[tuple[Message, float]]]] = {}
+        """Samples of a stream not made yet: since when, and them."""
+        self.overflowed = 0
+        """Samples the loop dropped: the queue was full."""
+        self.skipped = 0
+        """Records no stream carries: a command's reply (continuous_mode, a bias, an
+        EEPROM word: not data), and a record without ``time``. Every record a node
+        streams has a timer, and ``time`` from its first one, so this is never a
+        sample: no timestamp could say when an untimed record was sampled, and one
+        stamped with the host's clock would pass for a sample instant."""
+        self.failed = 0
+        """Samples liblsl refused (an outlet that could not be made, a push that
+        raised), logged once a stream."""
+        self._failed_streams: set[tuple[int, str]] = set()
+
+    # -- the loop's side --------------------------------------------------------------
+
+    def take(self, message: Message) -> None:
+        payload = message.payload
+        command = payload.get("command")
+        if command is None:
+            return  # (the status, a mark)
+        if command not in STREAMABLE or payload.get("time") is None:
+            self.skipped += 1
+            return
+        queue = self._queue
+        if len(queue) < self.capacity:
+            queue.append((message, time.time() - time.monotonic()))
+        else:
+            self.overflowed += 1
+
+    def report(self, status: Mapping[str, Any]) -> None:
+        self._report = status
+
+    def status(self) -> dict[str, Any]:
+        streams = list(self._streams.values())
+        return {"prefix": self.prefix, "streams": sorted(s.name for s in streams),
+                "pushed": sum(s.pushed for s in streams), "queued": len(self._queue),
+                "waiting": sum(len(w[1]) for w in list(self._waiting.values())),
+                "dropped": self.overflowed + self.failed, "skipped": self.skipped}
+
+    # -- the thread -------------------------------------------------------------------
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.wait(WAKE_S):
+                self._push_queued()
+        except Exception:  # (a bug: said, and the loop's side goes on counting drops)
+            log.exception("lsl: the outlet thread stopped")
+        finally:
+            self._streams.clear()  # (each outlet is destroyed, its inlets told)
+
+    def _push_queued(self) -> None:
+        queue = self._queue
+        batches: dict[tuple[int, str], list[tuple[Message, float]]] = {}
+        while queue:
+            item = queue.popleft()
+            payload = item[0].payload
+            batches.setdefault((payload["node"], payload["record"]), []).append(item)
+        now = time.monotonic()
+        for key, items in batches.items():
+            if key in self._streams:
+                self._push(key, items)
+            else:
+                waiting = self._waiting.setdefault(key, (now, []))[1]
+                room = max(0, self.capacity - len(waiting))
+                waiting.extend(items[:room])
+                self.overflowed += max(0, len(items) - room)
+        for key in list(self._waiting):
+            since, waiting = self._waiting[key]
+            rate = self._rate(key)
+            if rate is None and now - since < PENDING_S:
+                continue
+            del self._waiting[key]
+            if self._open(key, waiting[0][0].payload, rate or 0.0):
+                self._push(key, waiting)
+            else:
+                self.failed += len(waiting)
+
+    def _node_status(self, node: int) -> Mapping[str, Any] | None:
+        nodes = self._report.get("nodes") or ()
+        return next((n for n in nodes if n.get("node") == node), None)
+
+    def _rate(self, key: tuple[int, str]) -> float | None:
+        """The stream's nominal rate, once a report says the record is its node's
+        stream (None until then)."""
+        node = self._node_status(key[0])
+        if node is None or node.get("record") != key[1] or not node.get("divider"):
+            return None
+        return data_rate(node["divider"])
+
+    def _open(self, key: tuple[int, str], payload: Mapping[str, Any], rate: float) -> bool:
+        try:
+            station = payload.get("station", "")
+            name, info, picks = describe(self.pylsl, self.prefix, payload,
+                                         self._node_status(key[0]), rate, self.host,
+                                         self.latency_ms.get(station))
+            self._streams[key] = Stream(self.pylsl, name, info, picks, rate)
+        except Exception as error:  # (liblsl's own refusal: said once)
+            self._failed_once(key, f"cannot make its outlet: {error}")
+            return False
+        log.info("lsl: stream %s (%s)", name, f"{rate:g} Hz" if rate else "irregular rate")
+        return True
+
+    def _push(self, key: tuple[int, str], items: list[tuple[Message, float]]) -> None:
+        stream = self._streams[key]
+        stamp = self.clock.stamp
+        try:
+            stream.push([stream.sample(m.payload) for m, _ in items],
+                        [stamp(m.payload["time"], offset) for m, offset in items])
+        except Exception as error:
+            self.failed += len(items)
+            self._failed_once(key, f"a push failed: {type(error).__name__}: {error}")
+
+    def _failed_once(self, key: tuple[int, str], why: str) -> None:
+        if key not in self._failed_streams:
+            self._failed_streams.add(key)
+            log.error("lsl: %s-%d-%s: %s (counted in status lsl.dropped; said once a "
+                      "stream)", self.prefix, key[0], key[1], why)
+
+    def close(self, seconds: float = CLOSE_S) -> None:
+        """Stop the thread (its outlets destroyed with it) within ``seconds``."""
+        self._stop.set()
+        if self._thread.ident is not None:
+            self._thread.join(max(0.0, seconds))
+            if self._thread.is_alive():
+                log.warning("lsl: its thread did not stop within %.1f s: left to the "
+                            "process's exit", seconds)
+
+
+def make(needs: Needs) -> LslOutput:
+    config = needs.config
+    assert config.lsl is not None
+    latency = {station.name or "": station.latency_ms for station in config.stations}
+    return LslOutput(config.lsl, latency, load_pylsl())
