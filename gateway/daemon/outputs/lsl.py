@@ -75,6 +75,9 @@ CHANNEL_TYPES: dict[str, str] = {
     "temperature": "Temperature",
 }
 """Each field's channel type in ``desc/channels/channel/type``."""
+UNITLESS = "normalized"
+"""The unit of a field without one (an orientation matrix's direction cosines), as
+XDF's meta-data conventions write a dimensionless channel's."""
 LEFT_OUT = frozenset(("timer",))
 """Fields of the record table that are no channel (the link fields, lqi and rssi, and
 the bookkeeping are not in the record table's fields to begin with)."""
@@ -151,7 +154,6 @@ class Stream:
         self.picks = picks
         """(field, index) of each channel: index -1 for a scalar field."""
         self.outlet = pylsl.StreamOutlet(info, max_buffered=MAX_BUFFERED_S)
-        self.pushed = 0
 
     def sample(self, payload: Mapping[str, Any]) -> list[float]:
         values: list[float] = []
@@ -167,7 +169,6 @@ class Stream:
 
     def push(self, samples: list[list[float]], stamps: list[float]) -> None:
         self.outlet.push_chunk(samples, stamps)
-        self.pushed += len(samples)
 
 
 class Channel(NamedTuple):
@@ -187,7 +188,8 @@ def channels(record: str, payload: Mapping[str, Any]) -> list[Channel]:
     """A record's channels: its fields' scalars in the record table's order, the timer
     left out (the link fields and the bookkeeping are no fields of the table)."""
     spec = BY_NAME.get(record)
-    units = {f.name: f.unit for f in spec.reply or ()} if spec is not None else {}
+    units = {f.name: f.unit or UNITLESS for f in spec.reply or ()} if spec is not None \
+        else {}
     return [Channel(column, units.get(field, ""), CHANNEL_TYPES.get(field, field), field,
                     index)
             for column, field, index in field_columns(record, payload)
@@ -276,6 +278,8 @@ class LslOutput(Output):
         """Samples liblsl refused (an outlet that could not be made, a push that
         raised), logged once a stream."""
         self._failed_streams: set[tuple[int, str]] = set()
+        self.pushed = 0
+        """Samples handed to liblsl (counted by the thread)."""
 
     # -- the loop's side --------------------------------------------------------------
 
@@ -299,7 +303,7 @@ class LslOutput(Output):
     def status(self) -> dict[str, Any]:
         streams = list(self._streams.values())
         return {"prefix": self.prefix, "streams": sorted(s.name for s in streams),
-                "pushed": sum(s.pushed for s in streams), "queued": len(self._queue),
+                "pushed": self.pushed, "queued": len(self._queue),
                 "waiting": sum(len(w[1]) for w in list(self._waiting.values())),
                 "dropped": self.overflowed + self.failed, "skipped": self.skipped}
 
@@ -326,7 +330,14 @@ class LslOutput(Output):
             batches.setdefault((payload["node"], payload["record"]), []).append(item)
         now = time.monotonic()
         for key, items in batches.items():
-            if key in self._streams:
+            stream = self._streams.get(key)
+            if stream is not None and self._rate(key) not in (None, stream.rate):
+                # its node's rate changed (gx2ctl rate), or a record first seen polled
+                # is now streamed: a stream's nominal rate is fixed, so a new one is
+                # made, with the same name and source_id (LabRecorder re-finds it)
+                del self._streams[key]
+                stream = None
+            if stream is not None:
                 self._push(key, items)
             else:
                 waiting = self._waiting.setdefault(key, (now, []))[1]
@@ -375,6 +386,7 @@ class LslOutput(Output):
         try:
             stream.push([stream.sample(m.payload) for m, _ in items],
                         [stamp(m.payload["time"], offset) for m, offset in items])
+            self.pushed += len(items)
         except Exception as error:
             self.failed += len(items)
             self._failed_once(key, f"a push failed: {type(error).__name__}: {error}")
