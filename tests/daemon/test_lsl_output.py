@@ -61,7 +61,8 @@ def test_time_goes_on_lsls_clock_by_the_unix_offset_of_its_read() -> None:
     monotonic_instant = time.monotonic() - 0.25  # a sample taken 250 ms ago
     offset = LslClock.unix_offset()
     stamped = clock.stamp(monotonic_instant + offset, offset)
-    assert stamped == pytest.approx(monotonic_instant + clock.shift, abs=1e-6)  # (a UNIX time near 1.7e9: 238 ns a step)
+    # (through a UNIX time near 1.7e9, whose double steps by 238 ns)
+    assert stamped == pytest.approx(monotonic_instant + clock.shift, abs=1e-6)
 
 
 def output(queue: int = 100) -> LslOutput:

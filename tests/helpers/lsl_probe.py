@@ -89,8 +89,9 @@ def main() -> int:
     options = json.loads(sys.argv[1])
     work = Path(options["directory"])
     nodes = options["nodes"]
-    sim = Simulator([NodeSettings(n["address"], stream=n["stream"]) for n in nodes],
-                    link=work / "gx2").start()
+    sim = Simulator([NodeSettings(n["address"], stream=n["stream"],
+                                  **({"divider": n["divider"]} if "divider" in n else {}))
+                     for n in nodes], link=work / "gx2").start()
     publish, control = endpoint(), endpoint()
     (work / "nodes.yaml").write_text(yaml.safe_dump({
         "base_station": {"port": str(work / "gx2")},
@@ -191,16 +192,24 @@ def match(samples: list[tuple[list[float], float]], records: list[dict[str, Any]
     out["time_error_max_s"] = max(abs(e) for e in errors)
     seqs = [record["seq"] for _, record, _ in pairs]
     out["seq_first"], out["seq_last"] = seqs[0], seqs[-1]
-    against_truth = [stamp + correction - (truth[record["timer"]] + lsl_mono)
-                     for (_, stamp), record, _ in pairs if record["timer"] in truth]
-    if against_truth:
-        middle = statistics.median(against_truth)
-        spread = sorted(abs(e - middle) for e in against_truth)
-        out["truth"] = {"n": len(spread), "bias_ms": middle * 1e3,
-                        "p99_ms": spread[min(len(spread) - 1,
-                                             math.ceil(0.99 * len(spread)) - 1)] * 1e3,
-                        "max_ms": spread[-1] * 1e3}
+    known = [(stamp, record) for (_, stamp), record, _ in pairs if record["timer"] in truth]
+    if known:  # (gx2-sim's own instant of each sample, on the monotonic clock)
+        out["truth"] = errors_of([stamp + correction - (truth[record["timer"]] + lsl_mono)
+                                  for stamp, record in known])
+        out["zmq_truth"] = errors_of([record["time"] - to_unix
+                                      - (truth[record["timer"]] + lsl_mono)
+                                      for _, record in known])
     return out
+
+
+def errors_of(errors: list[float]) -> dict[str, float]:
+    """Errors against the truth: their median (the bias: the radio's delay against
+    latency_ms) and the spread about it, p99 and max, in ms."""
+    middle = statistics.median(errors)
+    spread = sorted(abs(e - middle) for e in errors)
+    return {"n": len(spread), "bias_ms": middle * 1e3,
+            "p99_ms": spread[min(len(spread) - 1, math.ceil(0.99 * len(spread)) - 1)] * 1e3,
+            "max_ms": spread[-1] * 1e3}
 
 
 if __name__ == "__main__":
