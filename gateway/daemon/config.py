@@ -7,6 +7,7 @@ Strict: an unknown key is an error, so a typo never passes silently.
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -196,7 +197,7 @@ class LiveConfig(Strict):
         return tls.check_key(path, info.data.get("tls_cert"))
 
 
-LSL_NAME = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,31}$"
+LSL_NAME = r"[A-Za-z0-9][A-Za-z0-9_.-]{0,31}"
 """What an LSL stream name's prefix may be: a word LabRecorder shows and a file name
 may hold."""
 
@@ -205,11 +206,19 @@ class LslConfig(Strict):
     """Added: a Lab Streaming Layer outlet per node and record (docs/labrecorder.md);
     the optional extra ``[lsl]`` (pylsl)."""
 
-    prefix: Annotated[str, Field(pattern=LSL_NAME)] = "gx2"
+    prefix: str = "gx2"
     """Streams are named ``<prefix>-<node>-<record>``."""
     queue: Annotated[int, Field(ge=100, le=10_000_000)] = 10_000
     """Samples waiting for liblsl before new ones are dropped (and counted): some
     seconds of a saturated line."""
+
+    @field_validator("prefix")
+    @classmethod
+    def _stream_name(cls, value: str) -> str:
+        if not re.fullmatch(LSL_NAME, value):
+            raise ValueError(f"{value!r}: 1 to 32 letters, digits, '_', '.' or '-', "
+                             "starting with a letter or digit")
+        return value
 
 
 FLOOR_UNSEEN_S = 30.0

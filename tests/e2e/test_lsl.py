@@ -106,3 +106,16 @@ def test_without_lsl_pylsl_is_never_imported(tmp_path: Path, gateway) -> None:
     gw.wait_streaming(76)
     assert gw.status()["lsl"] is None
     assert "pylsl" not in gw.log() and "liblsl" not in gw.log()
+
+
+@pytest.mark.parametrize(("lsl", "said"), [
+    ({"prefix": "my lab"}, "lsl.prefix: 'my lab': 1 to 32 letters, digits"),
+    ({"prefx": "lab"}, "lsl.prefx: unknown key (did you mean prefix?)"),
+    ({"queue": 5}, "lsl.queue:"),
+])
+def test_a_bad_lsl_section_is_one_line(tmp_path: Path, lsl: dict, said: str) -> None:
+    done = subprocess.run([script("gx2-gateway"), "--config",
+                           str(config_file(tmp_path, lsl=lsl)), "--check"],
+                          capture_output=True, text=True, timeout=30)
+    assert done.returncode == 2, done
+    assert len(done.stderr.strip().splitlines()) == 1 and said in done.stderr, done.stderr
