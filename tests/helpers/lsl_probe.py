@@ -138,8 +138,10 @@ def main() -> int:
         for name, inlet in inlets.items():  # what is on its way still
             chunk, stamps = inlet.pull_chunk(timeout=0.2)
             pulled[name].extend(zip(chunk, stamps, strict=True))
-        while sub.poll(200):
-            records.append(msgpack.unpackb(sub.recv_multipart()[1]))
+        drained_by = time.monotonic() + 0.5  # (the records of the last samples pulled)
+        while (left := drained_by - time.monotonic()) > 0:
+            if sub.poll(int(left * 1000) + 1):
+                records.append(msgpack.unpackb(sub.recv_multipart()[1]))
         corrections = {name: inlet.time_correction(timeout=5) for name, inlet in inlets.items()}
         truths = {n["address"]: sim.call(lambda station, _, a=n["address"]:
                                          dict(station.nodes[a].sampled)) for n in nodes}

@@ -13,14 +13,8 @@ import pytest
 from aspp.records import BY_CODE, BY_NAME, STREAMABLE
 from gateway.daemon.config import LslConfig
 from gateway.daemon.outputs import Message
-from gateway.daemon.outputs.lsl import (
-    CHANNEL_TYPES,
-    STREAM_TYPES,
-    LslClock,
-    LslOutput,
-    channels,
-    source_id,
-)
+from gateway.daemon.outputs.lsl import LslClock, LslOutput
+from gateway.daemon.outputs.lslinfo import CHANNEL_TYPES, STREAM_TYPES, channels, source_id
 
 
 def payload_of(record: str, **extra: object) -> dict[str, object]:
