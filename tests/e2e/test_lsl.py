@@ -1,11 +1,11 @@
 """The LSL output (``lsl:``) through the installed gateway on gx2-sim, seen by an
 independent pylsl inlet: every stream's name, type, channels, units, rate and
 source_id, and each sample at the instant the ZeroMQ stream's ``time`` says, with the
-same values, in order. All of it runs in a private network namespace with only the
-loopback up (tests/helpers/lslnet.py): LSL discovers by multicast, and nothing may
-reach the host's network; without one the test is skipped. The rest needs no
-outlet: ``--check`` without liblsl, and a gateway without ``lsl:`` that never imports
-pylsl."""
+same values, in order, with the gaps the radio left. All of it runs in a private
+network namespace with only the loopback up (tests/helpers/lslnet.py): LSL discovers
+by multicast, and nothing may reach the host's network; without one the test is
+skipped. The rest needs no outlet: ``--check`` without liblsl, a gateway without
+``lsl:`` that never imports pylsl, a bad ``lsl:`` section."""
 
 from __future__ import annotations
 
@@ -22,7 +22,8 @@ from tests.helpers.processes import script
 
 TOLERANCE_S = 1e-4
 """The inlet's timestamp, after time_correction(), against ``time``: 0.1 ms."""
-NODES = [{"address": 76, "stream": "accel_angrate"}, {"address": 77, "stream": "euler"}]
+NODES = [{"address": 76, "stream": "accel_angrate"},
+         {"address": 77, "stream": "euler", "data_loss": 0.05}]
 BROKEN_PYLSL = 'raise RuntimeError("LSL binary library file was not found.\\n More.")\n'
 """A pylsl whose import fails as pylsl's own does where no liblsl loads (aarch64)."""
 
@@ -58,6 +59,10 @@ def test_an_independent_inlet_finds_each_stream_with_its_metadata_and_the_sample
         assert matched["values_differ"] == 0, (name, matched)  # the same records, in order
         assert matched["seq_last"] - matched["seq_first"] + 1 == matched["matched"]
         assert matched["time_error_max_s"] < TOLERANCE_S, (name, matched)
+        # samples lost over the radio are gaps in the stream, never filled in
+        assert matched["missing_inlet"] == matched["missing_records"], (name, matched)
+    assert found["matched"]["lab7-76-accel_angrate"]["missing_records"] == 0
+    assert found["matched"]["lab7-77-euler"]["missing_records"] > 3  # (5% of 300)
     status = found["status"]["lsl"]
     assert status["streams"] == ["lab7-76-accel_angrate", "lab7-77-euler"]
     assert status["dropped"] == 0 and status["pushed"] > 200, status

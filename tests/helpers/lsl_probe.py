@@ -10,6 +10,7 @@ sample matched to the ZeroMQ record it is (by its values, in order).
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import shutil
@@ -27,6 +28,7 @@ import yaml
 import zmq
 
 from gateway.recording.export import field_columns
+from gateway.sim.base_station import RadioLink
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
 from tests.helpers.gateway import Control
@@ -91,7 +93,9 @@ def main() -> int:
     nodes = options["nodes"]
     sim = Simulator([NodeSettings(n["address"], stream=n["stream"],
                                   **({"divider": n["divider"]} if "divider" in n else {}))
-                     for n in nodes], link=work / "gx2").start()
+                     for n in nodes], link=work / "gx2",
+                    radio={n["address"]: RadioLink(data_loss=n["data_loss"])
+                           for n in nodes if "data_loss" in n}).start()
     publish, control = endpoint(), endpoint()
     (work / "nodes.yaml").write_text(yaml.safe_dump({
         "base_station": {"port": str(work / "gx2")},
@@ -192,6 +196,8 @@ def match(samples: list[tuple[list[float], float]], records: list[dict[str, Any]
     out["values_differ"] = sum(1 for (v, _), _, w in pairs if v != w)
     errors = [stamp + correction + to_unix - record["time"] for (_, stamp), record, _ in pairs]
     out["time_error_max_s"] = max(abs(e) for e in errors)
+    out["missing_inlet"] = missing([stamp for (_, stamp), _, _ in pairs])
+    out["missing_records"] = missing([record["device_time"] for _, record, _ in pairs])
     seqs = [record["seq"] for _, record, _ in pairs]
     out["seq_first"], out["seq_last"] = seqs[0], seqs[-1]
     known = [(stamp, record) for (_, stamp), record, _ in pairs if record["timer"] in truth]
@@ -202,6 +208,15 @@ def match(samples: list[tuple[list[float], float]], records: list[dict[str, Any]
                                       - (truth[record["timer"]] + lsl_mono)
                                       for _, record in known])
     return out
+
+
+def missing(instants: list[float]) -> int:
+    """Samples missing between ``instants``, by their steps against the usual one."""
+    steps = [b - a for a, b in itertools.pairwise(instants)]
+    if not steps:
+        return 0
+    period = statistics.median(steps)
+    return sum(max(0, round(step / period) - 1) for step in steps)
 
 
 def errors_of(errors: list[float]) -> dict[str, float]:
