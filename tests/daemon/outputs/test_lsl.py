@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import time
 from types import SimpleNamespace
+from typing import Any
 
 import pytest
 
@@ -82,3 +83,97 @@ def test_take_leaves_out_the_status_marks_command_replies_and_untimed_records() 
     lsl.take(Message(b"gx2/76/firmware_version", payload_of("firmware_version")))
     said = lsl.status()
     assert (said["queued"], said["skipped"], said["dropped"]) == (0, 3, 0)
+
+
+class FakeElement:
+    """pylsl's XMLElement, as far as a desc is written."""
+
+    def __init__(self) -> None:
+        self.children: list[tuple[str, Any]] = []
+
+    def append_child(self, name: str) -> FakeElement:
+        child = FakeElement()
+        self.children.append((name, child))
+        return child
+
+    def append_child_value(self, name: str, value: str) -> FakeElement:
+        self.children.append((name, value))
+        return self
+
+
+class FakeInfo:
+    def __init__(self, name: str, kind: str, count: int, rate: float, fmt: int,
+                 source: str) -> None:
+        self.name, self.kind, self.count, self.rate, self.source = name, kind, count, \
+            rate, source
+        self.element = FakeElement()
+
+    def desc(self) -> FakeElement:
+        return self.element
+
+
+class FakePylsl:
+    """pylsl without liblsl: what the output's thread makes and pushes, kept."""
+
+    cf_float32 = 1
+
+    def __init__(self) -> None:
+        self.outlets: list[Any] = []
+        self.local_clock = time.monotonic
+        fake = self
+
+        class StreamOutlet:
+            def __init__(self, info: FakeInfo, max_buffered: int) -> None:
+                self.info, self.obj, self.chunks = info, object(), []
+                fake.outlets.append(self)
+
+            def do_push_chunk_n(self, handle: Any, data: Any, count: Any, stamps: Any,
+                                pushthrough: Any) -> int:
+                self.chunks.append(count.value)
+                return 0
+
+        self.StreamOutlet = StreamOutlet
+        self.StreamInfo = FakeInfo
+
+
+def euler(seq: int) -> Message:
+    return Message(b"gx2/76/euler", payload_of("euler", seq=seq, time=time.time()))
+
+
+def report(divider: int | None, record: str | None = "euler") -> dict[str, Any]:
+    return {"nodes": [{"node": 76, "name": "left", "record": record, "divider": divider,
+                       "clock": {"locked": True, "drift_ppm": 12.5}}]}
+
+
+def test_a_stream_waits_for_its_rate_and_is_made_anew_when_the_rate_changes() -> None:
+    pylsl = FakePylsl()
+    lsl = LslOutput(LslConfig(), {"station1": 3.0}, pylsl)  # type: ignore[arg-type]
+    lsl.take(euler(1))
+    lsl._push_queued()  # no report yet: its rate is not known, and it waits
+    assert pylsl.outlets == [] and lsl.status()["waiting"] == 1
+    lsl.report(report(512))
+    lsl.take(euler(2))
+    lsl._push_queued()
+    (first,) = pylsl.outlets
+    assert (first.info.name, first.info.rate, first.info.count) == ("gx2-76-euler", 100.0, 3)
+    assert first.info.source.endswith("/station1/76/euler")
+    assert first.chunks == [6]  # both samples, 3 channels each, in one chunk
+    lsl.report(report(1024))  # gx2ctl rate 76 50
+    lsl.take(euler(3))
+    lsl._push_queued()
+    assert [o.info.rate for o in pylsl.outlets] == [100.0, 50.0]
+    assert pylsl.outlets[1].info.name == first.info.name
+    assert pylsl.outlets[1].info.source == first.info.source
+    assert lsl.status()["pushed"] == 3 and lsl.status()["streams"] == ["gx2-76-euler"]
+
+
+def test_a_record_no_report_names_gets_an_irregular_stream(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from gateway.daemon.outputs import lsl as module
+    monkeypatch.setattr(module, "PENDING_S", 0.0)
+    pylsl = FakePylsl()
+    lsl = LslOutput(LslConfig(), {}, pylsl)  # type: ignore[arg-type]
+    lsl.report(report(512, record="accel_angrate"))  # (euler polled, beside its stream)
+    lsl.take(euler(1))
+    lsl._push_queued()
+    assert [o.info.rate for o in pylsl.outlets] == [0.0]
