@@ -56,6 +56,7 @@ MAX_BUFFERED_S = 60
 ``max_buffered``; its default is six minutes)."""
 CLOSE_S = 1.0
 
+
 def load_pylsl() -> ModuleType:
     """pylsl, with liblsl loaded; StartupError in one line (INSTALL_LIBLSL) when it
     cannot be (pylsl missing, or no liblsl for this machine: it raises RuntimeError)."""
