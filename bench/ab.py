@@ -19,7 +19,11 @@ in a process of its own whose imports come from one tree or the other, in turn:
    With ``--record``, B runs with ``record:`` configured (a tree that records); with
    ``--metrics``, B serves metrics and is scraped once a second meanwhile, as a
    Prometheus server would (ten times as often as its default interval); with
-   ``--live``, B serves the live view, with no viewer connected.
+   ``--live``, B serves the live view, with no viewer connected; with ``--lsl``, B
+   runs ``lsl:`` and an inlet in a process of its own pulls every stream (as
+   LabRecorder does), the whole run in a private network namespace with only the
+   loopback up (tests/helpers/lslnet.py: LSL's multicast never leaves the machine; as
+   root).
 
 The pipeline measures A then B (the order alternates each round, so neither side always
 goes first); the table gives each round's figures and the median of the rounds' B/A
@@ -29,6 +33,7 @@ ratios, so a neighbour that slows the machine for a while slows both sides of a 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import subprocess
 import sys
@@ -131,12 +136,30 @@ def gateway_command(tree: Path, config: Path) -> list[str]:
     return [sys.executable, "-c", code, "--config", str(config), "--log-level", "WARNING"]
 
 
+INLET = r'''
+import sys, pylsl
+prefix, count = sys.argv[1], int(sys.argv[2])
+found = {}
+while len(found) < count:
+    for info in pylsl.resolve_streams(wait_time=1.0):
+        if info.name().startswith(prefix + "-"):
+            found.setdefault(info.name(), info)
+inlets = [pylsl.StreamInlet(info) for info in found.values()]
+while True:
+    for inlet in inlets:
+        inlet.pull_chunk(timeout=0.05)
+'''
+"""LabRecorder's part: every stream of ``prefix``, pulled until killed."""
+
+
 def saturated_cpu(trees: dict[str, Path], seconds: float, record: bool,
-                  metrics: bool = False, live: bool = False) -> dict[str, float]:
+                  metrics: bool = False, live: bool = False,
+                  lsl: bool = False) -> dict[str, float]:
     """Each tree's gateway on a simulator of its own (this tree's), all at once, so
     that they share whatever the machine is doing: % of one core over ``seconds``,
     from the kernel's nanosecond count of each process's threads."""
     started: list[tuple[str, Simulator, subprocess.Popen[bytes]]] = []
+    inlets: list[subprocess.Popen[bytes]] = []
     scrapes: list[str] = []
     try:
         for side, tree in trees.items():
@@ -154,6 +177,10 @@ def saturated_cpu(trees: dict[str, Path], seconds: float, record: bool,
                 scrapes.append(f"http://{config['metrics']['endpoint']}/metrics")
             if live and side == "B":  # (and no viewer: what serving it costs by itself)
                 config["live"] = {"endpoint": f"127.0.0.1:{free_port()}"}
+            if lsl and side == "B":
+                config["lsl"] = {"prefix": "ab"}
+                inlets.append(subprocess.Popen([sys.executable, "-c", INLET, "ab",
+                                                str(len(nodes))]))
             (work / "nodes.yaml").write_text(yaml.safe_dump(config))
             sim = Simulator(nodes, link=work / "gx2").start()
             started.append((side, sim, subprocess.Popen(
@@ -174,6 +201,9 @@ def saturated_cpu(trees: dict[str, Path], seconds: float, record: bool,
             proc.terminate()
             proc.wait(10)
             sim.stop()
+        for inlet in inlets:
+            inlet.kill()
+            inlet.wait(10)
 
 
 def scrape_every_second(urls: list[str], until: float) -> int:
@@ -188,6 +218,22 @@ def scrape_every_second(urls: list[str], until: float) -> int:
         done += 1
         time.sleep(max(0.0, min(due, until) - time.monotonic()))
     return done
+
+
+NAMESPACED = "GX2_BENCH_NAMESPACED"
+
+
+def in_lsl_namespace() -> int:
+    """This command again, in a private network namespace with only the loopback up
+    and an LSL configuration of its own (tests/helpers/lslnet.py)."""
+    from tests.helpers.lslnet import in_namespace, lsl_environment, namespace_refusal
+    refusal = namespace_refusal()
+    if refusal:
+        print(f"--lsl: no private network namespace: {refusal}", file=sys.stderr)
+        return 2
+    with tempfile.TemporaryDirectory(prefix="gx2-ab-lsl-") as directory:
+        env = {**lsl_environment(Path(directory)), NAMESPACED: "1"}
+        return subprocess.call(in_namespace([sys.executable, *sys.argv]), env=env)
 
 
 def main() -> int:
@@ -205,8 +251,13 @@ def main() -> int:
                         help="B serves metrics, scraped once a second (A does not)")
     parser.add_argument("--live", action="store_true",
                         help="B serves the live view, no viewer connected (A does not)")
+    parser.add_argument("--lsl", action="store_true",
+                        help="B runs lsl:, an inlet pulling every stream (A does not); "
+                        "all in a private network namespace (root)")
     parser.add_argument("--skip-pipeline", action="store_true")
     args = parser.parse_args()
+    if args.lsl and NAMESPACED not in os.environ:
+        return in_lsl_namespace()
     base_rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", args.base],
                               capture_output=True, text=True, check=True).stdout.strip()
     head_rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short",
@@ -227,7 +278,7 @@ def main() -> int:
                     got = {side: pipeline(trees[side], args.packets) for side in order}
                     rows["pipeline"].append((got["A"], got["B"]))
                 got = saturated_cpu(trees, args.seconds, args.record, args.metrics,
-                                    args.live)
+                                    args.live, args.lsl)
                 rows["cpu"].append((got["A"], got["B"]))
                 print(f"round {round_ + 1}: " + ", ".join(
                     f"{name} A {a:,.1f} B {b:,.1f}" for name, values in rows.items()
@@ -239,7 +290,8 @@ def main() -> int:
     print(f"\nA = {base_rev}, B = {head_rev}{' (with uncommitted changes)' if dirty else ''}"
           f"{', B records' if args.record else ''}"
           f"{', B serves metrics scraped every second' if args.metrics else ''}"
-          f"{', B serves the live view (no viewer)' if args.live else ''}; "
+          f"{', B serves the live view (no viewer)' if args.live else ''}"
+          f"{', B runs lsl: with an inlet pulling every stream' if args.lsl else ''}; "
           f"{args.rounds} interleaved rounds")
     print("| measure | A, each round | B, each round | B / A (median of rounds) |")
     print("|---|---|---|---|")

@@ -163,6 +163,8 @@ def status_schema() -> Schema:
                             "replay://"),
             "live": _part(["object", "null"], "the live view (Foxglove WebSocket): its "
                           "endpoint, viewers and channels; null without live:"),
+            "lsl": _part(["object", "null"], "the Lab Streaming Layer outlets: their "
+                         "streams, samples pushed, queued, dropped; null without lsl:"),
             "outputs": {"type": "object", "additionalProperties": _part(
                 "object", "one output: take_failures, the messages it failed to take (a "
                 "bug, contained: every other output still got them)", ("take_failures",),

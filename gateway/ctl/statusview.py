@@ -155,6 +155,14 @@ def status_lines(result: Mapping[str, Any], now: float, width: int | None = None
             f"dropped {cell(recording.get('dropped'))}"
             + (f" (last error: {cell(error)})" if isinstance(error, str) and error else ""),
             *_kept(recording)], width)
+    lsl = result.get("lsl")
+    if isinstance(lsl, Mapping):
+        streams = lsl.get("streams")
+        count = len(streams) if isinstance(streams, list) else streams
+        lines += items_line("lsl", [
+            f"{cell(count)} stream{'' if count == 1 else 's'}",
+            f"pushed {cell(lsl.get('pushed'))}", f"dropped {cell(lsl.get('dropped'))}"],
+            width)
     replay = result.get("replay")
     if isinstance(replay, Mapping):
         lines += items_line("replay", [

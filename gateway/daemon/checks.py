@@ -1,6 +1,7 @@
 """What ``gx2-gateway --check`` tells beyond the file itself: the state of this host that
 a start would meet. What no start could get past is exit 2 (:func:`unwritable`, a
-recording directory this user cannot write; :func:`live_refusal`); what
+recording directory this user cannot write; :func:`live_refusal`; :func:`lsl_refusal`,
+``lsl:`` without a liblsl that loads); what
 would not stop a start, or is of this moment and often gone by the time the gateway
 starts, is a warning, one line each (:func:`warnings`), and the check still passes:
 
@@ -165,3 +166,12 @@ def live_refusal(config: GatewayConfig) -> str | None:
         return None
     key = "tls_key" if "key" in why else "tls_cert"
     return f"live.{key}: {getattr(config.live, key)}: the live view's server refuses it: {why}"
+
+
+def lsl_refusal(config: GatewayConfig) -> str | None:
+    """``lsl: how to install liblsl`` if pylsl or its liblsl cannot be loaded here (None
+    without ``lsl:``: pylsl is then never imported)."""
+    if config.lsl is None:
+        return None
+    from .outputs.lsl import refusal  # (pylsl: only when it is configured)
+    return refusal()

@@ -67,13 +67,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.check:
         # the unit runs --check as its user, in its sandbox, before the gateway: a
         # directory it cannot write fails there, not as a recorder that keeps nothing
-        from .checks import live_refusal, unwritable, warnings
+        from .checks import live_refusal, lsl_refusal, unwritable, warnings
         record = config.record
         problem = unwritable(record.directory) if record is not None else None
         if problem:
             fail(parser.prog, f"{args.config}: record.directory: {record.directory}: "
                  f"{problem}", 2)
-        problem = live_refusal(config)
+        problem = live_refusal(config) or lsl_refusal(config)
         if problem:
             fail(parser.prog, f"{args.config}: {problem}", 2)
         for warning in warnings(config):

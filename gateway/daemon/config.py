@@ -7,6 +7,7 @@ Strict: an unknown key is an error, so a typo never passes silently.
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -196,6 +197,30 @@ class LiveConfig(Strict):
         return tls.check_key(path, info.data.get("tls_cert"))
 
 
+LSL_NAME = r"[A-Za-z0-9][A-Za-z0-9_.-]{0,31}"
+"""What an LSL stream name's prefix may be: a word LabRecorder shows and a file name
+may hold."""
+
+
+class LslConfig(Strict):
+    """Added: a Lab Streaming Layer outlet per node and record (docs/labrecorder.md);
+    the optional extra ``[lsl]`` (pylsl)."""
+
+    prefix: str = "gx2"
+    """Streams are named ``<prefix>-<node>-<record>``."""
+    queue: Annotated[int, Field(ge=100, le=10_000_000)] = 10_000
+    """Samples waiting for liblsl before new ones are dropped (and counted): some
+    seconds of a saturated line."""
+
+    @field_validator("prefix")
+    @classmethod
+    def _stream_name(cls, value: str) -> str:
+        if not re.fullmatch(LSL_NAME, value):
+            raise ValueError(f"{value!r}: 1 to 32 letters, digits, '_', '.' or '-', "
+                             "starting with a letter or digit")
+        return value
+
+
 FLOOR_UNSEEN_S = 30.0
 """The default of health.floor_unseen_s: from 30 s unseen, ``time`` may be late by 1 ms
 (aspp.clock.DRIFT_ERROR), the worst error the sample time's targets allow
@@ -268,6 +293,7 @@ class GatewayConfig(Strict):
     record: RecordConfig | None = None
     metrics: MetricsConfig | None = None
     live: LiveConfig | None = None
+    lsl: LslConfig | None = None
     health: HealthConfig = HealthConfig()
     nodes: list[NodeEntry] | None = None
     """The one station's nodes (with ``base_station:``); :attr:`all_nodes` is every
@@ -307,11 +333,12 @@ class GatewayConfig(Strict):
                                                      default_station_name(index)})
                           for index, station in enumerate(stations)]
 
-    @field_validator("record", mode="before")
+    @field_validator("record", "lsl", mode="before")
     @classmethod
     def _bare_record(cls, value: Any) -> Any:
-        # a ``record:`` with every key under it commented out is YAML's null: it asks for
-        # recording, with the defaults, rather than silently for none (leave it out)
+        # a ``record:`` (or ``lsl:``) with every key under it commented out is YAML's
+        # null: it asks for the output, with the defaults, rather than silently for
+        # none (leave it out)
         return {} if value is None else value
 
     @model_validator(mode="after")

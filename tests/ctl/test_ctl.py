@@ -741,15 +741,18 @@ def test_status_and_top_show_how_late_time_may_be_while_a_clock_floor_is_unseen(
     assert clock_cell(unseen, unit="") == "+40.1, <=1.4 ms late"  # (top's narrower column)
 
 
-def test_status_shows_recording_and_replay_only_when_there_are_any():
+def test_status_shows_recording_replay_and_lsl_only_when_there_are_any():
     from gateway.ctl.statusview import status_lines
     plain = status_lines({"gateway": {}, "link": {}, "nodes": [], "recording": None,
-                          "replay": None}, 0.0)
-    assert not any(line.startswith(("record", "replay")) for line in plain)
+                          "replay": None, "lsl": None}, 0.0)
+    assert not any(line.startswith(("record", "replay", "lsl")) for line in plain)
     lines = status_lines({"gateway": {}, "link": {}, "nodes": [],
                           "recording": {"file": "/r/gx2-a.mcap", "written": 1200,
                                         "dropped": 7, "error": "File too large"},
-                          "replay": {"reads": 55, "finished": True}}, 0.0)
+                          "replay": {"reads": 55, "finished": True},
+                          "lsl": {"streams": ["gx2-76-euler", "gx2-77-euler"],
+                                  "pushed": 3000, "dropped": 2}}, 0.0)
+    assert "lsl      2 streams, pushed 3000, dropped 2" in lines
     assert "record   /r/gx2-a.mcap, written 1200, dropped 7 (last error: File too large)" \
         in lines
     assert "replay   55 reads played, finished" in lines

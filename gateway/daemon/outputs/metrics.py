@@ -88,6 +88,12 @@ RECORDING = (
     ("gx2_recording_bytes", GAUGE, "Bytes the recordings of its directory take (the file "
      "being written included)", "bytes"),
 )
+LSL = (
+    ("gx2_lsl_pushed_total", COUNTER, "Samples pushed into Lab Streaming Layer outlets",
+     "pushed"),
+    ("gx2_lsl_dropped_total", COUNTER, "Samples never pushed (queue full, or liblsl "
+     "refused them)", "dropped"),
+)
 OUTPUT = (
     ("gx2_output_take_failures_total", COUNTER, "Messages an output failed to take (a "
      "bug, contained: the other outputs still got them; the log says what)",
@@ -188,6 +194,9 @@ def families(report: Mapping[str, Any]) -> Iterator[Metric]:
     recording = report.get("recording")
     if isinstance(recording, Mapping):
         yield from _table(RECORDING, [], [([], recording)])
+    lsl = report.get("lsl")
+    if isinstance(lsl, Mapping):
+        yield from _table(LSL, [], [([], lsl)])
     yield from _table(OUTPUT, ["output"], [([str(name)], as_map(said)) for name, said
                                            in as_map(report.get("outputs")).items()])
 

@@ -133,6 +133,14 @@ def test_the_link_down_is_a_zero_and_recording_counters_appear_when_it_records(
     assert got["gx2_recording_dropped"] == {(): 2.0}
     assert got["gx2_recording_bytes"] == {(): 12_345.0}
     assert got["gx2_gateway_health"] == {(): 0.0}
+    assert "gx2_lsl_dropped" not in got  # (no lsl: configured)
+
+
+def test_the_lsl_counters_appear_with_lsl(server) -> None:
+    server.report(report(lsl={"streams": ["gx2-76-euler"], "pushed": 500, "dropped": 3}))
+    got = {name: values(family) for name, family in scrape(server).items()}
+    assert got["gx2_lsl_pushed"] == {(): 500.0}
+    assert got["gx2_lsl_dropped"] == {(): 3.0}
 
 
 @pytest.mark.parametrize(("health", "value"), [("OK", 0.0), ("WARN", 1.0), ("ERROR", 2.0)])
