@@ -114,7 +114,9 @@ class Gateway:
         self.health = Health(self.nodes.values(), config.health,
                              lines=[(None if len(self.stations) == 1 else station.name,
                                      station.line) for station in self.stations],
-                             recorder=self.recorder)
+                             recorder=self.recorder,
+                             heard=[(None if len(self.stations) == 1 else station.name,
+                                     station.reader.heard) for station in self.stations])
         # only once nothing above can fail: the embedded simulator makes a directory
         for station in self.stations:
             station.open(self.recorder)

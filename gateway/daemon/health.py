@@ -17,6 +17,11 @@ is full, an I/O error): publishing goes on, but nothing is kept, and monitoring 
 hear of it (issue 20: a read-only directory and a full disk passed ``status --check``).
 WARN while the recorder's queue overflowed within the window (the disk does not keep
 up). ``gx2ctl status --check`` fails on either; ``gx2_gateway_health`` carries it.
+
+A base station has reasons of its own, in its map of status and among the gateway's
+(named by the station when there are several), each a WARN: its line over capacity, and
+a node it is not configured for that streams on its channel (:mod:`.station.heard`):
+that node takes radio time from the configured ones, and its packets line time.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from typing import Any, NamedTuple, Protocol
 from gateway.common.protocol import HealthLevel as Level
 
 from .config import HealthConfig
+from .station.heard import Heard
 from .station.lineload import LineLoad
 from .station.nodes import Node, State
 
@@ -203,6 +209,19 @@ def judge_gateway(failure: str, overflowed: int, seconds: float) -> Verdict:
     return Verdict(Level.OK, ())
 
 
+def unconfigured_streams(heard: Heard, now: float) -> list[str]:
+    """A reason for each node that streams on the channel though it is not configured
+    (``now``: ``time.monotonic()``)."""
+    return [f"node {node.address} (not configured) streams {node.record} at {rate:.4g} Hz "
+            "on its channel" for node, rate in heard.streaming(now)]
+
+
+def station_reasons(line: LineLoad, heard: Heard, now: float) -> list[str]:
+    """Why a base station is not all well (each a WARN): its line over capacity, and
+    the nodes it is not configured for that stream on its channel."""
+    return [*([line.reason()] if line.over else []), *unconfigured_streams(heard, now)]
+
+
 def _trim(samples: deque[tuple[float, int]], now: float, seconds: float) -> None:
     """Keep the samples of the last ``seconds``, and the one before them."""
     while len(samples) > 1 and samples[1][0] <= now - seconds:
@@ -215,7 +234,8 @@ class Health:
 
     def __init__(self, nodes: Iterable[Node], limits: HealthConfig,
                  lines: Iterable[tuple[str | None, LineLoad]] = (),
-                 recorder: Recording | None = None) -> None:
+                 recorder: Recording | None = None,
+                 heard: Iterable[tuple[str | None, Heard]] = ()) -> None:
         self.limits = limits
         self.nodes = list(nodes)
         self._windows = {node.address: Window(limits.window_s) for node in self.nodes}
@@ -223,6 +243,9 @@ class Health:
         self.lines = list(lines)
         """Each base station's serial line, with its name (None for a gateway's only
         one): a line over capacity is a WARN of the gateway's."""
+        self.heard = list(heard)
+        """Each base station's unconfigured nodes heard, with its name (as ``lines``):
+        one that streams is a WARN of the gateway's."""
         self.recorder = recorder
         """The gateway's recorder, if it records: what its own health is judged by."""
         self._overflows: deque[tuple[float, int]] = deque()
@@ -268,6 +291,8 @@ class Health:
             verdict = judge_gateway(recorder.failure, overflowed, seconds)
         full = [line.reason() if name is None else f"base station {name}: {line.reason()}"
                 for name, line in self.lines if line.over]
+        full += [why if name is None else f"base station {name}: {why}"
+                 for name, heard in self.heard for why in unconfigured_streams(heard, now)]
         if full:
             verdict = Verdict(max(verdict.level, Level.WARN, key=LEVELS.index),
                               (*verdict.reasons, *full))

@@ -71,7 +71,7 @@ class Station:
         self.reader = Reader(self.nodes, self.recorded or publisher,  # type: ignore[arg-type]
                              self.supervisor, self.scheduler,
                              config.idle_ms / 1000, idle_timer=not self.replaying,
-                             byte_time=line_byte)
+                             byte_time=line_byte, station=self.name)
         self.channels = channels
         """Its serial channels in a recording: (reads, writes)."""
         self._publisher = publisher
