@@ -26,8 +26,8 @@ LABEL = 9
 """Cells before an item line's first item ("gateway  ", "link     "): where a broken
 line goes on."""
 HEARD_SHOWN = 8
-"""Nodes heard shown under a station (those streaming first, then the most recently
-heard); ``--json`` lists them all."""
+"""Nodes heard shown under a station (those streaming first, by address, then the most
+recently heard); ``--json`` lists them all."""
 
 
 def _key(key: str) -> Any:
@@ -150,8 +150,8 @@ def heard_item(heard: Mapping[str, Any], now: float) -> str:
 def heard_lines(station: Mapping[str, Any], now: float, width: int | None) -> list[str]:
     """The nodes a station heard that are not configured, one a line under its own."""
     heard = [as_map(h) for h in station.get("heard") or () if isinstance(h, Mapping)]
-    heard.sort(key=lambda h: (number(h.get("rate_hz")) is None,
-                              -(number(h.get("last_heard")) or 0.0)))
+    heard.sort(key=lambda h: (1, -(number(h.get("last_heard")) or 0.0))
+               if number(h.get("rate_hz")) is None else (0, number(h.get("address")) or 0))
     lines = [clipped(f"{'':{LABEL - 1}} heard, not configured: {heard_item(h, now)}", width)
              for h in heard[:HEARD_SHOWN]]
     if len(heard) > HEARD_SHOWN:
