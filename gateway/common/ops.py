@@ -206,6 +206,15 @@ OPS: tuple[Op, ...] = (
        "temperatures plausible. BIT is always switched off again. One line per check; "
        "exit 0 only if all pass. A stream the node is running is stopped for the test "
        "and started again afterwards. gx2ctl waits 10 s on top of --timeout."),
+    Op("reload", ("reload",), "re-read the configuration file, as SIGHUP: nodes added, "
+       "removed or changed; nothing else touched", talks_to_node=False,
+       on_cancel="the reload goes on (the gateway logs what it changed)",
+       description="Re-read the gateway's configuration file, as systemctl reload "
+       "(SIGHUP) does: nodes added are armed, nodes removed stopped and forgotten, "
+       "changed nodes armed again; every other node streams on untouched. Prints what "
+       "changed. A file that does not check is refused (exit 2), one that changes "
+       "what needs a restart (an endpoint, a station's port, the recording) is refused "
+       "(exit 1) naming the key; either way the running configuration is kept whole."),
     Op("mark", ("mark",), "mark a moment (a trial's start, a knock, a note) in what is "
        "recorded", (Param("nodes", NODE, "the nodes it concerns (default: the whole "
                           "experiment)", many=MAX_PING_NODES, default=()),

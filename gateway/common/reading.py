@@ -10,10 +10,15 @@ from typing import Any
 
 
 def number(value: Any) -> float | None:
-    """A finite real number, or None (a bool, a string, NaN or an infinity is not one)."""
+    """A finite real number, or None (a bool, a string, NaN, an infinity or an integer
+    too large for a float, such as a foreign recording's 10**400, is not one)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return None
-    return float(value) if math.isfinite(value) else None
+    try:
+        real = float(value)
+    except OverflowError:
+        return None
+    return real if math.isfinite(real) else None
 
 
 def as_map(value: Any) -> Mapping[str, Any]:

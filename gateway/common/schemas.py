@@ -177,6 +177,12 @@ def status_schema() -> Schema:
                             "replay://"),
             "live": _part(["object", "null"], "the live view (Foxglove WebSocket): its "
                           "endpoint, viewers and channels; null without live:"),
+            "outputs": {"type": "object", "additionalProperties": _part(
+                "object", "one output: take_failures, the messages it failed to take (a "
+                "bug, contained: every other output still got them)", ("take_failures",),
+                take_failures={"type": "integer", "minimum": 0}),
+                "description": "each output given the published messages beside ZeroMQ "
+                               "(live, recording, ...), by name"},
         },
         "required": ["gateway", "link", "nodes", "recording", "replay"],
         "additionalProperties": False,

@@ -244,6 +244,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "keygen":
             return run_keygen(args.prefix)
+        if args.command == "recordings":
+            from .recordings import run_recordings
+            return run_recordings(args)
         if args.command in ("export", "plot"):
             from .offline import run_export, run_plot
             return (run_export if args.command == "export" else run_plot)(args)

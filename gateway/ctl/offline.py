@@ -1,11 +1,14 @@
-"""gx2ctl's commands that read recordings and need no gateway: ``export`` and ``plot``.
+"""gx2ctl's commands that read recordings and need no gateway: ``recordings``,
+``export`` and ``plot``; export and plot read a window of them (:mod:`gateway.recording.window`).
 
 Exit status: 0 written; 1 ("partial") written, but something unreadable was skipped
 (a file among others that is empty or not MCAP, a damaged chunk: one line each on
-stderr); 2 no file given is a recording, no such node or record in them, or an
-optional extra not installed (the line says how to install it); 130 interrupted, no
-table left cut (the tables already whole are named). A file whose writer was killed
-is read up to where it ends, with a line saying so: that alone is not partial.
+stderr); 2 no file given is a recording, no such node or record in them, a window
+that cannot be taken (outside every file, a mark that never occurs, ``--to`` not after
+``--from``), or an optional extra not installed (the line says how to install it);
+130 interrupted, no table left cut (the tables already whole are named). A file whose
+writer was killed is read up to where it ends, with a line saying so: that alone is not
+partial.
 """
 
 from __future__ import annotations
@@ -23,7 +26,30 @@ from . import PROG
 from .client import CtlError
 
 if TYPE_CHECKING:
+    from gateway.recording.catalogue import Described
     from gateway.recording.reports import Reading
+    from gateway.recording.window import Window
+
+WINDOW_HELP = ("--from and --to: ISO 8601 with a zone (2026-11-25T10:00:00Z), seconds from "
+               "the recordings' start, or a mark's text (the first such mark)")
+
+
+def add_window_options(parser: argparse.ArgumentParser, nodes: bool = True) -> None:
+    """The options of a window of recordings (docs/recording.md)."""
+    group = parser.add_argument_group("window", WINDOW_HELP)
+    group.add_argument("--from", dest="start", metavar="WHEN",
+                       help="read from this time (held)")
+    group.add_argument("--to", dest="stop", metavar="WHEN",
+                       help="read up to this time (not held; a mark named is held)")
+    group.add_argument("--between-marks", dest="between", nargs=2, metavar=("START", "STOP"),
+                       help="each trial from a mark START to the next mark STOP")
+    group.add_argument("--trial", type=int, metavar="N",
+                       help="only the Nth trial of --between-marks (1 is the first)")
+    if nodes:
+        group.add_argument("--node", dest="nodes", type=node_address, action="append",
+                           default=[], metavar="N", help="only this node (repeatable)")
+        group.add_argument("--record", dest="records", action="append", default=[],
+                           metavar="NAME", help="only this record (repeatable)")
 
 
 def add_commands(commands: Any) -> None:
@@ -39,6 +65,7 @@ def add_commands(commands: Any) -> None:
     exporter.add_argument("--format", dest="form", choices=("csv", "parquet", "mat"),
                           default="csv", help="csv (default), parquet (needs "
                           "gx2-gateway[parquet]), or mat: MATLAB (needs gx2-gateway[mat])")
+    add_window_options(exporter)
     plotter = commands.add_parser(
         "plot", help="draw a node's recorded stream to a PNG",
         description="One panel per field group against time, units on the axes, the "
@@ -51,6 +78,19 @@ def add_commands(commands: Any) -> None:
                          help="the record to draw (default: the one the node has most of)")
     plotter.add_argument("--out", metavar="FILE.png",
                          help="default: <address>_<record>.png here")
+    add_window_options(plotter, nodes=False)
+    catalogue = commands.add_parser(
+        "recordings", help="list what recordings hold, from their summaries",
+        description="Per file, sorted by time: its span, size, stations, nodes and records "
+        "with message counts, and marks; overlapping and repeated files said. A finished "
+        "file is described from its summary (its messages unread); one without (its "
+        "writer killed, cut short, damaged) is read through and says so. Default: the "
+        "record directory of the gateway's --config, else the gateway's default record "
+        "directory. Exit 1 if a file is damaged, 2 if none is a recording.")
+    catalogue.add_argument("paths", nargs="*", metavar="DIR | FILE.mcap")
+    # (SUPPRESS: given before the command, as in ``gx2ctl --json status``, it holds too)
+    catalogue.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
+                           help='one line: {"files": [{"path", "start", "end", ...}]}')
 
 
 def _files(given: list[str]) -> list[Path]:
@@ -69,36 +109,70 @@ def _report(reading: Reading) -> int:
     return PARTIAL if reading.partial else Exit.OK
 
 
+def _windows(args: argparse.Namespace, paths: list[Path]
+             ) -> tuple[list[Described], list[Window]]:
+    """The catalogue of the recordings and the windows asked of them (exit 2 for one
+    that cannot be taken)."""
+    from gateway.recording.catalogue import catalogue
+    from gateway.recording.window import Asked, WindowError, windows
+    asked = Asked(args.start, args.stop, tuple(args.between) if args.between else None,
+                  args.trial, tuple(getattr(args, "nodes", ())),
+                  tuple(getattr(args, "records", ())))
+    files = catalogue(paths, whole=asked.marked)  # (marks read only when they name it)
+    try:
+        return files, windows(asked, files)
+    except WindowError as error:
+        raise CtlError(str(error), Exit.USAGE) from None
+
+
 def run_export(args: argparse.Namespace) -> int:
-    from gateway.recording.export import MARKS, MissingExtra, RecordingError, export
     from gateway.recording.reports import Reading
+    from gateway.recording.window import Reader, touched
     paths = _files(args.files)
+    files, chosen = _windows(args, paths)
     reading = Reading()
+    reader = Reader(files, reading)
+    found = 0
+    for window in chosen:
+        out = Path(args.out) / window.label if window.label else Path(args.out)
+        total = sum(d.bytes for d in touched(files, window))
+        found += _export_window(args, paths, out, reading, reader.entries(window), total)
+    status = _report(reading)
+    if not found:
+        raise CtlError(f"no node records in {', '.join(args.files)}"
+                       + (" in that window" if args.start or args.stop or args.between
+                          else ""), Exit.USAGE)
+    if reader.duplicates:
+        print(f"dropped {reader.duplicates:,} duplicate messages (met twice: a file "
+              "given twice, or files that overlap)")
+    return status
+
+
+def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
+                   reading: Reading, entries: Any, total: int) -> int:
+    """One window's tables written to ``out``, a line each; how many (marks too)."""
+    from gateway.recording.export import MARKS, MissingExtra, RecordingError, export
     written: list[Path] = []
-    total = sum(path.stat().st_size for path in paths)
     try:
         with ProgressBar(total, sys.stderr.isatty()) as bar:
-            tables, marks = export(paths, Path(args.out), reading, args.form, bar.advance,
-                                   written)
+            tables, marks = export(paths, out, reading, args.form, bar.advance,
+                                   written, entries)
     except MissingExtra as error:
         raise CtlError(str(error), Exit.USAGE) from None
     except RecordingError as error:
         raise CtlError(str(error), Exit.USAGE) from None
     except OSError as error:
-        raise CtlError(f"{args.out}: {error.strerror or error}", Exit.USAGE) from None
+        raise CtlError(f"{out}: {error.strerror or error}", Exit.USAGE) from None
     except KeyboardInterrupt:
         whole = ", ".join(str(path) for path in written) if written else "no table"
-        raise CtlError(f"interrupted: wrote {whole}; nothing else was left in {args.out}",
+        raise CtlError(f"interrupted: wrote {whole}; nothing else was left in {out}",
                        128 + signal.SIGINT) from None
-    status = _report(reading)
-    if not tables and not marks:
-        raise CtlError(f"no node records in {', '.join(args.files)}", Exit.USAGE)
     for path, table in tables:
         apart = table.losses.apart()
         print(f"{path}  {table.rows:,} rows" + (f" ({apart})" if apart else ""))
     if marks:
-        print(f"{Path(args.out) / f'{MARKS}.{args.form}'}  {marks:,} marks")
-    return status
+        print(f"{out / f'{MARKS}.{args.form}'}  {marks:,} marks")
+    return len(tables) + marks
 
 
 def run_plot(args: argparse.Namespace) -> int:
@@ -106,10 +180,16 @@ def run_plot(args: argparse.Namespace) -> int:
     from gateway.recording.files import RecordingError
     from gateway.recording.plot import draw, picture, records_of
     from gateway.recording.reports import Reading
+    from gateway.recording.window import Reader
     paths = _files([args.file])
+    files, chosen = _windows(args, paths)
+    if len(chosen) > 1:
+        raise CtlError(f"{len(chosen)} trials between those marks: pick one with --trial N",
+                       Exit.USAGE)
     reading = Reading()
     try:
-        found = records_of(paths, args.node, args.record, reading)
+        found = records_of(paths, args.node, args.record, reading,
+                           Reader(files, reading).entries(chosen[0]))
         image = picture(args.node, found.record, found.payloads, found.name, found.marks,
                         found.counts)
     except (ValueError, RecordingError) as error:

@@ -264,3 +264,16 @@ def _mark(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
              else "")
     return Shown([f"mark at {time_of_day(result.get('time'))}: {cell(result.get('text'))}"
                   f"{named}"])
+
+
+@prints("reload")
+def _reload(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    lines = [f"{what}: {', '.join(cell(n) for n in nodes)}"
+             for what in ("added", "removed", "changed")
+             if isinstance(nodes := result.get(what), list) and nodes]
+    unconfirmed = [entry for entry in result.get("not_stopped") or ()
+                   if isinstance(entry, Mapping)]
+    lines += [f"removed {cell(e.get('node'))} not confirmed stopped: {cell(e.get('error'))}"
+              for e in unconfirmed]
+    return Shown(lines or ["reloaded: no node changed"],
+                 failure="a removed node was not confirmed stopped" if unconfirmed else None)

@@ -24,6 +24,7 @@ import gc
 import json
 import logging
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import zmq
@@ -41,6 +42,7 @@ from .errors import StartupError
 from .health import SAMPLE_PERIOD, Health
 from .operations import Operations
 from .outputs import Needs, Output, Outputs, build, close_built
+from .reload import Reloader
 from .sd_notify import Notifier
 from .station.replay import ReplayLink
 from .station.replayread import ReplayReaders
@@ -63,7 +65,8 @@ EXIT_BUDGET = 1.5
 
 
 class Gateway:
-    def __init__(self, config: GatewayConfig) -> None:
+    def __init__(self, config: GatewayConfig, path: str | Path | None = None) -> None:
+        """``path``: the file ``config`` was read from, which a reload reads again."""
         self.config = config
         self.started = time.time()
         self.systemd = Notifier()
@@ -115,8 +118,14 @@ class Gateway:
                              lines=[(None if len(self.stations) == 1 else station.name,
                                      station.line) for station in self.stations],
                              recorder=self.recorder,
+                             take_failures=self.outputs.take_failures,
                              heard=[(None if len(self.stations) == 1 else station.name,
                                      station.reader.heard) for station in self.stations])
+        self.reloader: Reloader | None = None
+        if path is not None:
+            self.reloader = Reloader(path, lambda: self.config, self._reloaded,
+                                     self.stations, self.health, self.ops)
+            self.ops.reload = self.reloader.reload
         # only once nothing above can fail: the embedded simulator makes a directory
         for station in self.stations:
             station.open(self.recorder)
@@ -171,6 +180,8 @@ class Gateway:
         # answered at once ("shutting down") and cancelled: its client hears why now,
         # not at its own timeout, and what a cancelled quiet command would have
         # started again afterwards is not (issue 19)
+        if self.reloader is not None:
+            self.reloader.close()
         for station in self.stations:
             station.supervisor.close()
         self.control.close()
@@ -210,6 +221,12 @@ class Gateway:
                  "latency_ms": s.latency_ms, "nodes": [n.address for n in s.nodes]}
                 for s in config.stations])
         return metadata
+
+    def _reloaded(self, config: GatewayConfig) -> None:
+        """A reload applied ``config`` (its nodes; nothing else differs): a new
+        recording file's metadata says so, and status at once."""
+        self.config = config
+        self.outputs.status(self.status())
 
     def _replay_ended(self, station: Station) -> None:
         self.outputs.status(self.status())

@@ -20,6 +20,8 @@ def _exit_quietly(signum: int, frame: FrameType | None) -> NoReturn:
 def main(argv: list[str] | None = None) -> int:
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, _exit_quietly)
+    # a reload before the loop runs has nothing to reload: the file is being read now
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
 
     import asyncio
     import logging
@@ -93,7 +95,10 @@ def main(argv: list[str] | None = None) -> int:
         loop = asyncio.get_running_loop()
         for signum in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(signum, stop.set)
-        gateway = Gateway(config)
+        gateway = Gateway(config, args.config)
+        assert gateway.reloader is not None
+        # systemctl reload: the file read again, its nodes applied (or refused, logged)
+        loop.add_signal_handler(signal.SIGHUP, gateway.reloader.soon)
         await gateway.run(stop)
         return gateway.exit_status
 

@@ -16,7 +16,9 @@ recorder. ERROR while the recorder cannot write (the directory cannot be made, t
 is full, an I/O error): publishing goes on, but nothing is kept, and monitoring must
 hear of it (issue 20: a read-only directory and a full disk passed ``status --check``).
 WARN while the recorder's queue overflowed within the window (the disk does not keep
-up). ``gx2ctl status --check`` fails on either; ``gx2_gateway_health`` carries it.
+up), or while an output failed to take messages within it (a bug the fan-out contained:
+that output lost them, the others did not). ``gx2ctl status --check`` fails on each;
+``gx2_gateway_health`` carries it.
 
 A base station has reasons of its own, in its map of status and among the gateway's
 (named by the station when there are several), each a WARN: its line over capacity, and
@@ -29,7 +31,7 @@ from __future__ import annotations
 import logging
 import statistics
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from typing import Any, NamedTuple, Protocol
 
 from gateway.common.protocol import HealthLevel as Level
@@ -222,7 +224,15 @@ def station_reasons(line: LineLoad, heard: Heard, now: float) -> list[str]:
     return [*([line.reason()] if line.over else []), *unconfigured_streams(heard, now)]
 
 
-def _trim(samples: deque[tuple[float, int]], now: float, seconds: float) -> None:
+def take_failed(output: str, count: int, seconds: float) -> str:
+    """The gateway's WARN reason for an output that failed to take ``count`` messages
+    over the last ``seconds`` (the fan-out logged the first of each kind of error)."""
+    return (f"output {output} failed to take {count} message{'s' if count > 1 else ''} in "
+            f"{seconds:.0f} s: a bug, contained (the other outputs got them; the log says "
+            "what)")
+
+
+def _trim(samples: deque[tuple[float, Any]], now: float, seconds: float) -> None:
     """Keep the samples of the last ``seconds``, and the one before them."""
     while len(samples) > 1 and samples[1][0] <= now - seconds:
         samples.popleft()
@@ -235,6 +245,7 @@ class Health:
     def __init__(self, nodes: Iterable[Node], limits: HealthConfig,
                  lines: Iterable[tuple[str | None, LineLoad]] = (),
                  recorder: Recording | None = None,
+                 take_failures: Mapping[str, int] | None = None,
                  heard: Iterable[tuple[str | None, Heard]] = ()) -> None:
         self.limits = limits
         self.nodes = list(nodes)
@@ -249,6 +260,10 @@ class Health:
         self.recorder = recorder
         """The gateway's recorder, if it records: what its own health is judged by."""
         self._overflows: deque[tuple[float, int]] = deque()
+        self.take_failures = take_failures
+        """Output name -> messages its take raised on (the fan-out's count, kept up to
+        date by it)."""
+        self._failures: deque[tuple[float, dict[str, int]]] = deque()
         self._gateway = Verdict(Level.OK, ())
 
     def sample(self, now: float) -> None:
@@ -259,6 +274,11 @@ class Health:
                 self._overflows.append((now, 0))
             self._overflows.append((now, self.recorder.overflowed))
             _trim(self._overflows, now, self.limits.window_s)
+        if self.take_failures is not None:
+            if not self._failures:  # (what failed before the first sample counts)
+                self._failures.append((now, {}))
+            self._failures.append((now, dict(self.take_failures)))
+            _trim(self._failures, now, self.limits.window_s)
         verdict, before = self.gateway(now), self._gateway
         self._gateway = verdict
         if verdict.level != before.level:
@@ -276,6 +296,17 @@ class Health:
                         verdict.level, f": {'; '.join(verdict.reasons)}"
                         if verdict.reasons else "")
 
+    def add(self, node: Node) -> None:
+        """A node added by a reload: judged from now on."""
+        self.nodes.append(node)
+        self._windows[node.address] = Window(self.limits.window_s)
+
+    def remove(self, address: int) -> None:
+        """A node removed by a reload: forgotten, its window and its verdict."""
+        self.nodes = [node for node in self.nodes if node.address != address]
+        self._windows.pop(address, None)
+        self._verdicts.pop(address, None)
+
     def recent(self, node: Node, now: float) -> Recent:
         return self._windows[node.address].recent(node, now)
 
@@ -289,6 +320,14 @@ class Health:
                 at, before = self._overflows[0]
                 overflowed, seconds = recorder.overflowed - before, now - at
             verdict = judge_gateway(recorder.failure, overflowed, seconds)
+        if self.take_failures is not None and self._failures:
+            at, before_counts = self._failures[0]
+            failed = [take_failed(name, count - before_counts.get(name, 0), now - at)
+                      for name, count in self.take_failures.items()
+                      if count > before_counts.get(name, 0)]
+            if failed:
+                verdict = Verdict(max(verdict.level, Level.WARN, key=LEVELS.index),
+                                  (*verdict.reasons, *failed))
         full = [line.reason() if name is None else f"base station {name}: {line.reason()}"
                 for name, line in self.lines if line.over]
         full += [why if name is None else f"base station {name}: {why}"

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections import Counter
 from collections.abc import Awaitable, Callable, Coroutine, Sequence
 from typing import Any, Protocol
 
@@ -57,7 +58,8 @@ class Operations:
 
     def __init__(self, stations: Sequence[StationParts], status: Callable[[], Result], *,
                  allow_eeprom_write: bool, allow_any_eeprom_address: bool = False,
-                 publish_mark: Callable[[Result], bool] | None = None) -> None:
+                 publish_mark: Callable[[Result], bool] | None = None,
+                 reload: Callable[[], Awaitable[Result]] | None = None) -> None:
         self.stations = stations if isinstance(stations, Stations) else Stations(stations)
         """The one node -> station map is the gateway's (:mod:`.stations`), shared."""
         self.nodes = self.stations.nodes
@@ -69,14 +71,40 @@ class Operations:
         """Playing a recording: nothing may be sent to a node."""
         self.publish_mark = publish_mark
         """Publishes a mark (and so records it); False if it could not be published."""
+        self.reload = reload
+        """Reloads the configuration file (:class:`~.reload.Reloader`); None: cannot."""
         self._tasks: set[asyncio.Task[None]] = set()
+        self._running: Counter[int] = Counter()
+        """Node address -> the requests naming it that are running."""
+        self._waiting: list[asyncio.Event] = []
 
     async def run(self, request: RequestBase) -> Result:
         op = request.op  # type: ignore[attr-defined]
         if self.replaying and ops.BY_NAME[op].talks_to_node:
             raise Refused(f"{op}: this gateway is replaying a recording and sends "
                           "nothing to any node")
-        return await HANDLERS[op](self, request)
+        named = _named(request)
+        self._running.update(named)
+        try:
+            return await HANDLERS[op](self, request)
+        finally:
+            for address in named:
+                self._running[address] -= 1
+                if not self._running[address]:
+                    del self._running[address]
+            for event in self._waiting:
+                event.set()
+
+    async def idle(self, addresses: set[int]) -> None:
+        """Until no request naming one of ``addresses`` runs (a reload waits so for the
+        nodes it changes; it never cancels an operation)."""
+        while any(self._running[address] > 0 for address in addresses):
+            event = asyncio.Event()
+            self._waiting.append(event)
+            try:
+                await event.wait()
+            finally:
+                self._waiting.remove(event)
 
     def scheduler(self, node: Node) -> Scheduler:
         """The scheduler of the base station ``node`` is on."""
@@ -220,6 +248,21 @@ async def info(gw: Operations, request: Any) -> Result:
     return {"node": node.address, "firmware": version,
             "firmware_version": commands.firmware_text(version), "model_number": texts[0],
             "serial_number": texts[1], "model_name": texts[2], "options": texts[3]}
+
+
+def _named(request: Any) -> list[int]:
+    """The node addresses a request names."""
+    node = getattr(request, "node", None)
+    return [*(() if node is None else (node,)), *getattr(request, "nodes", ())]
+
+
+@handles("reload")
+async def reload(gw: Operations, request: Any) -> Result:
+    """As SIGHUP: the nodes of the configuration file applied, or the reload refused
+    whole (Invalid: the file does not check; Refused: it needs a restart)."""
+    if gw.reload is None:
+        raise Refused("reload: this gateway was not started from a configuration file")
+    return await gw.reload()
 
 
 @handles("mark")

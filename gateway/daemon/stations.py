@@ -1,7 +1,8 @@
 """The gateway's base stations, and the one map of which node is on which.
 
 Everything that asks "which station is node N on?" (the operations, the gateway's
-status, its health) reads it here: built once, when the stations are.
+status, its health) reads it here: built when the stations are, and changed only by a
+reload (:mod:`.reload`), in place, so every holder of its maps sees the change.
 """
 
 from __future__ import annotations
@@ -36,6 +37,16 @@ class Stations(Sequence[S], Generic[S]):
         """Node address -> its state, every station's."""
         self.replaying = any(station.replaying for station in self._all)
         """Some station plays a recording: nothing may be sent to a node."""
+
+    def add(self, station: S, node: Node) -> None:
+        """``node`` is on ``station`` from now on (a reload added it)."""
+        self.of[node.address] = station
+        self.nodes[node.address] = node
+
+    def remove(self, address: int) -> Node:
+        """Node ``address`` is on no station any more (a reload removed it): its state."""
+        del self.of[address]
+        return self.nodes.pop(address)
 
     @overload
     def __getitem__(self, index: int) -> S: ...

@@ -67,6 +67,7 @@ def report(gateway: Reported) -> dict[str, Any]:
                    "by_record": published.get(node.address, {})}
                   for node in gateway.nodes.values()],
         "replay": replay_status([s.link for s in gateway.stations]),
+        "outputs": gateway.outputs.guard_status(),
         **outputs_status(gateway.outputs),
     }
 
@@ -109,7 +110,7 @@ def station_link(station: Station, monotonic: float) -> dict[str, Any]:
             "retries": scheduler.stats.retries,
             "failures": scheduler.stats.failures,
             "unexpected_answers": scheduler.stats.unexpected,
-            "nodes": list(station.nodes),
+            "nodes": station.configured,
             "heard": reader.heard.status(monotonic),
             "heard_forgotten": reader.heard.forgotten,
             "reasons": station_reasons(station.line, reader.heard, monotonic)}

@@ -189,13 +189,16 @@ class Output:
 
 def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv",
            progress: Callable[[Entry], None] | None = None,
-           written: list[Path] | None = None) -> tuple[list[tuple[Path, Table]], int]:
+           written: list[Path] | None = None, entries: Iterable[Entry] | None = None
+           ) -> tuple[list[tuple[Path, Table]], int]:
     """Write the tables of the recordings ``paths`` into ``out``: (path, table) of each
     node's table, in the order first seen, and the number of marks (in ``marks.csv``).
     Each table written whole is added to ``written`` as it is. What reading skipped is
     in ``reading``. RecordingError for a message that is not a record's JSON object;
     MissingExtra for a format whose extra is not installed (Parquet: pyarrow, .mat:
-    scipy); on any error, or Ctrl-C, no table that was not whole is left."""
+    scipy); on any error, or Ctrl-C, no table that was not whole is left. ``entries``: the
+    messages to export (a window of the recordings, :mod:`.window`) in place of every
+    message of ``paths``."""
     if form in EXTRAS:
         EXTRAS[form]()
     out.mkdir(parents=True, exist_ok=True)
@@ -205,7 +208,7 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
     marks: Output | None = None
     done = [] if written is None else written
     try:
-        for entry in read_all(paths, reading):
+        for entry in read_all(paths, reading) if entries is None else entries:
             if progress is not None:
                 progress(entry)
             if entry.after_damage:

@@ -28,6 +28,7 @@ from typing import Any
 
 from mcap.opcode import Opcode
 
+from gateway.common.reading import number
 from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC
 
 SERIAL_READS = "serial"
@@ -93,17 +94,17 @@ def message_times(payload: Mapping[str, Any]) -> tuple[float, float]:
     """A published message's (logged, sampled) UNIX times: when it was read (a record's
     ``host_time``; a status's ``gateway.time``; now, for a message with neither), and
     when its sample was taken (``time``; else when it was read). The recording's
-    log_time and publish_time, and the live view's message time."""
+    log_time and publish_time, and the live view's message time. A time that is no
+    finite float (NaN, text, an integer too large for one) is taken as absent."""
     logged = payload.get("host_time")
     if logged is None:
         gateway = payload.get("gateway")
         logged = gateway.get("time") if isinstance(gateway, Mapping) else None
-    if not isinstance(logged, (int, float)) or not math.isfinite(logged):
+    logged = number(logged)
+    if logged is None:
         logged = time.time()
-    sampled = payload.get("time")
-    if not isinstance(sampled, (int, float)) or not math.isfinite(sampled):
-        sampled = logged
-    return logged, sampled
+    sampled = number(payload.get("time"))
+    return logged, logged if sampled is None else sampled
 
 
 MAGIC = b"\x89MCAP0\r\n"

@@ -30,6 +30,7 @@ import math
 import statistics
 import time
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -41,7 +42,7 @@ from gateway.common.topics import parse
 from .export import MissingExtra
 from .files import MARK, STATUS
 from .losses import Counted, Losses, Stream
-from .reader import Mark, read_all
+from .reader import Entry, Mark, read_all
 from .reports import Reading
 from .summary import Summary
 
@@ -108,16 +109,17 @@ class Found:
 
 
 def records_of(paths: list[Path], node: int, record: str | None,
-               reading: Reading) -> Found:
+               reading: Reading, entries: Iterable[Entry] | None = None) -> Found:
     """The node's records of one kind (by default the kind it has most of), its name,
-    and the marks that concern it, from the recordings; ValueError if there is none."""
+    and the marks that concern it, from the recordings (or from ``entries``, a window
+    of them); ValueError if there is none."""
     counts: Counter[str] = Counter()
     payloads: dict[str, list[dict]] = {}
     counted: dict[str, dict[int, Counted[int]]] = {}
     losses: Losses[tuple[str, int]] = Losses()
     marks: list[Mark] = []
     name = None
-    for entry in read_all(paths, reading):
+    for entry in read_all(paths, reading) if entries is None else entries:
         if entry.after_damage:
             losses.unread()
         if entry.topic == STATUS:

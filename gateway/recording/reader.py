@@ -4,7 +4,6 @@ the order written, and a report of what could not be read (:mod:`.reports`)."""
 from __future__ import annotations
 
 import json
-import math
 import os
 import struct
 import zlib
@@ -15,6 +14,8 @@ from typing import IO, Any
 
 import zstandard
 from mcap.opcode import Opcode
+
+from gateway.common.reading import number
 
 from .files import (
     CHUNK_HEAD,
@@ -28,6 +29,7 @@ from .files import (
     RecordingError,
     unreadable,
 )
+from .index import ChunkSpan, FileIndex, channel_of, parse
 from .reports import FileReport, Loss, Reading
 
 # --- reading --------------------------------------------------------------------------------
@@ -95,15 +97,21 @@ class Mark:
 
 
 def _seconds(value: Any, default: float) -> float:
-    if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
-        return float(value)
-    return default
+    real = number(value)
+    return default if real is None else real
 
 
-def read(path: Path, reading: Reading, topics: Iterable[str] | None = None
-         ) -> Iterator[Entry]:
+Span = tuple[int, int]
+"""A window of log_time: (first ns, ns after the last), end excluded."""
+
+
+def read(path: Path, reading: Reading, topics: Iterable[str] | None = None,
+         span: Span | None = None) -> Iterator[Entry]:
     """The messages of one file, in the order written, past any damage; what was
-    skipped (the whole file, or stretches of it) goes in a report added to ``reading``."""
+    skipped (the whole file, or stretches of it) goes in a report added to ``reading``.
+    With ``topics`` or ``span``, only the messages on those topics and logged in that
+    span, and only the chunks that can hold them decompressed (a finished file's
+    chunk index says where they are; in another, each chunk's header says its span)."""
     report = FileReport(path)
     reading.files.append(report)
     report.skipped = unreadable(path)
@@ -111,7 +119,7 @@ def read(path: Path, reading: Reading, topics: Iterable[str] | None = None
         wanted = None if topics is None else frozenset(topics)
         try:
             with path.open("rb") as stream:
-                yield from _Walk(stream, report).entries(wanted)
+                yield from _Walk(stream, report, span).entries(wanted)
         except OSError as error:  # the disk failing under the reader
             report.skipped = (f"reading failed after {report.read:,} messages: "
                               f"{error.strerror or error}")
@@ -119,38 +127,77 @@ def read(path: Path, reading: Reading, topics: Iterable[str] | None = None
 
 
 def read_all(paths: Iterable[Path], reading: Reading,
-             topics: Iterable[str] | None = None) -> Iterator[Entry]:
+             topics: Iterable[str] | None = None, span: Span | None = None
+             ) -> Iterator[Entry]:
     for path in paths:
-        yield from read(path, reading, topics)
+        yield from read(path, reading, topics, span)
+
+
+def index_of(path: Path) -> tuple[FileIndex | None, FileReport]:
+    """A finished file's summary, if it has a whole one (None otherwise), and the
+    report of looking (its ``summary`` says what was wrong with a damaged one)."""
+    report = FileReport(path)
+    report.skipped = unreadable(path)
+    if report.skipped:
+        return None, report
+    try:
+        with path.open("rb") as stream:
+            walk = _Walk(stream, report)
+            walk.find_summary()
+            return walk.index, report
+    except OSError as error:
+        report.skipped = str(error.strerror or error)
+        return None, report
 
 
 class _Walk:
     """One MCAP file read record by record, skipping what cannot be read."""
 
-    def __init__(self, stream: IO[bytes], report: FileReport) -> None:
+    def __init__(self, stream: IO[bytes], report: FileReport, span: Span | None = None
+                 ) -> None:
         self._stream = stream
         self._report = report
+        self._span = span
         self._size = os.fstat(stream.fileno()).st_size
         self._channels: dict[int, str] = {}
+        self.index: FileIndex | None = None
+        """The file's summary, where it has a whole one."""
         self._waiting: list[Loss] = []
         """Losses waiting for the next message read: when they ended."""
         self._counting: Loss | None = None
         """A damaged chunk, whose message index (after it) counts its messages."""
+        self._passed: tuple[int, int] | None = None
+        """A chunk passed over unread (outside the span): (offset, length) of its body,
+        decompressed after all if its message index names a channel not yet defined
+        (a file without summary defines each channel in the chunk that first uses it)."""
 
     def _at(self, offset: int, size: int) -> bytes:
         self._stream.seek(offset)
         return self._stream.read(size)
 
+    def find_summary(self) -> int:
+        """Where the data section ends (the summary read, if whole, into ``index``)."""
+        return self._summary()
+
     def entries(self, wanted: frozenset[str] | None) -> Iterator[Entry]:
         damaged = False  # (a skipped stretch before entries not wanted: said by the next)
-        for entry in self._entries():
+        span = self._span
+        for entry in self._entries(wanted):
             damaged = damaged or entry.after_damage
-            if wanted is None or entry.topic in wanted:
+            if (wanted is None or entry.topic in wanted) and (
+                    span is None or span[0] <= entry.log_time < span[1]):
                 yield replace(entry, after_damage=True) if damaged else entry
                 damaged = False
 
-    def _entries(self) -> Iterator[Entry]:
+    def _entries(self, wanted: frozenset[str] | None) -> Iterator[Entry]:
         end = self._summary()
+        if self.index is not None and self.index.chunks and (
+                self._span is not None or wanted is not None):
+            # only some of the file wanted: its chunk index says which chunks, and the
+            # message count cannot tell what damage lost any more (read less than it)
+            self._report.expected = None
+            yield from self._indexed(end, wanted)
+            return
         at = len(MAGIC)
         while at < end:
             head = self._at(at, RECORD_HEAD.size)
@@ -163,7 +210,13 @@ class _Walk:
             if opcode == Opcode.DATA_END:
                 self._report.whole = True
                 break
+            if opcode == Opcode.CHUNK and not self._touches(at):
+                self._counting = None
+                self._passed = (at + RECORD_HEAD.size, length)
+                at = after  # outside the span: passed over without reading it
+                continue
             if opcode == Opcode.CHUNK:
+                self._passed = None
                 found = self._chunk(self._at(at + RECORD_HEAD.size, length))
                 if found is None:
                     at = self._damaged_chunk(at, after, end)
@@ -185,6 +238,66 @@ class _Walk:
             at = after
         if at >= end and end < self._size:
             self._report.whole = True  # at the summary of a finished file
+
+    def _touches(self, at: int) -> bool:
+        """Whether the chunk at ``at`` can hold messages of the span, by its header."""
+        if self._span is None:
+            return True
+        head = self._at(at + RECORD_HEAD.size, 16)
+        if len(head) < 16:
+            return True  # (the walk finds out what is wrong with it)
+        start, stop = struct.unpack("<QQ", head)
+        return stop >= self._span[0] and start < self._span[1]
+
+    def _indexed(self, end: int, wanted: frozenset[str] | None) -> Iterator[Entry]:
+        """The messages of the chunks the index says can hold wanted ones, each
+        sought directly; one that is not where the index says, or does not read, lost."""
+        assert self.index is not None
+        ids = None if wanted is None else frozenset(
+            channel for channel, topic in self.index.channels.items() if topic in wanted)
+        for chunk in self.index.chunks:
+            if not chunk.touches(self._span) or (ids is not None and not chunk.holds(ids)):
+                continue
+            head = self._at(chunk.offset, RECORD_HEAD.size)
+            length = chunk.length - RECORD_HEAD.size
+            found = None
+            if (len(head) == RECORD_HEAD.size and RECORD_HEAD.unpack(head) == (
+                    Opcode.CHUNK, length) and chunk.offset + chunk.length <= end):
+                found = self._chunk(self._at(chunk.offset + RECORD_HEAD.size, length))
+            if found is None:
+                loss = self._lost(chunk.offset, chunk.length, chunk=True)
+                loss.messages = self._indexed_count(chunk, ids)
+                continue
+            low, high = self._span or (0, 2 ** 64)
+            for channel, log_time, publish_time, data in found:
+                if (ids is not None and channel not in ids) or not low <= log_time < high:
+                    continue  # (not made an entry only to be dropped: this is the hot path)
+                entry = self._entry(channel, log_time, publish_time, data)
+                if entry is not None:
+                    yield entry
+        self._report.whole = True
+
+    def _indexed_count(self, chunk: ChunkSpan, ids: frozenset[int] | None) -> int | None:
+        """The messages a damaged chunk held in the span (of the wanted channels), from
+        its message indexes (written after it, each a log_time and an offset per
+        message); None if one of them does not read."""
+        low, high = self._span or (0, 2 ** 64)
+        count = 0
+        for channel, offset in _INDEX_OFFSET.iter_unpack(chunk.offsets):
+            if ids is not None and channel not in ids:
+                continue
+            head = self._at(offset, _INDEX_HEAD.size)
+            if len(head) < _INDEX_HEAD.size:
+                return None
+            opcode, length, indexed, width = _INDEX_HEAD.unpack(head)
+            if opcode != Opcode.MESSAGE_INDEX or indexed != channel or width + 6 != length:
+                return None
+            entries = self._at(offset + _INDEX_HEAD.size, width)
+            if len(entries) != width or width % 16:
+                return None
+            count += sum(low <= log_time < high
+                         for log_time, _ in struct.iter_unpack("<QQ", entries))
+        return count
 
     # The footer's summary start is only a hint: a flipped bit or a stray write there
     # would otherwise end the data section wherever it points, and every chunk after
@@ -226,25 +339,19 @@ class _Walk:
         if RECORD_HEAD.unpack(before) != (Opcode.DATA_END, _DATA_END_BYTES - RECORD_HEAD.size):
             return False
         summary = self._at(start, footer - start)
-        channels: dict[int, str] = {}
-        expected = None
         at = 0
         try:
             while at < len(summary):
                 opcode, length = RECORD_HEAD.unpack_from(summary, at)
-                body = summary[at + RECORD_HEAD.size:at + RECORD_HEAD.size + length]
-                if not _known(opcode) or len(body) != length:
+                if not _known(opcode):
                     return False
-                if opcode == Opcode.CHANNEL:
-                    channel, topic = _channel(body)
-                    channels[channel] = topic
-                elif opcode == Opcode.STATISTICS:
-                    (expected,) = struct.unpack_from("<Q", body)
                 at += RECORD_HEAD.size + length
+            index = parse(summary)
         except (struct.error, UnicodeDecodeError):
             return False
-        self._channels.update(channels)
-        self._report.expected = expected
+        self._channels.update(index.channels)
+        self._report.expected = index.messages
+        self.index = index
         return True
 
     def _data_end(self, footer: int) -> int | None:
@@ -272,6 +379,7 @@ class _Walk:
                 return None
             if size > LARGEST_CHUNK:
                 return None
+            self._report.decompressed += 1
             records = _decompress(compression, data, size)
             if len(records) != size or (crc and zlib.crc32(records) != crc):
                 return None
@@ -299,7 +407,7 @@ class _Walk:
                 found.append((channel, log_time, publish_time,
                               records[body_at + MESSAGE_HEAD.size:at]))
             elif opcode == Opcode.CHANNEL:
-                channel, topic = _channel(records[body_at:at])
+                channel, topic = channel_of(records[body_at:at])
                 channels[channel] = topic
         self._channels.update(channels)
         return found
@@ -308,10 +416,13 @@ class _Walk:
         """A record outside chunks: a message (an unchunked file), a channel, or the
         message index of the chunk before it."""
         if opcode == Opcode.CHANNEL:
-            channel, topic = _channel(body)
+            channel, topic = channel_of(body)
             self._channels[channel] = topic
         elif opcode == Opcode.MESSAGE_INDEX:
-            _, width = struct.unpack_from("<HI", body)
+            channel, width = struct.unpack_from("<HI", body)
+            if self._passed is not None and channel not in self._channels:
+                self._chunk(self._at(*self._passed))  # for its channels only
+                self._passed = None
             if self._counting is not None:
                 self._counting.messages = (self._counting.messages or 0) + width // 16
         else:
@@ -400,6 +511,10 @@ class _Walk:
 
 
 _OPCODES = frozenset(int(opcode) for opcode in Opcode)
+_INDEX_OFFSET = struct.Struct("<HQ")
+"""A chunk index's entry: a channel, and where that channel's message index is."""
+_INDEX_HEAD = struct.Struct("<BQHI")
+"""A message index record's head: opcode, length, channel, its entries' byte length."""
 _DATA_END_BYTES = RECORD_HEAD.size + 4
 """A data end record: its head and a CRC."""
 
@@ -407,15 +522,6 @@ _DATA_END_BYTES = RECORD_HEAD.size + 4
 def _known(opcode: int) -> bool:
     """An opcode a record can have: where another is found, the framing is broken."""
     return opcode >= PRIVATE_OPCODES or opcode in _OPCODES
-
-
-def _channel(body: bytes) -> tuple[int, str]:
-    """(id, topic) of a channel record's body."""
-    channel, _, width = struct.unpack_from("<HHI", body)
-    topic = body[8:8 + width]
-    if len(topic) != width:
-        raise struct.error("a channel's topic runs past its record")
-    return channel, topic.decode()
 
 
 def _decompress(compression: str, data: bytes, size: int) -> bytes:

@@ -42,6 +42,8 @@ class FileReport:
     """Its data section ends where a finished file's does: it was not cut short."""
     last: int | None = None
     """log_time (ns) of the last message read."""
+    decompressed: int = 0
+    """Chunks decompressed (a window read passes over the others unread)."""
     summary: str = ""
     """What was wrong with a finished file's footer or summary: every record was read
     all the same (the data section's end found from the records), so it is said, but

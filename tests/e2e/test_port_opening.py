@@ -20,6 +20,10 @@ from tests.helpers.waiting import wait_for
 
 HANG_CHECK = 1.0
 """Seconds a probe connect must go unanswered for the listener to count as hanging."""
+READ_MARGIN = 0.25
+"""Seconds a station's record may come later than its stream's period while another
+station's open hangs: the scheduling a loaded 2-core host adds (154 ms seen), well
+under the 5 s an open on the loop holds every station."""
 
 
 @pytest.fixture
@@ -65,7 +69,15 @@ def test_a_station_whose_open_hangs_delays_no_other_and_shows_opening(gateway,
     sub.drain(6.0)
     arrived = [p["host_time"] for _, p in sub.messages]
     gaps = [b - a for a, b in pairwise(arrived)]
-    assert max(gaps) < 0.5, f"good's records stalled {max(gaps):.2f} s"
+    # good's records are read as they come (add_reader), one its stream's period
+    # (10 ms) apart: a longer gap is the loop held from its reads. An open on the loop
+    # held it for the whole hang (a 5.02 s gap); beside the loop, good's largest gap
+    # was 17 to 81 ms idle and 18 to 154 ms with a CPU-bound process beside the test on
+    # this 2-core machine (the gateway waiting for a core, not for remote). The bound:
+    # a period and READ_MARGIN.
+    period = 1 / next(n["expected_hz"] for n in gw.status()["nodes"] if n["node"] == 76)
+    assert max(gaps) <= period + READ_MARGIN, (
+        f"good's records stalled {max(gaps):.3f} s (its period {period:.3f} s)")
 
     def stations() -> dict[str, str]:
         return {s["name"]: s["state"] for s in gw.status()["stations"]}

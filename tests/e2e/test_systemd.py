@@ -90,6 +90,8 @@ def test_service_unit_hardening():
     assert service["CapabilityBoundingSet"] == "" and service["RuntimeDirectory"]
     assert "DeviceAllow=char-ttyUSB rw" in text and "DeviceAllow=char-ttyACM rw" in text
     assert "gx2-gateway --config /etc/gx2-gateway/" in service["ExecStart"]
+    # systemctl reload is the gateway's SIGHUP: its nodes re-read (tests/e2e/test_reload.py)
+    assert service["ExecReload"] == "/bin/kill -HUP $MAINPID"
 
 
 def test_udev_rule():

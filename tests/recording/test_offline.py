@@ -503,3 +503,16 @@ def test_a_record_this_version_does_not_know_exports_typed_and_named_for_matlab(
     assert struct["f2nd_value"].tolist() == [7.0, 7.5]
     assert struct["label"].tolist() == ["left", "left"]
     assert struct["units"]["rssi"] == "dBm"
+
+
+def test_a_mark_whose_time_no_float_holds_exports_at_its_recorded_time(tmp_path):
+    """A foreign recording's mark with ``time`` 10**400 (valid JSON, no float holds it)
+    is exported at the time its message was recorded, not a traceback."""
+    mark = {"text": "start", "time": 10**400, "host_time": T0 + 0.5, "nodes": []}
+    path = write(tmp_path / "marks.mcap", [("gx2/gateway/mark", mark)])
+    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
+    assert ran.status == 0, ran.stderr
+    with (tmp_path / "out" / "marks.csv").open() as table:
+        (row,) = list(csv.DictReader(table))
+    assert row["text"] == "start" and float(row["host_time"]) == T0 + 0.5
+    assert math.isfinite(float(row["time"]))

@@ -191,8 +191,11 @@ class Outputs:
         self._publication: Any = self.by_name["zeromq"]
         """ZeroMQ's output (its send: the message's publication)."""
         publication = self._publication
-        self._takes = tuple(output.take for output in self.by_name.values()
-                            if output.takes_messages and output is not publication)
+        guarded = {name: output for name, output in self.by_name.items()
+                   if output.takes_messages and output is not publication}
+        self._takes = tuple(output.take for output in guarded.values())
+        self.guarded = tuple(guarded)
+        """The outputs given each message under the fan-out's guard, by name."""
         self.take_failures: dict[str, int] = {}
         """Output name -> messages its ``take`` raised on (a bug, contained: the other
         outputs still got them)."""
@@ -205,6 +208,11 @@ class Outputs:
 
     def get(self, name: str) -> Output | None:
         return self.by_name.get(name)
+
+    def guard_status(self) -> dict[str, dict[str, int]]:
+        """Status's ``outputs``: each guarded output's ``take_failures``."""
+        return {name: {"take_failures": self.take_failures.get(name, 0)}
+                for name in self.guarded}
 
     # -- the loop's side ----------------------------------------------------------------
 

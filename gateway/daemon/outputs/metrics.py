@@ -89,6 +89,11 @@ RECORDING = (
     ("gx2_recording_bytes", GAUGE, "Bytes the recordings of its directory take (the file "
      "being written included)", "bytes"),
 )
+OUTPUT = (
+    ("gx2_output_take_failures_total", COUNTER, "Messages an output failed to take (a "
+     "bug, contained: the other outputs still got them; the log says what)",
+     "take_failures"),
+)
 HEALTH_VALUES = {Level.OK: 0, Level.WARN: 1, Level.ERROR: 2}
 
 
@@ -121,8 +126,9 @@ def families(report: Mapping[str, Any]) -> Iterator[Metric]:
     yield from _table(GATEWAY, [], [([], gateway)])
     if gateway.get("health") in HEALTH_VALUES:
         yield GAUGE("gx2_gateway_health", "The gateway's own health: 0 OK, 1 WARN (its "
-                    "recorder's queue overflowed), 2 ERROR (its recorder cannot write); "
-                    "status gives the reasons", value=HEALTH_VALUES[gateway["health"]])
+                    "recorder's queue overflowed, a line over capacity, an output failed "
+                    "to take messages), 2 ERROR (its recorder cannot write); status gives "
+                    "the reasons", value=HEALTH_VALUES[gateway["health"]])
     # a gateway of one base station: its link's series without labels, as ever; of
     # several, each station's series labelled with its name
     stations = [s for s in report.get("stations") or () if isinstance(s, Mapping)]
@@ -184,6 +190,8 @@ def families(report: Mapping[str, Any]) -> Iterator[Metric]:
     recording = report.get("recording")
     if isinstance(recording, Mapping):
         yield from _table(RECORDING, [], [([], recording)])
+    yield from _table(OUTPUT, ["output"], [([str(name)], as_map(said)) for name, said
+                                           in as_map(report.get("outputs")).items()])
 
 
 def _heard(stations: list[Mapping[str, Any]]) -> Iterator[Metric]:

@@ -314,6 +314,16 @@ class Node:
 
     # -- transitions --------------------------------------------------------------------
 
+    def reconfigure(self, config: NodeEntry) -> bool:
+        """A reload changed its entry: its name and gyro model from now on. True if its
+        ``stream`` changed: that is what it should stream now, whatever an operator
+        asked before (a ``stream`` taken out: stopped)."""
+        streams = config.stream != self.config.stream
+        self.config, self.name, self.label = config, config.name, config.label
+        if streams:
+            self.desired = OFF if config.stream is None else config.stream
+        return streams
+
     def want(self, record: str | None) -> None:
         """The operator's intent: stream ``record``, or stay stopped (OFF)."""
         self.desired = record

@@ -71,7 +71,10 @@ log = logging.getLogger("gx2.replay")
 SCHEME = "replay://"
 YIELD_EVERY = 200
 DELAY_S = 1.0
-OPTIONS = ("speed", "exit", "delay")
+OPTIONS = ("speed", "exit", "delay", "from", "to", "between", "trial")
+WINDOW_OPTIONS = ("from", "to", "between", "trial")
+"""A window of the recording, as gx2ctl export's --from, --to, --between-marks (here
+``between=START,STOP``) and --trial take it (:mod:`gateway.recording.window`)."""
 FILE_OF_READS = "serial"
 """A gateway's recording (its serial reads): played by reading them again."""
 FILE_OF_MESSAGES = "published"
@@ -80,12 +83,14 @@ FILE_OF_MESSAGES = "published"
 
 @dataclass(frozen=True)
 class Replay:
-    """What a ``replay://PATH[?speed=N&exit=true&delay=S]`` URL asks for."""
+    """What a ``replay://PATH[?speed=N&exit=true&delay=S&from=..&to=..]`` URL asks for."""
 
     files: tuple[Path, ...]
     speed: float = 1.0
     exit: bool = False
     delay: float = DELAY_S
+    span: tuple[int, int] | None = None
+    """The window played (log_time ns, end excluded); None: all of it."""
 
     @classmethod
     def from_url(cls, url: str) -> Replay:
@@ -114,7 +119,10 @@ class Replay:
             files = usable_files([path])
         except RecordingError as error:
             raise ValueError(str(error)) from None
-        return cls(tuple(files), speed, leave, delay)
+        span = None
+        if any(name in options for name in WINDOW_OPTIONS):
+            files, span = _window(url, files, options)
+        return cls(tuple(files), speed, leave, delay, span)
 
     def nothing_to_play(self, station: str | None) -> str:
         """Why the recording has nothing to play for the base station named ``station``
@@ -159,6 +167,39 @@ def recorded_stations(path: Path) -> tuple[str, ...]:
     return ()
 
 
+def _window(url: str, files: list[Path], options: dict[str, list[str]]
+            ) -> tuple[list[Path], tuple[int, int] | None]:
+    """The files a URL's window touches, and its span; ValueError (one line) for a
+    window that cannot be taken, or trials between marks with none picked."""
+    from gateway.recording.catalogue import catalogue
+    from gateway.recording.window import Asked, WindowError, touched, windows
+
+    def last(name: str) -> str | None:
+        return options[name][-1] if name in options else None
+
+    between = None
+    if (text := last("between")) is not None:
+        start, _, stop = text.partition(",")
+        if not start or not stop:
+            raise ValueError(f"{url!r}: between must be START,STOP (the texts of two marks)")
+        between = (start, stop)
+    trial = None
+    if (text := last("trial")) is not None:
+        if not text.isdecimal() or int(text) < 1:
+            raise ValueError(f"{url!r}: trial must be a number from 1, not {text!r}")
+        trial = int(text)
+    asked = Asked(last("from"), last("to"), between, trial)
+    described = catalogue(files, whole=asked.marked)
+    try:
+        found = windows(asked, described)
+    except WindowError as error:
+        raise ValueError(f"{url!r}: {error}") from None
+    if len(found) > 1:
+        raise ValueError(f"{url!r}: {len(found)} trials between those marks: pick one "
+                         "with trial=N")
+    return [d.path for d in touched(described, found[0])], found[0].span
+
+
 def _playable(topic: str) -> bool:
     return is_serial_reads(topic) or topic == MARK or parse(topic) is not None
 
@@ -189,7 +230,7 @@ class ReplayLink:
                  start: RecordedStart | None = None,
                  source: ReplayReader | None = None) -> None:
         self.replay = replay
-        self._source = source or ReplayReader(replay.files)
+        self._source = source or ReplayReader(replay.files, replay.span)
         """The reading of the recording it shares with the other stations playing it
         (:mod:`.replayread`): each file read and decompressed once for all."""
         self._several: dict[Path, tuple[str, ...]] = {}

@@ -37,8 +37,10 @@ _END = object()
 class ReplayReader:
     """The files of one recording, read once for the stations that play them."""
 
-    def __init__(self, files: tuple[Path, ...]) -> None:
+    def __init__(self, files: tuple[Path, ...], span: tuple[int, int] | None = None) -> None:
         self.files = files
+        self.span = span
+        """The window played (:attr:`.replay.Replay.span`): only its chunks are read."""
         self._players: dict[object, tuple[asyncio.Queue[Any], Callable[[Path], bool],
                                           Callable[[FileReport], None]]] = {}
         self._task: asyncio.Task[None] | None = None
@@ -85,7 +87,7 @@ class ReplayReader:
                     continue
                 reading = Reading(lambda report, players=players: self._done(players, report))
                 self.reads += 1
-                for seen, entry in enumerate(read(path, reading), 1):
+                for seen, entry in enumerate(read(path, reading, span=self.span), 1):
                     await self._give(players, entry)
                     if seen % YIELD_EVERY == 0:
                         await asyncio.sleep(0)
@@ -115,11 +117,11 @@ class ReplayReaders:
     replay:// URL names, its speed and its delay: ``exit`` is no matter of pace)."""
 
     def __init__(self) -> None:
-        self._readers: dict[tuple[tuple[Path, ...], float, float], ReplayReader] = {}
+        self._readers: dict[tuple[Any, ...], ReplayReader] = {}
 
     def of(self, replay: Replay) -> ReplayReader:
-        key = (replay.files, replay.speed, replay.delay)
+        key = (replay.files, replay.speed, replay.delay, replay.span)
         reader = self._readers.get(key)
         if reader is None:
-            reader = self._readers[key] = ReplayReader(replay.files)
+            reader = self._readers[key] = ReplayReader(replay.files, replay.span)
         return reader

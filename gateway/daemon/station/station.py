@@ -18,7 +18,7 @@ from collections.abc import Callable
 
 from aspp.timing import BITS_PER_BYTE, byte_time
 
-from ..config import StationConfig
+from ..config import NodeEntry, StationConfig
 from ..health import SAMPLE_PERIOD
 from .lineload import LineLoad
 from .link import SerialLink
@@ -56,9 +56,11 @@ class Station:
         self._on_link_state = on_link_state
         self._on_replay_end = on_replay_end
         line_byte = byte_time(config.baudrate)
-        self.nodes = {n.address: Node(n, byte_time=line_byte, latency=config.latency_ms / 1000,
-                                      station=self.name, floor_unseen_s=floor_unseen_s)
-                      for n in config.nodes}
+        self._floor_unseen_s = floor_unseen_s
+        self.nodes = {n.address: self._node(n) for n in config.nodes}
+        self.retiring: set[int] = set()
+        """Nodes a reload removed whose stream is being stopped: still in :attr:`nodes`
+        (their records are the stop's evidence), no longer configured."""
         self.line = LineLoad(config.baudrate / BITS_PER_BYTE)
         self.replay = Port.replay_of(config.port)
         self._replays = replays or ReplayReaders()
@@ -82,6 +84,34 @@ class Station:
         self._opened = False
         """Its port has been open once (later opens are the link's reconnects)."""
         self._on_data: Callable[[bytes, float, float], None] = self.reader.on_data
+
+    def _node(self, entry: NodeEntry) -> Node:
+        return Node(entry, byte_time=byte_time(self.config.baudrate),
+                    latency=self.config.latency_ms / 1000, station=self.name,
+                    floor_unseen_s=self._floor_unseen_s)
+
+    def add_node(self, entry: NodeEntry) -> Node:
+        """A node a reload added: its reader, supervisor and status see it from now on
+        (they share :attr:`nodes`); the supervisor arms it (:meth:`Supervisor.adopt`)."""
+        node = self.nodes[entry.address] = self._node(entry)
+        return node
+
+    async def retire(self, node: Node) -> str | None:
+        """A node a reload removed: its stream stopped as ``stop`` stops it (its records
+        still read meanwhile, as the stop's evidence), then forgotten. Why it was not
+        confirmed stopped, or None."""
+        self.retiring.add(node.address)
+        try:
+            return await self.supervisor.retire(node)
+        finally:
+            self.retiring.discard(node.address)
+            if self.nodes.get(node.address) is node:
+                del self.nodes[node.address]
+
+    @property
+    def configured(self) -> list[int]:
+        """Its nodes' addresses, as its configuration has them now."""
+        return [address for address in self.nodes if address not in self.retiring]
 
     def open(self, recorder: SerialTap | None) -> None:
         """Make its port (an embedded simulator makes a directory: only once nothing of

@@ -260,6 +260,38 @@ class Supervisor:
             return None
         return record
 
+    # -- a reload's nodes ------------------------------------------------------------------
+
+    def adopt(self, node: Node) -> None:
+        """A node a reload added to :attr:`nodes`: armed as at start, now if the base
+        station is up (else when it comes up, with every node)."""
+        if self.link_up:
+            node.link_back()
+            self._pursue(node)
+        else:
+            node.link_lost()
+
+    def rearm(self, node: Node) -> None:
+        """A node whose configured stream a reload changed: it pursues the new one."""
+        self._pursue(node)
+
+    async def retire(self, node: Node) -> str | None:
+        """A node a reload removed: its stream, if it runs one, stopped as ``stop`` does
+        (at operator priority), and the node never pursued again. Why it was not
+        confirmed stopped, or None."""
+        node.want(OFF)
+        await self._halt(node)
+        self._unsolicited.pop(node.address, None)
+        if node.record is None:
+            return None  # (nothing streams, as far as the gateway knows)
+        try:
+            await self._stop(node, Priority.OPERATOR)
+        except (NodeError, LinkDown) as error:
+            return str(error)
+        finally:
+            self._abandon(node)  # (whatever its records started meanwhile)
+        return None
+
     # -- pursuing what a node should do ---------------------------------------------------
 
     def _pursue(self, node: Node) -> None:

@@ -12,11 +12,17 @@ import time
 from typing import Any
 
 import pytest
+from jsonschema import Draft202012Validator
 
 from gateway.common import jsontext
 from gateway.common.jsontext import compact, compact_bytes
+from gateway.common.protocol import HealthLevel
+from gateway.common.schemas import status_schema
 from gateway.daemon import outputs as outputs_module
+from gateway.daemon.config import HealthConfig
+from gateway.daemon.health import Health
 from gateway.daemon.outputs import Message, Output, Outputs
+from gateway.daemon.outputs.metrics import StatusCollector
 
 
 class Publication(Output):
@@ -126,3 +132,41 @@ def test_an_output_that_raises_is_counted_and_logged_once_and_the_others_get_the
     assert said == ["output live failed to take a message on gx2/76/euler: ValueError: "
                     "a bug in one output (counted; not logged again for this output "
                     "and error)"]
+
+
+def test_take_failures_are_in_status_and_metrics_and_make_the_gateway_warn_for_a_window(
+        ) -> None:
+    """What an operator sees of an output that raised: status's ``outputs`` (valid by
+    the status schema), ``gx2_output_take_failures_total`` and a WARN of the gateway's
+    own while failures happened within the health window, OK again after it."""
+    raises = Raises()
+    raises.name = "live"
+    fan = Outputs({"zeromq": Publication(), "live": raises, "recording": Writes(),
+                   "metrics": Reports()})
+    health = Health([], HealthConfig(window_s=10.0), take_failures=fan.take_failures)
+    health.sample(100.0)
+    assert health.gateway(100.0) == (HealthLevel.OK, ())
+    for seq in range(3):
+        fan.publish(76, "euler", {"seq": seq})
+    health.sample(101.0)
+    level, reasons = health.gateway(101.0)
+    assert level is HealthLevel.WARN
+    assert reasons == ("output live failed to take 3 messages in 1 s: a bug, contained "
+                       "(the other outputs got them; the log says what)",)
+
+    said = fan.guard_status()
+    assert said == {"live": {"take_failures": 3}, "recording": {"take_failures": 0}}
+    status = {"gateway": {"time": 1.7e9, "version": "0", **health.gateway_status(101.0)},
+              "link": {}, "nodes": [], "recording": None, "replay": None, "outputs": said}
+    Draft202012Validator(status_schema()).validate(json.loads(compact(status)))
+    collector = StatusCollector()
+    collector.report = status
+    metrics = {(sample.name, tuple(sample.labels.items())): sample.value
+               for family in collector.collect() for sample in family.samples}
+    assert metrics[("gx2_output_take_failures_total", (("output", "live"),))] == 3
+    assert metrics[("gx2_output_take_failures_total", (("output", "recording"),))] == 0
+    assert metrics[("gx2_gateway_health", ())] == 1
+
+    for second in range(102, 113):  # a window with no more failures
+        health.sample(float(second))
+    assert health.gateway(112.0) == (HealthLevel.OK, ())

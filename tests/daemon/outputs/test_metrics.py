@@ -68,6 +68,7 @@ def report(**changes: Any) -> dict[str, Any]:
              "health": "ERROR", "by_record": {}},
         ],
         "recording": None,
+        "outputs": {"live": {"take_failures": 2}},
     }
     base.update(changes)
     return base
@@ -129,6 +130,7 @@ def test_the_values_are_the_reports(server) -> None:
         (("name", "left-wing"), ("node", "76"), ("station", "station1")): 1.0,
         (("name", ""), ("node", "95"), ("station", "station1")): 1.0}
     assert got["gx2_gateway_start_time_seconds"] == {(): 1_800_000_000.0}
+    assert got["gx2_output_take_failures"] == {(("output", "live"),): 2.0}
     assert "process_cpu_seconds" in got  # the gateway's own CPU and memory
 
 

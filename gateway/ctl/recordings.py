@@ -1,0 +1,91 @@
+"""``gx2ctl recordings``: the catalogue of recordings (:mod:`gateway.recording.catalogue`)
+as a table for a person, or one JSON line for a script."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import TYPE_CHECKING
+
+from gateway.common.jsontext import json_line
+from gateway.common.protocol import Exit
+
+from .client import CtlError
+
+if TYPE_CHECKING:
+    from gateway.recording.catalogue import Described
+
+
+def default_directory(args: argparse.Namespace) -> str:
+    """The record directory of the gateway's ``--config`` (exit 2 if it records
+    nothing), else the gateway's default one."""
+    from gateway.daemon.config import ConfigError, default_record_directory, load_config
+    config = getattr(args, "config", None)
+    if isinstance(config, list):
+        config = config[0] if config else None
+    if config is None:
+        return default_record_directory()
+    try:
+        loaded = load_config(config)
+    except ConfigError as error:
+        raise CtlError(str(error), Exit.USAGE) from None
+    if loaded.record is None:
+        raise CtlError(f"{config} does not record (no record:): name a directory",
+                       Exit.USAGE)
+    return loaded.record.directory
+
+
+def run_recordings(args: argparse.Namespace) -> int:
+    from gateway.recording.catalogue import catalogue
+    from gateway.recording.files import PARTIAL, RecordingError, usable_files
+    given = args.paths or [default_directory(args)]
+    try:
+        paths = usable_files(given)
+    except RecordingError as error:
+        raise CtlError(str(error), Exit.USAGE) from None
+    files = catalogue(paths)
+    if args.json:
+        print(json_line({"files": [d.json() for d in files]}), flush=True)
+    else:
+        for line in (line for d in files for line in lines(d)):
+            print(line, flush=True)
+    return PARTIAL if any(d.damaged for d in files) else Exit.OK
+
+
+def _when(stamp: int, day: bool = True) -> str:
+    seconds, ms = divmod(round(stamp / 1e6), 1000)
+    shape = "%Y-%m-%d %H:%M:%S" if day else "%H:%M:%S"
+    return time.strftime(shape, time.gmtime(seconds)) + f".{ms:03d}"
+
+
+def _length(seconds: float) -> str:
+    hours, rest = divmod(round(seconds), 3600)
+    return f"{hours} h {rest // 60:02d} min" if hours else f"{rest // 60} min {rest % 60:02d} s"
+
+
+def lines(d: Described) -> list[str]:
+    """A file: a line of its span, size and stations, then its nodes, marks and notes."""
+    if d.start is None or d.end is None:
+        span = "no messages"
+    else:
+        same_day = time.gmtime(d.start // 10**9)[:3] == time.gmtime(d.end // 10**9)[:3]
+        span = (f"{_when(d.start)} to {_when(d.end, not same_day)} UTC "
+                f"({_length((d.end - d.start) / 1e9)})")
+    head = f"{d.path}  {span}  {d.bytes / 1e6:,.1f} MB"
+    if d.stations:
+        head += f"  stations {', '.join(d.stations)}"
+    out = [head]
+    for node, records in d.nodes.items():
+        out.append(f"    node {node}: " + ", ".join(
+            f"{record} {count:,}" for record, count in records.items()))
+    out += [f"    mark {_when(m.log_time)}  {m.text}" for m in d.marks]
+    notes = [d.problem] if d.problem else []
+    if not d.indexed and not d.problem:
+        notes.append("no summary: read through")
+    notes += [f"same as {p}" for p in d.same_as]
+    notes += [f"overlaps {p}" for p in d.overlaps]
+    out += [f"    note: {note}" for note in notes]
+    return out
+
+
+__all__ = ["run_recordings"]

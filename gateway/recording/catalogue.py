@@ -1,0 +1,174 @@
+"""What recordings hold, without reading their messages where it can be helped: each
+file's span, size, stations, nodes and records with their message counts, and its
+marks (``gx2ctl recordings``; the spans also choose the files a window reads).
+
+A finished file is described from its summary (statistics and chunk indexes); its
+marks are read from the chunks that hold the mark channel only. A file without a whole
+summary (its writer killed, cut short, damaged) is read through, past any damage, as
+export reads it, and says so (``indexed`` false; ``cut_short``, ``damaged``)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from gateway.common.topics import default_station_name, parse
+
+from .files import MARK, SERIAL_READS, WRITTEN, is_serial_reads
+from .index import walked_span
+from .reader import Mark, index_of, read
+from .reports import Reading
+
+
+@dataclass(frozen=True)
+class Marked:
+    """A mark as the catalogue gives it: its time, its text, and its log_time (ns,
+    the time a window named by it starts or ends at)."""
+
+    time: float
+    text: str
+    log_time: int
+
+
+@dataclass
+class Described:
+    """One recording file."""
+
+    path: Path
+    bytes: int
+    start: int | None = None
+    """log_time (ns) of its first message and of its last; None: it holds none."""
+    end: int | None = None
+    stations: list[str] = field(default_factory=list)
+    nodes: dict[int, dict[str, int]] = field(default_factory=dict)
+    marks: list[Marked] = field(default_factory=list)
+    damaged: bool = False
+    """Something in it could not be read (the reader's report says what)."""
+    cut_short: bool = False
+    """Its writer stopped without finishing it: it ends at its last whole chunk."""
+    indexed: bool = False
+    """Described from its summary, its messages unread (but for its marks)."""
+    problem: str = ""
+    """The reader's line about it (empty: it read whole)."""
+    overlaps: list[Path] = field(default_factory=list)
+    """Files given whose spans overlap this one's."""
+    same_as: list[Path] = field(default_factory=list)
+    """Files given that are this one again (the same file, or the same span, size and
+    counts: a copy)."""
+
+    def json(self) -> dict[str, Any]:
+        return {"path": str(self.path), "start": _seconds(self.start),
+                "end": _seconds(self.end), "bytes": self.bytes, "stations": self.stations,
+                "nodes": {str(node): records for node, records in sorted(self.nodes.items())},
+                "marks": [{"time": mark.time, "text": mark.text} for mark in self.marks],
+                "damaged": self.damaged, "cut_short": self.cut_short,
+                "indexed": self.indexed, "overlaps": [str(p) for p in self.overlaps],
+                "same_as": [str(p) for p in self.same_as]}
+
+    def _key(self) -> tuple[Any, ...]:
+        return (self.start, self.end, self.bytes, json.dumps(self.nodes, sort_keys=True))
+
+
+def _seconds(stamp: int | None) -> float | None:
+    return None if stamp is None else stamp / 1e9
+
+
+def _station(topic: str) -> str | None:
+    if not is_serial_reads(topic):
+        return None
+    return default_station_name(0) if topic == SERIAL_READS else topic[len(SERIAL_READS) + 1:]
+
+
+def _counted(described: Described, counts: dict[str, int]) -> None:
+    stations = set()
+    for topic, count in counts.items():
+        where = parse(topic)
+        if where is not None:
+            records = described.nodes.setdefault(where[0], {})
+            records[where[1]] = records.get(where[1], 0) + count
+        elif (station := _station(topic)) is not None and topic != WRITTEN:
+            stations.add(station)
+    described.stations = sorted(stations)
+    described.nodes = {node: dict(sorted(records.items()))
+                       for node, records in sorted(described.nodes.items())}
+
+
+def _marked(entry: Any) -> Marked:
+    mark = Mark.of(entry)
+    return Marked(mark.time, mark.text, entry.log_time)
+
+
+def describe(path: Path, whole: bool = True) -> Described:
+    """One file: from its summary (and its mark chunks) if it has a whole one, else
+    read through. Not ``whole``: its span only, and no mark (what a window of times
+    and a read without a window need: the summary, else the chunks' headers; so a
+    file without summary is not read twice)."""
+    described = Described(path, path.stat().st_size if path.exists() else 0)
+    index, report = index_of(path)
+    reading = Reading()
+    if index is not None:
+        described.indexed = True
+        described.start, described.end = index.start, index.end
+        _counted(described, index.topic_counts())
+        if not whole:
+            return described
+        described.marks = [_marked(entry) for entry in read(path, reading, [MARK])]
+    elif not whole:
+        if not report.skipped:
+            span = walked_span(path)
+            if span is not None:
+                described.start, described.end = span
+        return described
+    else:
+        counts: dict[str, int] = {}
+        for entry in read(path, reading):
+            counts[entry.topic] = counts.get(entry.topic, 0) + 1
+            if described.start is None or entry.log_time < described.start:
+                described.start = entry.log_time
+            if described.end is None or entry.log_time > described.end:
+                described.end = entry.log_time
+            if entry.topic == MARK:
+                described.marks.append(_marked(entry))
+        _counted(described, counts)
+    report = reading.files[0]
+    described.damaged = report.partial
+    described.cut_short = not report.skipped and not report.whole
+    described.problem = report.line()
+    return described
+
+
+def catalogue(paths: Iterable[Path], whole: bool = True) -> list[Described]:
+    """The files, described (``whole``: see describe), sorted by their start (those
+    holding nothing last), with overlapping and repeated files said."""
+    found = sorted((describe(path, whole) for path in paths),
+                   key=lambda d: (d.start is None, d.start or 0, str(d.path)))
+    for i, one in enumerate(found):
+        for other in found[i + 1:]:
+            if one.start is None or other.start is None or other.start > one.end:  # type: ignore[operator]
+                continue
+            if _same(one, other):
+                one.same_as.append(other.path)
+                other.same_as.append(one.path)
+            else:
+                one.overlaps.append(other.path)
+                other.overlaps.append(one.path)
+    return found
+
+
+def _same(one: Described, other: Described) -> bool:
+    try:
+        if one.path.samefile(other.path):
+            return True
+    except OSError:
+        pass
+    return one._key() == other._key()
+
+
+def span_of(described: list[Described]) -> tuple[int, int] | None:
+    """(first, last) log_time (ns) over files; None if none holds a message."""
+    starts = [d.start for d in described if d.start is not None]
+    ends = [d.end for d in described if d.end is not None]
+    return (min(starts), max(ends)) if starts and ends else None

@@ -1,0 +1,224 @@
+"""Windows of recordings: a span of time (``--from``/``--to``, or each trial between
+two marks), and a choice of nodes and records; the files a window touches, read by
+seeking to the chunks it needs, each message once however often it is met.
+
+A message is in a window when its log_time (the time it was read: a record's
+``host_time``) is at or after the window's start and before its end. A bound given as
+a mark's text is that mark's log_time, and a window ending at a mark holds the mark."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from datetime import datetime
+
+from gateway.common.topics import parse
+
+from .catalogue import Described, Marked, span_of
+from .reader import Entry, Span, read
+from .reports import Reading
+
+MARKS_LISTED = 10
+"""At most this many marks are named when a mark text is not found."""
+
+
+class WindowError(ValueError):
+    """A window that cannot be taken: one line for the user (exit 2)."""
+
+
+@dataclass(frozen=True)
+class Asked:
+    """A window as the user gave it (each part optional)."""
+
+    start: str | None = None
+    stop: str | None = None
+    between: tuple[str, str] | None = None
+    trial: int | None = None
+    nodes: tuple[int, ...] = ()
+    records: tuple[str, ...] = ()
+
+    @property
+    def marked(self) -> bool:
+        """Whether the window is named by marks (the files' marks must be read)."""
+        return self.between is not None or any(
+            text is not None and _named(text) for text in (self.start, self.stop))
+
+
+@dataclass(frozen=True)
+class Window:
+    """A span of log_time (None: all of it) and the node topics kept (others, the
+    status, marks and serial channels, are always kept)."""
+
+    span: Span | None = None
+    nodes: frozenset[int] = frozenset()
+    records: frozenset[str] = frozenset()
+    label: str = ""
+    """A trial's name (``trial-1_2026-11-25T10-00-00Z``); empty for a single window."""
+
+    def keeps(self, topic: str) -> bool:
+        where = parse(topic)
+        if where is None:
+            return True
+        return (not self.nodes or where[0] in self.nodes) and (
+            not self.records or where[1] in self.records)
+
+
+def when(stamp: int) -> str:
+    """A log_time (ns) as ISO 8601, UTC, to the millisecond."""
+    seconds, ms = divmod(round(stamp / 1e6), 1000)
+    return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(seconds)) + f".{ms:03d}Z"
+
+
+def _marks(files: list[Described]) -> list[Marked]:
+    """Every mark of the files, once each, in time order."""
+    return sorted({(m.log_time, m.text): m for d in files for m in d.marks}.values(),
+                  key=lambda m: m.log_time)
+
+
+def _listed(marks: list[Marked]) -> str:
+    texts = list(dict.fromkeys(m.text for m in marks))
+    if not texts:
+        return "the recordings hold no marks"
+    more = f" and {len(texts) - MARKS_LISTED} more" if len(texts) > MARKS_LISTED else ""
+    return "marks: " + ", ".join(repr(t) for t in texts[:MARKS_LISTED]) + more
+
+
+def _number(text: str) -> float | None:
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+def _dated(text: str) -> bool:
+    """Whether a bound is written as a date (else it names a mark)."""
+    return text[:4].isdigit() and text[4:5] == "-"
+
+
+def _named(text: str) -> bool:
+    return _number(text) is None and not _dated(text)
+
+
+def bound(text: str, origin: int | None, marks: list[Marked], end: bool) -> int:
+    """A ``--from``/``--to`` as a log_time (ns): ISO 8601 with a zone, seconds from
+    ``origin`` (the recordings' start), or the first mark with that text."""
+    name = "--to" if end else "--from"
+    seconds = _number(text)
+    if seconds is not None:
+        if not math.isfinite(seconds) or origin is None:
+            raise WindowError(f"{name} {text}: not a time in these recordings")
+        return origin + round(seconds * 1e9)
+    if _dated(text):
+        try:
+            moment = datetime.fromisoformat(text)
+        except ValueError:
+            raise WindowError(f"{name} {text}: not an ISO 8601 time") from None
+        if moment.tzinfo is None:
+            raise WindowError(f"{name} {text}: give the time's zone (Z, or +01:00 ...)")
+        return round(moment.timestamp() * 1e9)
+    for mark in marks:
+        if mark.text == text:
+            return mark.log_time + (1 if end else 0)
+    raise WindowError(f"{name} {text}: no such mark ({_listed(marks)})")
+
+
+def trials(start: str, stop: str, marks: list[Marked]) -> list[Span]:
+    """Each trial: from a mark ``start`` to the next mark ``stop`` (both held); a
+    ``start`` while a trial is open does not start another."""
+    found: list[Span] = []
+    opened: int | None = None
+    for mark in marks:
+        if mark.text == start and opened is None:
+            opened = mark.log_time
+        elif mark.text == stop and opened is not None:
+            found.append((opened, mark.log_time + 1))
+            opened = None
+    return found
+
+
+def _label(number: int, span: Span) -> str:
+    stamp = time.strftime("%Y-%m-%dT%H-%M-%SZ", time.gmtime(span[0] // 1_000_000_000))
+    return f"trial-{number}_{stamp}"
+
+
+def windows(asked: Asked, files: list[Described]) -> list[Window]:
+    """The windows asked of the recordings ``files`` (sorted as the catalogue sorts):
+    one, or one per trial; WindowError for one that cannot be taken."""
+    nodes, records = frozenset(asked.nodes), frozenset(asked.records)
+    everything = span_of(files)
+    marks = _marks(files)
+    if asked.between is not None:
+        if asked.start or asked.stop:
+            raise WindowError("--between-marks takes the place of --from and --to")
+        found = trials(*asked.between, marks)
+        if not found:
+            raise WindowError(f"no trial from a mark {asked.between[0]!r} to a mark "
+                              f"{asked.between[1]!r} ({_listed(marks)})")
+        numbered = list(enumerate(found, 1))
+        if asked.trial is not None:
+            if not 1 <= asked.trial <= len(found):
+                raise WindowError(f"--trial {asked.trial}: there are {len(found)} "
+                                  f"trial{'s' * (len(found) != 1)} (1 is the first)")
+            numbered = [numbered[asked.trial - 1]]
+        return [Window(span, nodes, records, _label(n, span)) for n, span in numbered]
+    if asked.trial is not None:
+        raise WindowError("--trial picks one of the trials of --between-marks")
+    if not (asked.start or asked.stop):
+        return [Window(None, nodes, records)]
+    origin = everything[0] if everything else None
+    start = bound(asked.start, origin, marks, end=False) if asked.start else 0
+    stop = bound(asked.stop, origin, marks, end=True) if asked.stop else 2 ** 64
+    if stop <= start:
+        raise WindowError(f"--to ({when(stop)}) is not after --from ({when(start)})")
+    if everything is None or stop <= everything[0] or start > everything[1]:
+        held = (f"the recordings span {when(everything[0])} to {when(everything[1])}"
+                if everything else "the recordings hold no messages")
+        raise WindowError(f"the window {when(start) if asked.start else '(start)'} to "
+                          f"{when(stop) if asked.stop else '(end)'} is outside every file: "
+                          f"{held}")
+    return [Window((start, stop), nodes, records)]
+
+
+def touched(files: list[Described], window: Window) -> list[Described]:
+    """The files the window's span touches (with those whose span is not known: they
+    are read to be said unreadable)."""
+    span = window.span
+    if span is None:
+        return list(files)
+    return [d for d in files if d.start is None or d.end is None
+            or (d.end >= span[0] and d.start < span[1])]
+
+
+class Reader:
+    """Reads windows of the catalogued files ``files`` (sorted by start), dropping
+    each message met again (same topic, log_time and data), and counting them."""
+
+    def __init__(self, files: list[Described], reading: Reading) -> None:
+        self._files = files
+        self._reading = reading
+        self.duplicates = 0
+
+    def entries(self, window: Window) -> Iterator[Entry]:
+        chosen = touched(self._files, window)
+        seen: set[tuple[str, int, bytes]] = set()
+        seen_until = -1
+        """The last log_time of the files read: a message after it is not met twice."""
+        for i, described in enumerate(chosen):
+            later = [d.start for d in chosen[i + 1:] if d.start is not None]
+            keep_from = min(later) if later else None
+            if described.start is not None:  # nothing before this start comes again
+                seen = {key for key in seen if key[1] >= described.start}
+            for entry in read(described.path, self._reading, span=window.span):
+                if not window.keeps(entry.topic):
+                    continue
+                key = (entry.topic, entry.log_time, entry.data)
+                if entry.log_time <= seen_until and key in seen:
+                    self.duplicates += 1
+                    continue
+                if keep_from is not None and entry.log_time >= keep_from:
+                    seen.add(key)
+                yield entry
+            if described.end is not None:
+                seen_until = max(seen_until, described.end)

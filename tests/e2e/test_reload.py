@@ -1,0 +1,172 @@
+"""Reloading the configuration while the gateway runs (issue 35, part 3): SIGHUP
+(``systemctl reload``) and ``gx2ctl reload`` add, remove and change nodes, and touch
+nothing else. Through the installed gx2-gateway and gx2ctl, gx2-sim on a pty, and the
+recording read back with the ``mcap`` package's own reader."""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+from itertools import pairwise
+
+import yaml
+
+from gateway.sim.node import NodeSettings
+from gateway.sim.physics import Motion
+from tests.e2e.test_recording import node_records, recorded
+from tests.helpers.ports import free_port
+from tests.helpers.processes import Running, gx2ctl
+from tests.helpers.simulated import continuous, received
+from tests.helpers.waiting import wait_for
+
+DIVIDER = 512
+"""100 Hz."""
+KEPT = {"address": 76, "stream": "accel_angrate"}
+"""The node every reload here leaves alone."""
+
+
+def three_nodes(simulator):
+    """Nodes 76, 77 and 78 powered on one base station, none streaming by itself."""
+    return simulator(*(NodeSettings(a, divider=DIVIDER) for a in (76, 77, 78)))
+
+
+def rewrite(gw, **changes) -> None:
+    """The gateway's configuration file as it was, with ``changes`` (top-level keys)."""
+    gw.path.write_text(yaml.safe_dump({**gw.config, **changes}))
+
+
+def addresses(gw) -> set[int]:
+    return {n["node"] for n in gw.status()["nodes"]}
+
+
+def refusals(gw) -> list[str]:
+    return [line for line in gw.log().splitlines() if "reload refused" in line]
+
+
+def test_sighup_adds_one_node_removes_another_and_the_third_streams_on_without_a_gap(
+        simulator, gateway, tmp_path):
+    sim = three_nodes(simulator)
+    directory = tmp_path / "recordings"
+    gw = gateway(sim.path, [KEPT, {"address": 77, "stream": "euler"}],
+                 record={"directory": str(directory)},
+                 metrics={})
+    sub = gw.subscribe("gx2/76/")
+    gw.wait_streaming(76, 77)
+    sub.drain(1.0)
+
+    rewrite(gw, nodes=[KEPT, {"address": 78, "name": "new", "stream": "euler"}])
+    reloaded_at = time.time()
+    gw.proc.send_signal(signal.SIGHUP)
+    wait_for(lambda: addresses(gw) == {76, 78}, 10, "77 gone and 78 added")
+    gw.wait_streaming(78)
+    wait_for(lambda: continuous(sim, 77) == 0, 10, "the removed node's stream stopped")
+    stopped_at = time.time()
+    status = gw.status()
+    assert status["stations"][0]["nodes"] == [76, 78]
+    assert next(n for n in status["nodes"] if n["node"] == 78)["name"] == "new"
+    metrics = wait_for(lambda: _metrics(gw), 5, "the metrics")
+    assert 'node="77"' not in metrics and 'node="78"' in metrics
+    assert continuous(sim, 76) == 0xC2
+    sub.drain(1.0)
+    assert gw.terminate()[0] == 0, gw.log()
+    assert "reloaded" in gw.log() and not refusals(gw)
+
+    # what a subscriber had of 76: every seq, across the reload
+    seqs = [p["seq"] for p in sub.records(76)]
+    assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), "a gap in 76's seq"
+    # and what was recorded: every seq, and no sample missing on the node's own clock
+    records = [p for topic, p, _ in node_records(recorded(directory))]
+    kept = [p for p in records if p["node"] == 76]
+    assert [p["seq"] for p in kept] == list(range(1, len(kept) + 1))
+    assert kept[0]["host_time"] < reloaded_at - 1 and kept[-1]["host_time"] > reloaded_at + 1
+    stream = [p for p in kept if p["record"] == "accel_angrate"]
+    steps = {round(b["device_time"] - a["device_time"], 3) for a, b in pairwise(stream)}
+    assert steps == {round(DIVIDER / 51200, 3)}, f"76's samples not continuous: {steps}"
+    assert any(p["node"] == 78 for p in records)
+    gone = [p for p in records if p["node"] == 77]
+    assert gone and max(p["host_time"] for p in gone) < stopped_at
+
+
+def _metrics(gw) -> str | None:
+    import urllib.request
+    try:
+        with urllib.request.urlopen(f"http://{gw.config['metrics']['endpoint']}/metrics",
+                                    timeout=2) as answer:
+            text = answer.read().decode()
+    except OSError:
+        return None
+    return text if "gx2_node_health" in text else None
+
+
+def test_a_bad_reload_keeps_the_running_configuration_and_says_so_in_one_line(
+        simulator, gateway):
+    sim = three_nodes(simulator)
+    gw = gateway(sim.path, [KEPT, {"address": 77, "stream": "euler"}])
+    gw.wait_streaming(76, 77)
+    config = str(gw.path)
+
+    # a typo: refused, one line in the log, the running configuration kept
+    rewrite(gw, nodes=[KEPT, {"adress": 78}])
+    gw.proc.send_signal(signal.SIGHUP)
+    wait_for(lambda: refusals(gw), 10, "the refusal in the log")
+    [line] = [line for line in gw.log().splitlines() if ": reload" in line]
+    assert "adress" in line and config in line and "kept" in line
+    ran = gx2ctl("--config", config, "reload")
+    assert ran.status == 2, ran
+    assert ran.stdout == "" and len(ran.stderr.splitlines()) == 1 and "adress" in ran.stderr
+    assert "Traceback" not in gw.log()
+
+    # an endpoint changed (and a node added beside it): refused whole, a restart needed
+    rewrite(gw, nodes=[KEPT, {"address": 77, "stream": "euler"}, {"address": 78}],
+            publish={"endpoint": f"tcp://127.0.0.1:{free_port()}"})
+    ran = gx2ctl("--config", config, "reload")
+    assert ran.status == 1, ran
+    assert "publish.endpoint" in ran.stderr and "restart" in ran.stderr, ran
+    assert "publish.endpoint" in refusals(gw)[-1]
+    assert addresses(gw) == {76, 77}
+    assert continuous(sim, 78) == 0 and continuous(sim, 77) == 0xCE
+
+    # then a good one through gx2ctl: what changed, printed
+    rewrite(gw, nodes=[KEPT, {"address": 78, "stream": "euler"}])
+    ran = gx2ctl("--config", config, "reload")
+    assert ran.status == 0, ran
+    assert ran.stdout.splitlines() == ["added: 78", "removed: 77"]
+    assert addresses(gw) == {76, 78}
+    assert continuous(sim, 77) == 0, "the removed node still streams"
+    gw.wait_streaming(78)
+
+    # a changed stream is armed again; --json says which
+    rewrite(gw, nodes=[KEPT, {"address": 78, "stream": "accel_angrate"}])
+    ran = gx2ctl("--config", config, "--json", "reload")
+    assert ran.status == 0, ran
+    assert json.loads(ran.stdout) == {"added": [], "removed": [], "changed": [78],
+                                      "not_stopped": []}
+    wait_for(lambda: continuous(sim, 78) == 0xC2, 10, "78 armed with its new stream")
+    assert continuous(sim, 76) == 0xC2
+
+
+def test_a_reload_waits_for_a_capture_on_a_node_it_removes_and_never_for_another(
+        simulator, gateway):
+    sim = simulator(*(NodeSettings(a, divider=DIVIDER, motion=Motion(yaw_rate=0.0))
+                      for a in (76, 77)))
+    gw = gateway(sim.path, [KEPT, {"address": 77, "stream": "euler"}])
+    gw.wait_streaming(76, 77)
+    config = str(gw.path)
+    long = Running("gx2ctl", "--config", config, "bias", "capture", "76", "--ms", "8000")
+    short = Running("gx2ctl", "--config", config, "bias", "capture", "77", "--ms", "2000")
+    try:
+        wait_for(lambda: {n["node"]: n["state"] for n in gw.status()["nodes"]}
+                 == {76: "busy", 77: "busy"}, 10, "both captures under way")
+        rewrite(gw, nodes=[KEPT])
+        ran = gx2ctl("--config", config, "--timeout", "10", "reload")
+        assert ran.status == 0 and ran.stdout.splitlines() == ["removed: 77"], ran
+        assert long.proc.poll() is None, "the reload waited for another node's capture"
+        assert short.finish(10) == 0, short.stderr  # (ended whole before 77 was removed)
+        assert long.finish(15) == 0, long.stderr
+    finally:
+        long.kill()
+        short.kill()
+    assert addresses(gw) == {76}
+    assert continuous(sim, 77) == 0 and continuous(sim, 76) == 0xC2
+    assert [c.arguments["sampling_time"] for c in received(sim, 76, 0xCD)] == [8000]

@@ -1,0 +1,274 @@
+"""gx2ctl recordings (the catalogue) and the windows of export and plot, run as users run
+them, on rotated recordings written through the recording writer a second at a time (a
+chunk a second, as the recorder flushes), checked against the mcap package's reader."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from datetime import UTC, datetime
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from gateway.recording.files import MARK
+from gateway.recording.reader import read
+from gateway.recording.reports import Reading
+from tests.helpers.processes import gx2ctl
+from tests.helpers.recorded import FILE_SECONDS, RATE, T0, make_file
+
+
+@pytest.fixture
+def recordings(tmp_path: Path) -> Path:
+    """Three finished hourly-like files of 20 s each, named as the recorder names them."""
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    for k in range(3):
+        make_file(folder / f"gx2-2026112{k}T000000.000Z.mcap", k * FILE_SECONDS, FILE_SECONDS)
+    return folder
+
+
+def messages(paths: list[Path], start: float | None = None, end: float | None = None,
+             holding_end: bool = False) -> list[tuple[str, int, dict]]:
+    """What the mcap package reads of the files in [start, end) (UNIX s; [start, end]
+    if ``holding_end``)."""
+    ending = "ending_at" if holding_end else "ending_before"
+    found = []
+    for path in paths:
+        with path.open("rb") as stream:
+            for _, channel, message in make_reader(stream).iter_messages(
+                    starting_at=None if start is None else round(start * 1e9),
+                    **{ending: None if end is None else round(end * 1e9)}):
+                found.append((channel.topic, message.log_time, json.loads(message.data)))
+    return found
+
+
+def host_times(rows: list[tuple[str, int, dict]], topic: str) -> list[float]:
+    return [payload["host_time"] for t, _, payload in rows if t == topic]
+
+
+def column(path: Path, name: str) -> list[float]:
+    with path.open(newline="") as stream:
+        return [float(row[name]) for row in csv.DictReader(stream)]
+
+
+def iso(seconds: float) -> str:
+    return datetime.fromtimestamp(seconds, UTC).isoformat()
+
+
+# --- the catalogue ----------------------------------------------------------------------
+
+
+def test_catalogue_says_what_each_file_holds_from_its_summary(recordings: Path) -> None:
+    ran = gx2ctl("recordings", "--json", str(recordings))
+    assert ran.status == 0, ran.stderr
+    assert len(ran.stdout.splitlines()) == 1
+    files = json.loads(ran.stdout)["files"]
+    paths = sorted(recordings.iterdir())
+    assert [f["path"] for f in files] == [str(p) for p in paths]
+    for described, path in zip(files, paths, strict=True):
+        read_back = messages([path])
+        times = [log_time for _, log_time, _ in read_back]
+        assert described["start"] == min(times) / 1e9
+        assert described["end"] == max(times) / 1e9
+        assert described["bytes"] == path.stat().st_size
+        counts: dict[str, dict[str, int]] = {}
+        for topic, _, _ in read_back:
+            parts = topic.split("/")
+            if parts[1].isdecimal():
+                counts.setdefault(parts[1], {}).setdefault(parts[2], 0)
+                counts[parts[1]][parts[2]] += 1
+        assert described["nodes"] == counts
+        assert described["marks"] == [{"time": p["time"], "text": p["text"]}
+                                      for t, _, p in read_back if t == MARK]
+        assert described["damaged"] is False and described["indexed"] is True
+        assert described["overlaps"] == [] and described["same_as"] == []
+    table = gx2ctl("recordings", str(recordings))
+    assert table.status == 0
+    assert "mark 2026" in table.stdout and "node 11: accel_angrate 500" in table.stdout
+
+
+def test_catalogue_reads_through_a_file_cut_short_and_says_repeats(tmp_path: Path,
+                                                                    recordings: Path) -> None:
+    cut = make_file(tmp_path / "gx2-cut.mcap", 60, 5, finish=False)
+    first = sorted(recordings.iterdir())[0]
+    ran = gx2ctl("recordings", "--json", str(first), str(cut), str(first))
+    assert ran.status == 0, ran.stderr
+    files = json.loads(ran.stdout)["files"]
+    killed = next(f for f in files if f["path"] == str(cut))
+    assert killed["indexed"] is False and killed["cut_short"] is True
+    assert killed["nodes"]["11"]["accel_angrate"] == 5 * RATE
+    assert killed["start"] == T0 + 60
+    repeated = [f for f in files if f["path"] == str(first)]
+    assert len(repeated) == 2 and all(f["same_as"] == [str(first)] for f in repeated)
+
+
+# --- windows ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("start, stop", [
+    (iso(T0 + 15.5), iso(T0 + 27.25)),  # ISO 8601 across two files
+    ("15.5", "27.25"),  # seconds from the recordings' start
+])
+def test_a_window_exports_exactly_the_messages_inside_it(recordings: Path, tmp_path: Path,
+                                                         start: str, stop: str) -> None:
+    out = tmp_path / "out"
+    ran = gx2ctl("export", str(recordings), "--out", str(out), "--from", start, "--to", stop)
+    assert ran.status == 0, ran.stderr
+    inside = messages(sorted(recordings.iterdir()), T0 + 15.5, T0 + 27.25)
+    for topic, table in [("gx2/11/accel_angrate", "11_accel_angrate"),
+                         ("gx2/13/euler", "13_euler")]:
+        assert column(out / f"{table}.csv", "host_time") == host_times(inside, topic)
+    assert column(out / "marks.csv", "time") == [T0 + 25.0]
+
+
+def test_a_window_between_marks_named_and_of_some_nodes(recordings: Path,
+                                                         tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    ran = gx2ctl("export", str(recordings), "--out", str(out), "--from", "stop",
+                 "--to", "event", "--node", "12", "--record", "accel_angrate")
+    assert ran.status == 0, ran.stderr
+    inside = messages(sorted(recordings.iterdir()), T0 + 12.0, T0 + 50.5, holding_end=True)
+    assert sorted(p.name for p in out.iterdir()) == ["12_accel_angrate.csv", "marks.csv"]
+    assert column(out / "12_accel_angrate.csv", "host_time") == host_times(
+        inside, "gx2/12/accel_angrate")
+    # a window named by marks holds them: the first "stop" and the "event"
+    assert column(out / "marks.csv", "time") == [T0 + 12.0, T0 + 25.0, T0 + 45.0, T0 + 50.5]
+
+
+def test_trials_between_marks_each_in_their_folder(recordings: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    ran = gx2ctl("export", str(recordings), "--out", str(out), "--between-marks", "start",
+                 "stop")
+    assert ran.status == 0, ran.stderr
+    folders = sorted(p.name for p in out.iterdir())
+    assert folders == ["trial-1_2026-11-18T11-06-45Z", "trial-2_2026-11-18T11-07-05Z"]
+    for folder, (start, stop) in zip(folders, [(5.0, 12.0), (25.0, 45.0)], strict=True):
+        inside = messages(sorted(recordings.iterdir()), T0 + start, T0 + stop,
+                          holding_end=True)
+        assert column(out / folder / "11_accel_angrate.csv", "host_time") == host_times(
+            inside, "gx2/11/accel_angrate")
+        assert column(out / folder / "marks.csv", "time") == [T0 + start, T0 + stop]
+    second = tmp_path / "second"
+    ran = gx2ctl("export", str(recordings), "--out", str(second), "--between-marks",
+                 "start", "stop", "--trial", "2")
+    assert ran.status == 0, ran.stderr
+    assert [p.name for p in second.iterdir()] == [folders[1]]
+
+
+def test_a_message_met_twice_is_exported_once(recordings: Path, tmp_path: Path) -> None:
+    paths = sorted(recordings.iterdir())
+    copy = tmp_path / "copy.mcap"
+    shutil.copy(paths[1], copy)
+    out = tmp_path / "out"
+    ran = gx2ctl("export", str(paths[1]), str(paths[0]), str(copy), str(paths[1]),
+                 "--out", str(out))
+    assert ran.status == 0, ran.stderr
+    once = messages(paths[:2])
+    assert column(out / "11_accel_angrate.csv", "host_time") == host_times(
+        once, "gx2/11/accel_angrate")
+    assert f"dropped {2 * len(messages([paths[1]])):,} duplicate messages" in ran.stdout
+
+
+@pytest.mark.parametrize("window, said", [
+    (["--from", iso(T0 - 100), "--to", iso(T0 - 50)], "outside every file: the recordings "
+     "span 2026-11-18T11:06:40.000Z to 2026-11-18T11:07:39.960Z"),
+    (["--from", "nosuch"], "--from nosuch: no such mark (marks: 'start', 'stop', 'event')"),
+    (["--from", "20", "--to", "10"], "is not after --from"),
+    (["--from", "2026-11-18T11:06:50"], "give the time's zone"),
+    (["--between-marks", "start", "nosuch"], "no trial from a mark 'start' to a mark "
+     "'nosuch'"),
+    (["--between-marks", "start", "stop", "--trial", "3"], "there are 2 trials"),
+])
+def test_a_window_that_cannot_be_taken_is_one_line_and_exit_2(
+        recordings: Path, tmp_path: Path, window: list[str], said: str) -> None:
+    ran = gx2ctl("export", str(recordings), "--out", str(tmp_path / "out"), *window)
+    assert ran.status == 2
+    assert len(ran.stderr.splitlines()) == 1 and said in ran.stderr, ran.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_damaged_file_inside_the_window_is_read_past(recordings: Path,
+                                                        tmp_path: Path) -> None:
+    path = sorted(recordings.iterdir())[1]
+    data = bytearray(path.read_bytes())
+    with path.open("rb") as stream:
+        chunk = make_reader(stream).get_summary().chunk_indexes[5]  # second 25
+    middle = chunk.chunk_start_offset + chunk.chunk_length // 2
+    data[middle:middle + 64] = bytes(64)
+    path.write_bytes(bytes(data))
+    out = tmp_path / "out"
+    ran = gx2ctl("export", str(recordings), "--out", str(out), "--from", "22", "--to", "28")
+    assert ran.status == 1
+    # what it held in the window, from its message indexes: its second's status, its
+    # mark, 2 x 25 records and 5 of node 13
+    assert "skipped 1 damaged chunk (57 messages" in ran.stderr, ran.stderr
+    times = column(out / "11_accel_angrate.csv", "host_time")
+    assert len(times) == 5 * RATE and not any(T0 + 25 <= t < T0 + 26 for t in times)
+
+
+def test_plot_draws_a_window(recordings: Path, tmp_path: Path) -> None:
+    out = tmp_path / "trial.png"
+    ran = gx2ctl("plot", str(recordings), "11", "--between-marks", "start", "stop",
+                 "--trial", "1", "--out", str(out))
+    assert ran.status == 0, ran.stderr
+    assert out.stat().st_size > 0
+    several = gx2ctl("plot", str(recordings), "11", "--between-marks", "start", "stop",
+                     "--out", str(out))
+    assert several.status == 2 and "pick one with --trial" in several.stderr
+
+
+# --- seeking ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("finished", [True, False])
+def test_a_window_read_decompresses_only_the_chunks_it_touches(tmp_path: Path,
+                                                               finished: bool) -> None:
+    path = make_file(tmp_path / "one.mcap", 0, 30, finish=finished)
+    span = (round((T0 + 10.5) * 1e9), round((T0 + 12.5) * 1e9))
+    reading = Reading()
+    found = list(read(path, reading, span=span))
+    assert [e.log_time for e in found] == [
+        log_time for _, log_time, _ in messages([make_file(tmp_path / "whole.mcap", 0, 30)],
+                                                T0 + 10.5, T0 + 12.5)]
+    # seconds 10, 11 and 12 of 30; without a summary, also the chunks that define the
+    # channels (second 0, and second 5 the mark's)
+    assert reading.files[0].decompressed == (3 if finished else 5)
+    assert not reading.partial
+
+
+def test_a_file_cut_short_given_twice_is_exported_once(tmp_path: Path) -> None:
+    cut = make_file(tmp_path / "gx2-cut.mcap", 0, 4, finish=False)
+    copy = tmp_path / "copy.mcap"
+    shutil.copy(cut, copy)
+    whole = messages([make_file(tmp_path / "whole.mcap", 0, 4)])  # (the same messages)
+    out = tmp_path / "out"
+    ran = gx2ctl("export", str(cut), str(copy), "--out", str(out))
+    assert ran.status == 0, ran.stderr
+    assert column(out / "11_accel_angrate.csv", "host_time") == host_times(
+        whole, "gx2/11/accel_angrate")
+    assert f"dropped {len(whole):,} duplicate messages" in ran.stdout
+
+
+def test_the_catalogue_lists_the_configured_record_directory(recordings: Path,
+                                                             tmp_path: Path) -> None:
+    config = tmp_path / "nodes.yaml"
+    config.write_text("base_station: {port: 'sim://'}\nnodes: [{address: 11}]\n"
+                      f"record: {{directory: '{recordings}'}}\n")
+    ran = gx2ctl("--config", str(config), "recordings", "--json")
+    assert ran.status == 0, ran.stderr
+    assert [f["path"] for f in json.loads(ran.stdout)["files"]] == [
+        str(p) for p in sorted(recordings.iterdir())]
+    config.write_text("base_station: {port: 'sim://'}\nnodes: [{address: 11}]\n")
+    ran = gx2ctl("--config", str(config), "recordings")
+    assert ran.status == 2 and "does not record" in ran.stderr, ran.stderr
+
+
+def test_json_before_the_command_is_json_too(recordings: Path) -> None:
+    """``gx2ctl --json recordings``, as ``gx2ctl --json status`` is written."""
+    before, after = (gx2ctl(*args) for args in (("--json", "recordings", str(recordings)),
+                                                ("recordings", "--json", str(recordings))))
+    assert before.status == after.status == 0, (before.stderr, after.stderr)
+    assert json.loads(before.stdout) == json.loads(after.stdout)
