@@ -7,13 +7,16 @@ the metrics) and WARNs while one streams on its channel."""
 from __future__ import annotations
 
 import re
+import signal
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 
+from gateway.sim.node import NodeSettings
 from tests.e2e.test_watching import Scraper
 from tests.helpers.ports import free_port
 from tests.helpers.processes import STARTUP, Running, gx2ctl, script, spawn_run
@@ -152,3 +155,19 @@ def test_sim_url_extra_nodes_are_heard_and_a_configured_one_is_refused(gateway,
     assert checked.returncode == 2, checked
     assert "sim:// extra names node 76, which is configured" in checked.stderr, checked
     assert len(checked.stderr.strip().splitlines()) == 1, checked
+
+
+def test_a_node_heard_and_then_added_by_a_reload_is_heard_no_longer(simulator,
+                                                                    gateway) -> None:
+    sim = simulator(NodeSettings(76), NodeSettings(81, stream="accel_angrate"))
+    gw = gateway(sim.path, [{"address": 76, "stream": "accel_angrate"}])
+    wait_for(lambda: heard(gw.status()).get(81, {}).get("rate_hz") == 100.0, 10,
+             "81 heard streaming")
+    gw.path.write_text(yaml.safe_dump({**gw.config, "nodes": [
+        {"address": 76, "stream": "accel_angrate"}, {"address": 81}]}))
+    gw.proc.send_signal(signal.SIGHUP)
+    wait_for(lambda: 81 in {n["node"] for n in gw.status()["nodes"]}, 10, "81 added")
+    status = gw.status()
+    assert heard(status) == {} and status["stations"][0]["reasons"] == []
+    gw.wait_streaming(81)  # (what it streams by itself, taken as it is)
+    assert heard(gw.status()) == {}

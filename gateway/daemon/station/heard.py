@@ -204,6 +204,11 @@ class Heard:
         log.info("base station %s: node %d, not configured, powered up", self.station,
                  node.address)
 
+    def forget(self, address: int) -> None:
+        """``address`` is configured now (a reload added it): it is no longer one heard
+        that is not."""
+        self._nodes.pop(address, None)
+
     def streaming(self, monotonic: float) -> list[tuple[HeardNode, float]]:
         """The addresses that stream now, with their rates, by address."""
         rated = ((node, node.rate_hz(monotonic)) for node in self._nodes.values())

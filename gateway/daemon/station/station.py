@@ -92,8 +92,10 @@ class Station:
 
     def add_node(self, entry: NodeEntry) -> Node:
         """A node a reload added: its reader, supervisor and status see it from now on
-        (they share :attr:`nodes`); the supervisor arms it (:meth:`Supervisor.adopt`)."""
+        (they share :attr:`nodes`), and it is no longer among those heard that are not
+        configured; the supervisor arms it (:meth:`Supervisor.adopt`)."""
         node = self.nodes[entry.address] = self._node(entry)
+        self.reader.heard.forget(entry.address)
         return node
 
     async def retire(self, node: Node) -> str | None:
