@@ -74,6 +74,8 @@ class HeardNode:
         version does not know); None before any."""
         self._at = 0.0
         """time.monotonic() of its last packet: how long ago is judged on it."""
+        self._gap = 0.0
+        """Seconds between its last packet and the one before."""
         self._code: int | None = None
         """The command byte of the run of records it is sending."""
         self._run = 0
@@ -93,7 +95,9 @@ class HeardNode:
         link quality. How long ago it was is judged on time.monotonic() when it is
         handled (a replay's packets carry the recording's times)."""
         self.packets += 1
-        self.last_heard, self._at = host_time, time.monotonic()
+        now = time.monotonic()
+        self._gap = now - self._at
+        self.last_heard, self._at = host_time, now
         lqi, rssi = LINK_QUALITY.unpack_from(raw, len(raw) - 4)
         self._lqi.append(lqi)
         self._rssi.append(rssi)
@@ -104,7 +108,7 @@ class HeardNode:
         code = raw[HEADER_SIZE]
         spec = BY_CODE.get(code)
         self.record = spec.name if spec is not None else f"0x{code:02X}"
-        if code != self._code:
+        if code != self._code or self._gap > self._silence():  # (a new run)
             self._code, self._run, self._run_from = code, 0, self._at
             self._timer, self._step = None, 0
         self._run += 1
@@ -131,20 +135,29 @@ class HeardNode:
         divider), else from the run's arrivals; None while it does not stream (fewer
         than STREAM_RECORDS of it in a row, not a streamable record, or none for as
         long as a configured node's stream takes to fall silent)."""
-        if self._run < STREAM_RECORDS or self._code not in STREAMABLE:
+        if (self._run < STREAM_RECORDS or self._code not in STREAMABLE
+                or monotonic - self._at > self._silence()):
             return None
         divider = round(self._step / TICKS_PER_CLOCK)
         if valid_divider(divider):
-            rate, period = data_rate(divider), sample_period(divider)
-        else:
-            span = self._at - self._run_from
-            if span <= 0:
-                return None
-            rate = (self._run - 1) / span
-            period = 1 / rate
-        if monotonic - self._at > max(SILENCE_MIN, SILENCE_PERIODS * period):
-            return None
-        return rate
+            return data_rate(divider)
+        period = self._period()
+        return None if period is None else 1 / period
+
+    def _period(self) -> float | None:
+        """Its stream's sample period: from its timer's shortest step, else from the
+        run's arrivals; None before either can tell."""
+        divider = round(self._step / TICKS_PER_CLOCK)
+        if valid_divider(divider):
+            return sample_period(divider)
+        span = self._at - self._run_from
+        return span / (self._run - 1) if span > 0 and self._run > 1 else None
+
+    def _silence(self) -> float:
+        """Seconds without a record after which its stream has stopped: as a configured
+        node's falls silent (ten periods, and at least SILENCE_MIN)."""
+        period = self._period()
+        return SILENCE_MIN if period is None else max(SILENCE_MIN, SILENCE_PERIODS * period)
 
     def status(self, monotonic: float) -> dict[str, Any]:
         rate = self.rate_hz(monotonic)

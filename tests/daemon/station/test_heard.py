@@ -118,3 +118,16 @@ def test_at_most_heard_max_addresses_the_one_heard_longest_ago_forgotten() -> No
     kept = {entry["address"] for entry in memory.status(time.monotonic())}
     assert 1 in kept and set(range(2, 12)).isdisjoint(kept)
     assert {12, HEARD_MAX, *range(1001, 1011)} <= kept
+
+
+def test_records_a_silence_apart_are_no_stream(monkeypatch) -> None:
+    """A node that stopped streaming, then answers two polls of that record: a run of
+    three records, but the first a silence before the others."""
+    got, _ = reader()
+    clock = [1000.0]
+    monkeypatch.setattr(time, "monotonic", lambda: clock[0])
+    for sample, at in ((1, 1000.0), (2, 1000.01), (3, 1000.02), (500, 1005.0), (900, 1009.0)):
+        clock[0] = at
+        got.on_data(record(81, sample), T0, at)
+    assert got.heard.streaming(1009.0) == []
+    assert got.heard.status(1009.0)[0]["record"] == "accel_angrate"
