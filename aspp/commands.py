@@ -218,6 +218,13 @@ def set_divider(divider: int) -> Command:
     return write_eeprom(EEPROM_DIVIDER, divider)
 
 
+def auto_start_record(word: int) -> str | None:
+    """The record an auto-start word (EEPROM 0xFCA6, as read) streams from power-up, or
+    None: polled mode (0), or a byte that is not a record the node can stream."""
+    code = word & 0xFF
+    return lookup(code).name if code in STREAMABLE else None
+
+
 def set_auto_start(record: str | int | None) -> Command:
     """Stream ``record`` from every power-up (None: start in polled mode)."""
     if record is None:

@@ -10,6 +10,7 @@ knows which field it is (argparse names the argument, pydantic the key).
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -18,6 +19,8 @@ from aspp.errors import AsppError
 from aspp.frame import MAX_NODE, MIN_NODE
 from aspp.records import STREAMABLE, all_specs, checked
 from aspp.timing import divider_for_rate
+
+from .topics import STATION_NAME
 
 
 @dataclass(frozen=True)
@@ -76,6 +79,52 @@ def _node(text: str) -> int:
         raise ValueError(f"node address {text!r} is not a number") from None
 
 
+def _addresses(text: Any) -> tuple[int, ...]:
+    """``1-100,200,300-310`` -> every address it names, ascending, each once."""
+    if not isinstance(text, str):
+        raise ValueError(f"address ranges are text such as 1-100,200, not {text!r}")
+    if not text.strip():
+        raise ValueError("no addresses given (such as 1-100,200,300-310)")
+    addresses: set[int] = set()
+    for part in text.split(","):
+        first, dash, last = (side.strip() for side in part.partition("-"))
+        if not first or (dash and not last):
+            within = f" in {text!r}" if part.strip() != text.strip() else ""
+            raise ValueError(f"{part.strip()!r}{within} is not an address or a range of "
+                             "them (such as 1-100,200,300-310)")
+        low = NODE.from_text(first)
+        high = NODE.from_text(last) if dash else low
+        if high < low:
+            raise ValueError(f"range {part.strip()!r} runs backwards")
+        addresses.update(range(low, high + 1))
+    return tuple(sorted(addresses))
+
+
+def ranges_text(addresses: Any) -> str:
+    """The addresses as the ranges :data:`ADDRESS_RANGES` reads: [1, 2, 3, 7] -> ``1-3,7``."""
+    parts: list[str] = []
+    run: list[int] = []
+    for address in sorted(set(addresses)):
+        if run and address != run[-1] + 1:
+            parts.append(_run_text(run))
+            run = []
+        run.append(address)
+    if run:
+        parts.append(_run_text(run))
+    return ",".join(parts)
+
+
+def _run_text(run: list[int]) -> str:
+    return str(run[0]) if len(run) == 1 else f"{run[0]}-{run[-1]}"
+
+
+def _station(value: Any) -> str:
+    if not isinstance(value, str) or not re.match(STATION_NAME, value):
+        raise ValueError(f"{value!r} is not a base station's name (letters, digits, _ and "
+                         "-, at most 32)")
+    return value
+
+
 def _record(streamable: bool = False, pollable: bool = False) -> Callable[[Any], str]:
     def check(value: Any) -> str:
         try:
@@ -118,6 +167,10 @@ STREAMABLE_RECORD = Kind("record that can stream", str | int, str,
                          _record(streamable=True), _names(streamable=True))
 POLLABLE_RECORD = Kind("record that can be polled", str | int, str, _record(pollable=True),
                        _names(pollable=True))
+ADDRESS_RANGES = Kind("node address ranges", str, str, _addresses)
+"""Node addresses as ranges (``1-100,200,300-310``), read into every address they name;
+each one a node address (1..65534)."""
+STATION = Kind("base station name", str, str, _station)
 WORD = Kind("16-bit word", int, integer, in_range(0, 0xFFFF, "word"))
 """An EEPROM address or value."""
 RATE_HZ = Kind("data rate in Hz", float, number, _rate)

@@ -123,7 +123,7 @@ def add_op(commands: Any, groups: dict[str, Any], op: Op,
                             description=op.description or op.help)
     sub.set_defaults(op=op)
     for param in op.params:
-        metavar = param.name.upper()
+        metavar = param.metavar or param.name.upper()
         listed = param.help
         if param.kind.choices:
             listed += f"; one of: {', '.join(param.kind.choices)}"
@@ -133,6 +133,9 @@ def add_op(commands: Any, groups: dict[str, Any], op: Op,
         elif param.required:
             sub.add_argument(param.name, type=argtype(param.kind), metavar=metavar,
                              help=listed)
+        elif param.positional:
+            sub.add_argument(param.name, nargs="?", type=argtype(param.kind),
+                             default=param.default, metavar=metavar, help=listed)
         else:
             sub.add_argument(param.flag, dest=param.name, type=argtype(param.kind),
                              default=param.default, metavar=metavar.split("_")[-1],
@@ -260,6 +263,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "record":
             from .record import run_record
             return run_record(args.file, args.nodes, args.seconds, where, args.timeout)
+        if args.command == "scan":
+            from .scan import run_scan
+            return run_scan(args.station, args.addresses, where, args.timeout, args.json)
         return run_op(args.op, args, where)
     except CtlError as error:
         if getattr(args, "json", False):  # a script reading stdout learns of it too

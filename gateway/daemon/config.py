@@ -253,7 +253,7 @@ class StationConfig(BaseStationConfig):
     name: Annotated[str, Field(pattern=STATION_NAME)] | None = None
     """How status, top, metrics and recordings name it; station1, station2... if not
     given (by its place in the list)."""
-    nodes: Annotated[list[NodeEntry], Field(min_length=1)]
+    nodes: list[NodeEntry]
 
 
 class GatewayConfig(Strict):
@@ -269,7 +269,7 @@ class GatewayConfig(Strict):
     metrics: MetricsConfig | None = None
     live: LiveConfig | None = None
     health: HealthConfig = HealthConfig()
-    nodes: Annotated[list[NodeEntry], Field(min_length=1)] | None = None
+    nodes: list[NodeEntry] | None = None
     """The one station's nodes (with ``base_station:``); :attr:`all_nodes` is every
     node of every station."""
 

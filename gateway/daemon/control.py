@@ -39,7 +39,7 @@ from gateway.common.protocol import CANCEL, ErrorKind
 
 from .errors import GoesOn, OpError
 from .operations import Operations
-from .requests import RequestBase, RequestError, parse_request
+from .requests import RequestBase, RequestError, answer_within, parse_request
 
 log = logging.getLogger("gx2.control")
 REMEMBER_SECONDS = 60.0
@@ -47,9 +47,6 @@ REMEMBER_MAX = 2048
 IPC_MODE = 0o660
 """An ipc:// control socket: its owner and group may connect (gx2ctl users join the
 gateway's group), nobody else."""
-REPLY_MARGIN = (0.1, 0.1, 1.0)
-"""A request with a timeout is answered this much before it runs out, to cross the
-network in time: a tenth of it, at least 0.1 s and at most 1 s."""
 CLOSE_LINGER_MS = 100
 """At shutdown, how long the answers to the requests cut short may take to leave (a
 client on this host or its network takes well under a millisecond): the process's exit
@@ -60,12 +57,6 @@ CANCEL_SHARE = 0.9
 cancels to wind down; then it says that it is winding down."""
 Key = tuple[bytes, object]
 """A request as the gateway remembers it: (the client's identity, the request's id)."""
-
-
-def answer_within(timeout: float) -> float:
-    """Seconds from a request's arrival within which it must be answered."""
-    share, least, most = REPLY_MARGIN
-    return max(timeout / 2, timeout - min(most, max(least, share * timeout)))
 
 
 class ControlServer:

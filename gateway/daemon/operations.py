@@ -17,12 +17,14 @@ from typing import Any, Protocol
 from aspp import commands
 from aspp.commands import DOCUMENTED_EEPROM, EEPROM_DIVIDER
 from aspp.frame import encode_ping
+from aspp.records import Record
 from aspp.timing import data_rate, divider_for_rate
 from gateway.common import ops
 
 from .errors import Invalid, NodeError, OpError, Refused
 from .requests import RequestBase
 from .station.nodes import Node
+from .station.reader import Reader
 from .station.scheduler import Scheduler
 from .station.supervisor import Supervisor
 from .stations import Stations
@@ -31,7 +33,9 @@ from .stations import Stations
 class StationParts(Protocol):
     """What the ops need of a base station (:class:`~.station.Station`)."""
 
+    name: str
     nodes: dict[int, Node]
+    reader: Reader
     scheduler: Scheduler
     supervisor: Supervisor
     replaying: bool
@@ -237,17 +241,27 @@ async def rate(gw: Operations, request: Any) -> Result:
 @handles("info")
 async def info(gw: Operations, request: Any) -> Result:
     node = gw.node(request.node)
-    version = (await gw.scheduler(node).ask(node, commands.firmware_version())).record["version"]
+
+    async def ask(command: commands.Command) -> Record:
+        return (await gw.scheduler(node).ask(node, command)).record
+    return {"node": node.address, **await identify(node.address, ask)}
+
+
+async def identify(address: int, ask: Callable[[commands.Command], Awaitable[Record]]
+                   ) -> Result:
+    """What a node is: its firmware version and four identifier strings, each read with
+    ``ask`` (a command to the node, its reply's record)."""
+    version = (await ask(commands.firmware_version()))["version"]
     texts = []
     for selector in range(4):
-        record = (await gw.scheduler(node).ask(node, commands.device_id(selector))).record
+        record = await ask(commands.device_id(selector))
         if record["selector"] != selector:  # a late answer to an earlier request
-            raise NodeError(f"node {node.address}: asked for identifier {selector}, "
+            raise NodeError(f"node {address}: asked for identifier {selector}, "
                             f"got {record['selector']}")
         texts.append(record["text"])
-    return {"node": node.address, "firmware": version,
-            "firmware_version": commands.firmware_text(version), "model_number": texts[0],
-            "serial_number": texts[1], "model_name": texts[2], "options": texts[3]}
+    return {"firmware": version, "firmware_version": commands.firmware_text(version),
+            "model_number": texts[0], "serial_number": texts[1], "model_name": texts[2],
+            "options": texts[3]}
 
 
 def _named(request: Any) -> list[int]:
@@ -280,5 +294,6 @@ async def mark(gw: Operations, request: Any) -> Result:
     return dict(payload)
 
 
-# the ops that measure, correct and check what a node senses register themselves there
-from . import calibration  # noqa: E402, F401
+# the ops that measure, correct and check what a node senses, and the scan, register
+# themselves there
+from . import calibration, scanning  # noqa: E402, F401

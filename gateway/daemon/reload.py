@@ -9,7 +9,8 @@ always one the file held.
 
 :func:`plan` compares the running configuration with the file's, and says what a
 reload would do; :class:`Reloader` applies it to the running stations without
-touching any other node (docs/operating.md, "Reloading the configuration").
+touching any other node (docs/operating.md, "Reloading the configuration (nodes
+added and removed)").
 """
 
 from __future__ import annotations

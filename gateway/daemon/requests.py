@@ -21,6 +21,15 @@ from gateway.common.strict import Strict, describe
 RequestId = Annotated[str, Field(min_length=1, max_length=64)] | int
 MAX_TIMEOUT = 90_000.0
 """A day, and a bias capture's longest sampling time on top (gx2ctl allows a day)."""
+REPLY_MARGIN = (0.1, 0.1, 1.0)
+"""A request with a timeout is answered this much before it runs out, to cross the
+network in time: a tenth of it, at least 0.1 s and at most 1 s."""
+
+
+def answer_within(timeout: float) -> float:
+    """Seconds from a request's arrival within which it must be answered."""
+    share, least, most = REPLY_MARGIN
+    return max(timeout / 2, timeout - min(most, max(least, share * timeout)))
 
 
 class RequestBase(Strict):
@@ -33,6 +42,8 @@ def _annotation(param: Param) -> Any:
     value = Annotated[param.kind.type, AfterValidator(param.kind.check)]
     if param.many:
         return Annotated[list[value], Field(min_length=1, max_length=param.many)]  # type: ignore[valid-type]
+    if param.default is None:
+        return value | None
     return value
 
 

@@ -60,6 +60,7 @@ class Wired:
         self.reader = Reader(self.nodes, self.publisher, self.supervisor,  # type: ignore[arg-type]
                              self.scheduler, idle_seconds=0.03)
         self.replaying = False
+        self.name = "station1"
         self.ops = Operations([self], lambda: {"status": "ok"},
                               allow_eeprom_write=allow_eeprom_write)
         self._pump: asyncio.Task[None] | None = None

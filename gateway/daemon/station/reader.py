@@ -5,18 +5,22 @@ decoder cuts it into events, and each reply record is decoded, tallied by its no
 (seq, device time, losses), published, shown to the supervisor (is the node doing what
 it should?) and handed to the scheduler (is anyone waiting for it?), in that order and
 without climbing back up. ACKs, NACKs and ping answers go to the scheduler; a
-discovery packet to the supervisor. A packet from an address that is not configured
-goes to the station's memory of those heard (:mod:`.heard`), off that path.
+discovery packet to the supervisor. A packet from an address not configured here is
+counted, remembered among those heard (:mod:`.heard`), and a record of one handed to
+whoever listens to that address (a scan reading a node it found): the configured
+nodes' records never pay for it.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+from collections.abc import Callable
 
 from aspp import Ack, Decoder, Event, Frame, Nack, PingOk, Reply, decode
 from aspp.errors import RecordError
 from aspp.frame import HEADER_SIZE
+from aspp.records import Record
 from aspp.timing import BITS_PER_BYTE
 
 from .heard import Heard
@@ -47,6 +51,9 @@ class Reader:
         self.unknown_node_packets = 0
         self.heard = Heard(station)
         """The addresses heard that are not configured (:mod:`.heard`)."""
+        self.listeners: dict[int, Callable[[Reply, Record], None]] = {}
+        """Addresses not configured here that an op listens to: each valid record from
+        one is handed to its listener (:func:`gateway.daemon.scanning`)."""
         self.bad_records = 0
         self._idle: asyncio.TimerHandle | None = None
 
@@ -113,6 +120,8 @@ class Reader:
         if node is None:
             self.unknown_node_packets += 1
             self.heard.reply(event.raw, host_time)
+            if self.listeners:
+                self._to_listener(event)
             return
         raw = event.raw
         try:
@@ -128,3 +137,16 @@ class Reader:
             self.supervisor.after_record(node, record)
         if self.scheduler.expects(node.address, record.spec.code):
             self.scheduler.on_reply(node.address, record.spec.code, Delivery(record, payload))
+
+    def _to_listener(self, event: Reply) -> None:
+        """A record from an address not configured here, to the op listening to it."""
+        listener = self.listeners.get(event.node)
+        if listener is None:
+            return
+        try:
+            record = decode(event.payload)
+        except RecordError as error:
+            self.bad_records += 1
+            log.debug("node %d (not configured): %s", event.node, error)
+            return
+        listener(event, record)
