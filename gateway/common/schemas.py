@@ -139,6 +139,18 @@ def status_schema() -> Schema:
     """The status (``gx2ctl --json status``, published on gx2/gateway/status): its
     top-level keys and their types; what is inside each part may grow."""
     node = _part("object", "one node", ("node",), node={"type": "integer"})
+    address = {"type": "integer", "minimum": MIN_NODE, "maximum": MAX_NODE}
+    heard = _part("object", "one address heard that is not configured",
+                  ("address", "record", "rate_hz", "rssi", "lqi", "packets", "last_heard"),
+                  address=_described(address, "the node's address"),
+                  record=_described({"type": ["string", "null"]}, "the record it last "
+                                    "sent since its last power-up; null before any"),
+                  rate_hz=_described(_FLOAT, "the rate it streams at (from its timer); "
+                                     "null while it does not stream", "Hz"),
+                  rssi=_described(_FLOAT, "median of its last packets' RSSI", "dBm"),
+                  lqi=_described(_FLOAT, "median of its last packets' LQI"),
+                  packets={"type": "integer", "minimum": 1},
+                  last_heard=_described(_FLOAT, "UNIX time of its last packet", "s"))
     return {
         "$schema": DRAFT,
         "title": STATUS_NAME,
@@ -153,8 +165,10 @@ def status_schema() -> Schema:
             "link": _part("object", "the (first) base station's serial link: port, state, "
                           "counts of what was read and discarded"),
             "stations": {"type": "array", "items": _part(
-                "object", "one base station: its name, its link's fields (as link) and "
-                "its nodes' addresses", ("name", "nodes"), name={"type": "string"}),
+                "object", "one base station: its name, its link's fields (as link), "
+                "its nodes' addresses and the addresses it heard that are not configured",
+                ("name", "nodes", "heard"), name={"type": "string"},
+                heard={"type": "array", "items": heard, "description": "by address"}),
                 "description": "every base station, in the configuration's order"},
             "nodes": {"type": "array", "items": node, "description": "one map a node: "
                       "state, rates, losses, clock, health"},

@@ -1,6 +1,7 @@
 """``gx2ctl status`` for a person: the gateway, each base station's line, the recording,
 then a table of the nodes (grouped by base station when there are several), fitted to
-the terminal's width, and why each node that is not OK is not.
+the terminal's width, and why each node that is not OK is not. Under each station's
+line, the nodes it heard that are not configured (``heard``), one a line.
 
 The width: ``--wide`` shows every column whole; otherwise the terminal's (``COLUMNS``
 if set, as ``ls`` and ``ps`` read it); printed to a pipe or a file without ``COLUMNS``,
@@ -24,6 +25,9 @@ from .columns import Column, clipped, fit, plain_table
 LABEL = 9
 """Cells before an item line's first item ("gateway  ", "link     "): where a broken
 line goes on."""
+HEARD_SHOWN = 8
+"""Nodes heard shown under a station (those streaming first, by address, then the most
+recently heard); ``--json`` lists them all."""
 
 
 def _key(key: str) -> Any:
@@ -130,6 +134,32 @@ def link_items(link: Mapping[str, Any], now: float) -> list[str]:
             f"discarded {count(link.get('discarded_bytes'), 'bytes')}"]
 
 
+def heard_item(heard: Mapping[str, Any], now: float) -> str:
+    """One node heard: ``81 streaming accel_angrate at 100 Hz, RSSI -61, last 0.3 s
+    ago``."""
+    rate, record, rssi = number(heard.get("rate_hz")), heard.get("record"), heard.get("rssi")
+    what = (f" streaming {cell(record)} at {rate:g} Hz" if rate is not None
+            else f" sent {cell(record)}" if record is not None
+            else " powered up (a discovery packet)" if heard.get("announced") is not None
+            else "")
+    return (f"{cell(heard.get('address'))}{what}"
+            + (f", RSSI {number(rssi):.0f}" if number(rssi) is not None else "")
+            + f", last {ago(heard.get('last_heard'), now)}")
+
+
+def heard_lines(station: Mapping[str, Any], now: float, width: int | None) -> list[str]:
+    """The nodes a station heard that are not configured, one a line under its own."""
+    heard = [as_map(h) for h in station.get("heard") or () if isinstance(h, Mapping)]
+    heard.sort(key=lambda h: (1, -(number(h.get("last_heard")) or 0.0))
+               if number(h.get("rate_hz")) is None else (0, number(h.get("address")) or 0))
+    lines = [clipped(f"{'':{LABEL - 1}} heard, not configured: {heard_item(h, now)}", width)
+             for h in heard[:HEARD_SHOWN]]
+    if len(heard) > HEARD_SHOWN:
+        lines.append(clipped(f"{'':{LABEL - 1}} and {len(heard) - HEARD_SHOWN} more heard "
+                             "(gx2ctl --json status lists them)", width))
+    return lines
+
+
 def status_lines(result: Mapping[str, Any], now: float, width: int | None = None) -> list[str]:
     """Every line of a readable status, none wider than ``width`` (None: no limit)."""
     gateway = as_map(result.get("gateway"))
@@ -146,6 +176,7 @@ def status_lines(result: Mapping[str, Any], now: float, width: int | None = None
     for station in stations:
         label = cell(station.get("name")) if several else "link"
         lines += items_line(label, link_items(station, now), width)
+        lines += heard_lines(station, now, width)
     recording = result.get("recording")
     if isinstance(recording, Mapping):
         error = recording.get("error")

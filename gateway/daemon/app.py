@@ -118,7 +118,9 @@ class Gateway:
                              lines=[(None if len(self.stations) == 1 else station.name,
                                      station.line) for station in self.stations],
                              recorder=self.recorder,
-                             take_failures=self.outputs.take_failures)
+                             take_failures=self.outputs.take_failures,
+                             heard=[(None if len(self.stations) == 1 else station.name,
+                                     station.reader.heard) for station in self.stations])
         self.reloader: Reloader | None = None
         if path is not None:
             self.reloader = Reloader(path, lambda: self.config, self._reloaded,

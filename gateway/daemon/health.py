@@ -19,6 +19,11 @@ WARN while the recorder's queue overflowed within the window (the disk does not 
 up), or while an output failed to take messages within it (a bug the fan-out contained:
 that output lost them, the others did not). ``gx2ctl status --check`` fails on each;
 ``gx2_gateway_health`` carries it.
+
+A base station has reasons of its own, in its map of status and among the gateway's
+(named by the station when there are several), each a WARN: its line over capacity, and
+a node it is not configured for that streams on its channel (:mod:`.station.heard`):
+that node takes radio time from the configured ones, and its packets line time.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from typing import Any, NamedTuple, Protocol
 from gateway.common.protocol import HealthLevel as Level
 
 from .config import HealthConfig
+from .station.heard import Heard
 from .station.lineload import LineLoad
 from .station.nodes import Node, State
 
@@ -205,6 +211,19 @@ def judge_gateway(failure: str, overflowed: int, seconds: float) -> Verdict:
     return Verdict(Level.OK, ())
 
 
+def unconfigured_streams(heard: Heard, now: float) -> list[str]:
+    """A reason for each node that streams on the channel though it is not configured
+    (``now``: ``time.monotonic()``)."""
+    return [f"node {node.address} (not configured) streams {node.record} at {rate:.4g} Hz "
+            "on its channel" for node, rate in heard.streaming(now)]
+
+
+def station_reasons(line: LineLoad, heard: Heard, now: float) -> list[str]:
+    """Why a base station is not all well (each a WARN): its line over capacity, and
+    the nodes it is not configured for that stream on its channel."""
+    return [*([line.reason()] if line.over else []), *unconfigured_streams(heard, now)]
+
+
 def take_failed(output: str, count: int, seconds: float) -> str:
     """The gateway's WARN reason for an output that failed to take ``count`` messages
     over the last ``seconds`` (the fan-out logged the first of each kind of error)."""
@@ -226,7 +245,8 @@ class Health:
     def __init__(self, nodes: Iterable[Node], limits: HealthConfig,
                  lines: Iterable[tuple[str | None, LineLoad]] = (),
                  recorder: Recording | None = None,
-                 take_failures: Mapping[str, int] | None = None) -> None:
+                 take_failures: Mapping[str, int] | None = None,
+                 heard: Iterable[tuple[str | None, Heard]] = ()) -> None:
         self.limits = limits
         self.nodes = list(nodes)
         self._windows = {node.address: Window(limits.window_s) for node in self.nodes}
@@ -234,6 +254,9 @@ class Health:
         self.lines = list(lines)
         """Each base station's serial line, with its name (None for a gateway's only
         one): a line over capacity is a WARN of the gateway's."""
+        self.heard = list(heard)
+        """Each base station's unconfigured nodes heard, with its name (as ``lines``):
+        one that streams is a WARN of the gateway's."""
         self.recorder = recorder
         """The gateway's recorder, if it records: what its own health is judged by."""
         self._overflows: deque[tuple[float, int]] = deque()
@@ -307,6 +330,8 @@ class Health:
                                   (*verdict.reasons, *failed))
         full = [line.reason() if name is None else f"base station {name}: {line.reason()}"
                 for name, line in self.lines if line.over]
+        full += [why if name is None else f"base station {name}: {why}"
+                 for name, heard in self.heard for why in unconfigured_streams(heard, now)]
         if full:
             verdict = Verdict(max(verdict.level, Level.WARN, key=LEVELS.index),
                               (*verdict.reasons, *full))

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from aspp.timing import BITS_PER_BYTE
 from gateway.common.version import VERSION
 
+from .health import station_reasons
 from .outputs import OUTPUTS
 from .station.replay import ReplayLink
 
@@ -84,8 +85,10 @@ def outputs_status(outputs: Outputs) -> dict[str, dict[str, Any] | None]:
 
 
 def one_station_link(station: dict[str, Any]) -> dict[str, Any]:
-    """A station's link as ``link`` shows it: without its name and its nodes."""
-    return {key: value for key, value in station.items() if key not in ("name", "nodes")}
+    """A station's link as ``link`` shows it: without its name, its nodes, and what it
+    heard (the station's, in ``stations``)."""
+    return {key: value for key, value in station.items()
+            if key not in ("name", "nodes", "heard", "heard_forgotten", "reasons")}
 
 
 def station_link(station: Station, monotonic: float) -> dict[str, Any]:
@@ -107,7 +110,10 @@ def station_link(station: Station, monotonic: float) -> dict[str, Any]:
             "retries": scheduler.stats.retries,
             "failures": scheduler.stats.failures,
             "unexpected_answers": scheduler.stats.unexpected,
-            "nodes": station.configured}
+            "nodes": station.configured,
+            "heard": reader.heard.status(monotonic),
+            "heard_forgotten": reader.heard.forgotten,
+            "reasons": station_reasons(station.line, reader.heard, monotonic)}
 
 
 def replay_status(links: list[Any]) -> dict[str, Any] | None:

@@ -148,7 +148,7 @@ class BaseStation:
         elif isinstance(event, PingRequest):
             self.stats.pings += 1
             link = self.radio.get(event.node)
-            ok = link is not None and link.in_range
+            ok = link is not None and link.in_range and self.nodes[event.node].powered
             delay = 2 * RADIO_LATENCY if ok else PING_TIMEOUT
             self._push_answer(now + delay, bytes((PING if ok else NACK,)))
         elif self.line.nack and self.rng.random() < self.line.nack:
@@ -169,7 +169,8 @@ class BaseStation:
         loss = 0.0 if link is None else link.command_loss
         if link is not None and command[:1] == b"\xfa":
             loss = 1 - (1 - loss) * (1 - link.stop_loss)
-        if link is None or not link.in_range or self.rng.random() < loss:
+        if (link is None or not link.in_range or not self.nodes[node].powered
+                or self.rng.random() < loss):
             self.stats.commands_lost += 1
             return
         self._seq += 1
@@ -190,10 +191,27 @@ class BaseStation:
         # so what reached the base station before the reboot is on the line before it.
         # Put straight on the line, it overtook a record still in the air, whose timer
         # then read as the restarted one (issue 24: 0.4 s after a reboot, under load).
+        # A node switched off stays off.
+        if not self.nodes[address].powered:
+            return
         self.advance(now)
         self.nodes[address].power_up(now)
         self._launch(address, now, b"\x01" + FIRMWARE_VERSION.to_bytes(4, "big"),
                      FLAGS_DISCOVERY)
+
+    def power(self, address: int, on: bool, now: float) -> bool:
+        """Switch a node on (it powers up, announcing itself with a discovery packet as
+        after a reboot, and streams what it auto-starts) or off (from now it hears no
+        command and sends nothing; what it sent before is still in the air). Whether
+        that changed anything (False: it was so already)."""
+        node = self.nodes[address]
+        if node.powered == on:
+            return False
+        self.advance(now)
+        node.powered = on
+        if on:
+            self.reboot(address, now)
+        return True
 
     def advance(self, now: float) -> None:
         """Everything due by ``now``, in time order: commands reach nodes, nodes finish
@@ -333,6 +351,6 @@ class BaseStation:
         if self._in_air:
             times.append(self._in_air[0][0])
         for node in self.nodes.values():
-            if node.continuous or node.pending or node.capture_due:
+            if node.busy:
                 times.append(node.next_cycle_time() + RADIO_LATENCY)
         return min(times)

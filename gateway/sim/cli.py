@@ -15,6 +15,7 @@ from gateway.common.args import (
     ArgumentParser,
     bounded,
     fail,
+    node_address,
     node_list,
     probability,
     streamable_record,
@@ -23,7 +24,7 @@ from gateway.common.strict import describe
 from gateway.common.yamlfile import ConfigError
 
 from .config import SimConfig, SimNodeEntry, SimStationsConfig, load_sim_config
-from .control import ControlError, ControlServer, Handler, send
+from .control import ControlError, ControlServer, Handler, power, send
 from .node import GX2, INERTIA_LINK
 from .physics import MOTIONS
 from .server import LinkInUse, Simulator
@@ -41,7 +42,7 @@ def build_parser() -> ArgumentParser:
         "Prints the port to open (several: NAME: PORT a line) and serves until "
         "interrupted. While it runs, SIGUSR1 reboots every node and SIGUSR2 unplugs every "
         f"base station for {UNPLUG_SECONDS:g} s; 'gx2-sim unplug NAME' unplugs one "
-        "(gx2-sim unplug --help).")
+        "(gx2-sim unplug --help), 'gx2-sim power NODE on|off' switches a node on or off.")
     parser.add_argument("--nodes", type=node_list, default=[], metavar="76,77,95",
                         help="node addresses to simulate (added to those in --config; "
                         "not with base_stations:)")
@@ -87,11 +88,26 @@ def build_parser() -> ArgumentParser:
     return parser
 
 
-CONTROL_COMMANDS = ("unplug", "replug")
+CONTROL_COMMANDS = ("unplug", "replug", "power")
+SWITCH = ("on", "off")
 
 
 def build_control_parser(action: str) -> ArgumentParser:
-    """``gx2-sim unplug|replug [NAME]``: to one station of the running simulator."""
+    """``gx2-sim unplug|replug [NAME]``: to one station of the running simulator;
+    ``gx2-sim power NODE on|off``: to one node."""
+    if action == "power":
+        parser = ArgumentParser(
+            prog=f"{PROG} power",
+            description="Switch a node of the running gx2-sim on (it powers up: a "
+            "discovery packet, then what it auto-starts, as a node added mid-study) or "
+            "off (it answers nothing and sends nothing). Its config's powered: false "
+            "starts it off.")
+        parser.add_argument("node", type=node_address, metavar="NODE",
+                            help="the node's address")
+        parser.add_argument("state", choices=SWITCH, help="on or off")
+        parser.add_argument("--pid", type=bounded(int, 1, 1 << 22), metavar="PID",
+                            help="the gx2-sim to talk to, where several have that node")
+        return parser
     parser = ArgumentParser(
         prog=f"{PROG} {action}",
         description=("Unplug one base station of the running gx2-sim (its pty goes away "
@@ -113,20 +129,32 @@ def build_control_parser(action: str) -> ArgumentParser:
 def control_main(action: str, argv: list[str]) -> int:
     args = build_control_parser(action).parse_args(argv)
     try:
-        print(send(action, args.name, getattr(args, "seconds", None), args.pid), flush=True)
+        if action == "power":
+            print(power(args.node, args.state == "on", args.pid), flush=True)
+        else:
+            print(send(action, args.name, getattr(args, "seconds", None), args.pid),
+                  flush=True)
     except ControlError as error:
         fail(PROG, str(error), 1)
     return 0
 
 
 def control_handler(stations: list[Station], sims: list[Simulator]) -> Handler:
-    """What the running simulator does for ``gx2-sim unplug|replug`` (gateway.sim.
-    control): its stations by name (the one-station form's is ``-``)."""
+    """What the running simulator does for ``gx2-sim unplug|replug|power`` (gateway.sim.
+    control): its stations by name (the one-station form's is ``-``), its nodes by
+    address."""
     by_name = {station.name or "-": sim for station, sim in zip(stations, sims, strict=True)}
+    by_node = {node.address: (station.name, sim)
+               for station, sim in zip(stations, sims, strict=True)
+               for node in station.config.nodes}
 
     def handle(words: list[str]) -> str:
         if words == ["stations"]:
             return "ok " + " ".join(by_name)
+        if words == ["nodes"]:
+            return "ok " + " ".join(map(str, by_node))
+        if words[:1] == ["power"]:
+            return switch(words[1:])
         if len(words) not in (2, 3) or words[0] not in CONTROL_COMMANDS:
             raise ControlError(f"not a command: {' '.join(words)!r}")
         sim = by_name.get(words[1])
@@ -146,6 +174,20 @@ def control_handler(stations: list[Station], sims: list[Simulator]) -> Handler:
         sim.unplug(duration=seconds or None)
         return f"ok {label} unplugged" + (f" for {seconds:g} s" if seconds
                                           else " until replugged")
+
+    def switch(words: list[str]) -> str:
+        """``NODE on|off``."""
+        if len(words) != 2 or words[1] not in SWITCH or not words[0].isdecimal():
+            raise ControlError(f"not a command: power {' '.join(words)!r}")
+        address, on = int(words[0]), words[1] == "on"
+        if address not in by_node:
+            raise ControlError(f"no node {address} (nodes: {', '.join(map(str, by_node))})")
+        name, sim = by_node[address]
+        where = f" (base station {name})" if name else ""
+        if not sim.power(address, on):
+            return f"ok node {address} was {words[1]} already{where}"
+        return (f"ok node {address} switched on: it powers up{where}" if on
+                else f"ok node {address} switched off{where}")
     return handle
 
 
@@ -316,7 +358,7 @@ def announce(stations: list[Station], sims: list[Simulator]) -> None:
     last line: every station serves)."""
     def described(station: Station, sim: Simulator) -> str:
         nodes = ", ".join(f"{n.address}" + (f" ({n.stream})" if n.stream else "")
-                          for n in station.config.nodes)
+                          + ("" if n.powered else " (off)") for n in station.config.nodes)
         return (f"on {sim.port.path}" + (f" (link {station.link})" if station.link else "")
                 + f"; nodes {nodes}")
 

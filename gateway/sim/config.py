@@ -22,6 +22,8 @@ nodes:
     bit_faults: [rate_y]      # outputs that fail the built-in test (accel_x .. rate_z)
     radio: {in_range: true, command_loss: 0.0, data_loss: 0.0, stop_loss: 0.0,
             lqi: 200, rssi: -45, jitter_ms: 0.5}   # jitter: mean of the random delay
+    powered: true             # false: present but off, answering nothing, until
+                              # 'gx2-sim power 76 on' (it powers up: a discovery packet)
 ```
 
 Or several base stations, each behind its own pty with its own nodes and faults (the
@@ -103,6 +105,7 @@ class SimNodeEntry(Strict):
     bit_faults: list[str] = Field(default_factory=list)
     motion: str = "turn"
     radio: RadioConfig = RadioConfig()
+    powered: bool = True
 
     @field_validator("motion")
     @classmethod
@@ -146,7 +149,7 @@ class SimNodeEntry(Strict):
                             gyro_bias_error=tuple(self.gyro_bias_error),  # type: ignore[arg-type]
                             accel_noise=self.accel_noise, rate_noise=self.rate_noise,
                             bit_faults=frozenset(self.bit_faults),
-                            motion=MOTIONS[self.motion])
+                            motion=MOTIONS[self.motion], powered=self.powered)
 
 
 class SimConfig(Strict):
@@ -239,17 +242,37 @@ _URL_KEYS = {"line": {"garbage", "bad_checksum", "false_header", "glue_ack", "na
              "top": {"seed", "first_write_failure"}}
 
 
+def _extra_nodes(value: str) -> dict[int, str | None]:
+    """``extra=81:accel_angrate,82``: addresses, each with the record it streams from
+    power-up or none; ValueError (one line) for anything else."""
+    extra: dict[int, str | None] = {}
+    for item in filter(None, (part.strip() for part in value.split(","))):
+        address, _, record = item.partition(":")
+        try:
+            extra[int(address)] = record.strip() or None
+        except ValueError:
+            raise ValueError(f"sim:// extra={value!r}: not a list of ADDRESS or "
+                             "ADDRESS:RECORD (e.g. extra=81:accel_angrate,82)") from None
+    return extra
+
+
 def from_url(url: str, nodes: list[int]) -> SimConfig:
-    """The simulator a gateway's ``port: sim://?...`` names, for ``nodes``; ValueError
-    with a one-line message for anything it cannot use. Nothing is started here, so
-    ``gx2-gateway --check`` runs the same validation as start-up."""
+    """The simulator a gateway's ``port: sim://?...`` names, for ``nodes``, and the
+    ``extra`` nodes the gateway is not configured for (``extra=81:accel_angrate,82``:
+    each streaming that record from power-up, or nothing); ValueError with a one-line
+    message for anything it cannot use. Nothing is started here, so ``gx2-gateway
+    --check`` runs the same validation as start-up."""
     parts = urlsplit(url)
     if parts.scheme != "sim" or parts.netloc or parts.path not in ("", "/"):
         raise ValueError(f"{url!r}: sim:// takes only query parameters, "
                          "e.g. sim://?data_loss=0.05")
     groups: dict[str, dict[str, str]] = {"line": {}, "radio": {}, "node": {}, "top": {}}
     out_of_range: set[int] = set()
+    extra: dict[int, str | None] = {}
     for key, value in parse_qsl(parts.query, keep_blank_values=True):
+        if key == "extra":
+            extra.update(_extra_nodes(value))
+            continue
         if key == "out_of_range":
             try:
                 out_of_range.update(int(v) for v in value.split(",") if v.strip())
@@ -259,18 +282,24 @@ def from_url(url: str, nodes: list[int]) -> SimConfig:
             continue
         group = next((g for g, keys in _URL_KEYS.items() if key in keys), None)
         if group is None:
-            known = sorted(set().union(*_URL_KEYS.values()) | {"out_of_range"})
+            known = sorted(set().union(*_URL_KEYS.values()) | {"out_of_range", "extra"})
             raise ValueError(f"unknown sim:// parameter {key!r}; known: {', '.join(known)}")
         groups[group][key] = value
     if out_of_range - set(nodes):
         raise ValueError(f"sim:// out_of_range names node {min(out_of_range - set(nodes))}, "
                          "which is not configured")
+    if set(extra) & set(nodes):
+        raise ValueError(f"sim:// extra names node {min(set(extra) & set(nodes))}, which is "
+                         "configured: extra nodes are those the gateway is not configured "
+                         "for")
     try:
         return SimConfig.model_validate({  # query values are text: convert them
             "line": groups["line"], **groups["top"],
             "nodes": [{"address": a, **groups["node"],
                        "radio": {"in_range": a not in out_of_range, **groups["radio"]}}
-                      for a in nodes]},
+                      for a in nodes]
+                     + [{"address": a, "stream": record, **groups["node"],
+                         "radio": groups["radio"]} for a, record in extra.items()]},
             strict=False)
     except ValidationError as error:
         raise ValueError(describe(error, "sim://")) from None

@@ -1,12 +1,14 @@
 """``gx2-sim unplug NAME`` / ``replug NAME``: one station of a running gx2-sim pulled out
-and plugged back, from another shell.
+and plugged back, from another shell; ``gx2-sim power NODE on|off``: one node switched
+on (it powers up, as a node added mid-study) or off.
 
 A signal carries no name, so SIGUSR2 can only unplug every station. Each running
 gx2-sim therefore listens on a UNIX socket of its own, ``<pid>.sock`` in a directory of
 the user's (:func:`directory`), for one line a connection: ``unplug NAME SECONDS``
-(0: until a replug) or ``replug NAME``, answered by one line, ``ok ...`` or ``error
-...``. The command finds the simulator that has a station of that NAME among those
-running; ``--pid`` picks one where several have it.
+(0: until a replug), ``replug NAME`` or ``power NODE on|off``, answered by one line,
+``ok ...`` or ``error ...`` (``stations`` and ``nodes`` list what it has). The command
+finds the simulator that has a station of that NAME (a node of that address) among
+those running; ``--pid`` picks one where several have it.
 """
 
 from __future__ import annotations
@@ -110,13 +112,27 @@ def running(pid: int | None = None) -> dict[int, Path]:
     return found
 
 
-def send(action: str, name: str | None, seconds: float | None, pid: int | None) -> str:
-    """Do ``action`` (unplug, replug) to station ``name`` (None: a simulator's only one)
-    of the running simulator that has it; the simulator's answer, or ControlError."""
+def _running(pid: int | None) -> dict[int, Path]:
+    """:func:`running`, or ControlError when none is."""
     sims = running(pid)
     if not sims:
         raise ControlError(f"no gx2-sim with pid {pid} is running" if pid is not None
                            else "no gx2-sim is running (as this user)")
+    return sims
+
+
+def _done(path: Path, line: str) -> str:
+    """``line`` to the simulator at ``path``: what it did, or ControlError."""
+    answer = ask(path, line)
+    if not answer.startswith("ok"):
+        raise ControlError(answer.removeprefix("error ").strip() or "no answer")
+    return answer.removeprefix("ok").strip()
+
+
+def send(action: str, name: str | None, seconds: float | None, pid: int | None) -> str:
+    """Do ``action`` (unplug, replug) to station ``name`` (None: a simulator's only one)
+    of the running simulator that has it; the simulator's answer, or ControlError."""
+    sims = _running(pid)
     target = name or "-"
     having = {p: path for p, path in sims.items()
               if target in ask(path, "stations").split()[1:]}
@@ -132,7 +148,18 @@ def send(action: str, name: str | None, seconds: float | None, pid: int | None) 
                            "give --pid")
     path = next(iter(having.values()))
     words = [action, target] + ([f"{seconds:g}"] if seconds is not None else [])
-    answer = ask(path, " ".join(words))
-    if not answer.startswith("ok"):
-        raise ControlError(answer.removeprefix("error ").strip() or "no answer")
-    return answer.removeprefix("ok").strip()
+    return _done(path, " ".join(words))
+
+
+def power(address: int, on: bool, pid: int | None) -> str:
+    """Switch node ``address`` of the running simulator that has it on or off; the
+    simulator's answer, or ControlError."""
+    sims = _running(pid)
+    having = [path for path in sims.values()
+              if str(address) in ask(path, "nodes").split()[1:]]
+    if not having:
+        raise ControlError(f"no running gx2-sim has a node {address}")
+    if len(having) > 1:
+        raise ControlError(f"gx2-sims {', '.join(p.stem for p in having)} all have a node "
+                           f"{address}: give --pid")
+    return _done(having[0], f"power {address} {'on' if on else 'off'}")

@@ -74,6 +74,9 @@ class NodeSettings:
     bit_faults: frozenset[str] = frozenset()
     """Outputs that do not step under the built-in test ("accel_x" .. "rate_z"): a
     sensor that fails its self-test."""
+    powered: bool = True
+    """Switched on from the start; False: present but off (it answers nothing and sends
+    nothing) until it is switched on (:meth:`~.base_station.BaseStation.power`)."""
 
 
 @dataclass
@@ -106,7 +109,9 @@ class SimNode:
         taken, for the newest SAMPLED_MAX timed records."""
         if settings.stream:
             self.eeprom[EEPROM_AUTO_START] = gx2.AUTO_START_WIRELESS | lookup(settings.stream).code
-        self.power_up(now)
+        self.powered = settings.powered
+        """Switched on: off, it hears no command and completes no cycle."""
+        self.power_up(now)  # (off: its RAM as a power-up leaves it, set again at the next)
 
     # -- life cycle ------------------------------------------------------------------
 
@@ -161,7 +166,10 @@ class SimNode:
     # -- the host's commands ------------------------------------------------------------
 
     def receive(self, data: bytes) -> None:
-        """A command arrived over the radio; it is answered at the end of a cycle."""
+        """A command arrived over the radio; it is answered at the end of a cycle (a
+        node switched off hears nothing)."""
+        if not self.powered:
+            return
         try:
             command = gx2.parse(data, check_arguments=False)
         except CommandError as error:
@@ -184,7 +192,7 @@ class SimNode:
     def run_until(self, now: float) -> list[tuple[float, bytes]]:
         """Complete every calculation cycle due by ``now``; return (time, reply) pairs."""
         out: list[tuple[float, bytes]] = []
-        if not (self.continuous or self.pending or self.capture_due):
+        if not self.busy:
             self.cycle = max(self.cycle, int((now - self._cycles_from) / self._cycle_period))
             return out  # idle cycles produce nothing: skip them
         while self.next_cycle_time() <= now:
@@ -203,6 +211,12 @@ class SimNode:
         for t, reply in out:
             self._remember(t, reply)
         return out
+
+    @property
+    def busy(self) -> bool:
+        """It has a cycle's work to do: switched on, and streaming, answering or
+        capturing (idle cycles produce nothing, and are skipped)."""
+        return self.powered and bool(self.continuous or self.pending or self.capture_due)
 
     def execute(self, command: gx2.Command, t: float) -> bytes | None:
         """Act on one command at the end of cycle time ``t``; return its reply record."""

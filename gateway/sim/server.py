@@ -210,6 +210,11 @@ class Simulator:
     def reboot(self, address: int) -> None:
         self.call(lambda station, now: station.reboot(address, now))
 
+    def power(self, address: int, on: bool) -> bool:
+        """Switch node ``address`` on or off (:meth:`.BaseStation.power`); whether that
+        changed anything."""
+        return self.call(lambda station, now: station.power(address, on, now))
+
     def unplug(self, duration: float | None = None) -> None:
         """Pull the USB plug; with ``duration``, plug it back in after that long."""
         with self._lock:

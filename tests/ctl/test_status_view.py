@@ -123,3 +123,27 @@ def test_a_long_port_cut_to_the_width_keeps_the_state_and_why() -> None:
     at = next(i for i, line in enumerate(lines) if line.startswith("link "))
     assert lines[at].startswith("link     /dev/serial/by-id/") and lines[at].endswith("…")
     assert lines[at + 1].strip().startswith("down for 1 min 05 s (No such file or directory)")
+
+
+def test_the_nodes_a_station_heard_are_under_its_line_streaming_first_then_the_latest():
+    heard = [{"address": a, "record": None, "rate_hz": None, "rssi": -70.0, "lqi": 99,
+              "packets": 1, "last_heard": NOW - (a - 100), "announced": NOW - (a - 100)}
+             for a in range(100, 110)]
+    heard.insert(3, {"address": 81, "record": "accel_angrate", "rate_hz": 100.0,
+                     "rssi": -61.4, "lqi": 180.0, "packets": 900, "last_heard": NOW - 0.3})
+    heard.append({"address": 95, "record": "firmware_version", "rate_hz": None,
+                  "rssi": None, "lqi": None, "packets": 1, "last_heard": NOW - 0.5})
+    lines = status_lines(status(link("north"), {**link("south"), "heard": heard},
+                                nodes=[node(76, "north")]), NOW)
+    south = next(i for i, line in enumerate(lines) if line.startswith("south"))
+    recording = next(i for i, line in enumerate(lines) if line.startswith("record"))
+    assert lines[south + 1:recording] == [
+        "         heard, not configured: 81 streaming accel_angrate at 100 Hz, RSSI -61, "
+        "last 0.3 s ago",
+        "         heard, not configured: 100 powered up (a discovery packet), RSSI -70, "
+        "last 0.0 s ago",
+        "         heard, not configured: 95 sent firmware_version, last 0.5 s ago",
+        *(f"         heard, not configured: {a} powered up (a discovery packet), RSSI -70, "
+          f"last {a - 100}.0 s ago" for a in range(101, 106)),
+        "         and 4 more heard (gx2ctl --json status lists them)"], lines
+    assert not any("heard" in line for line in lines[:south])  # north heard none

@@ -4,6 +4,7 @@ test drives the same through a real pty and a lossy simulated radio)."""
 from __future__ import annotations
 
 import logging
+import time
 
 import pytest
 
@@ -12,6 +13,7 @@ from aspp.records import decode, encode
 from aspp.timing import TICKS_PER_CLOCK
 from gateway.daemon.config import HealthConfig, NodeEntry
 from gateway.daemon.health import Health, Level, Recent, Window, judge
+from gateway.daemon.station.heard import Heard
 from gateway.daemon.station.lineload import LineLoad
 from gateway.daemon.station.nodes import Node, State
 
@@ -289,3 +291,20 @@ def test_a_line_over_capacity_warns_for_the_gateway_and_its_held_nodes() -> None
         line.sample(now + second, 11520 * 7 + 5000 * (second - 7))
     node.clock.release()
     assert health.gateway(now + 15).level is Level.OK
+
+
+def test_a_node_not_configured_streaming_on_a_channel_warns_for_the_gateway() -> None:
+    heard = Heard("north")
+    health = Health([], LIMITS, heard=[("north", heard)])
+    heard.discovery(encode_reply_packet(82, b"\x01\x00\x00\x08\x41", lqi=1, rssi=-1,
+                                        flags=0x00), 1000.0)
+    assert health.gateway(time.monotonic()).level is Level.OK  # heard, streams nothing
+    for sample in range(1, 4):
+        heard.reply(encode_reply_packet(81, encode(
+            "euler", roll=0.0, pitch=0.0, yaw=0.0, timer=sample * 1024 * TICKS_PER_CLOCK),
+            lqi=1, rssi=-1), 1000.0 + sample)
+    now = time.monotonic()
+    verdict = health.gateway(now)
+    assert verdict == (Level.WARN, ("base station north: node 81 (not configured) streams "
+                                    "euler at 50 Hz on its channel",))
+    assert health.gateway(now + 1.1).level is Level.OK  # it stopped: silent for 1 s

@@ -290,3 +290,32 @@ def test_a_stall_holds_the_output_back_then_sends_what_it_held():
     quiet = Bench(NodeSettings(76, stream="accel_angrate", divider=512, ppm=0.0),
                   radio={76: RadioLink(jitter=0.0)})
     assert max(b - a for (a, _), (b, _) in pairwise(timed_replies(quiet, 5.0))) < 0.011
+
+
+def test_a_node_switched_off_answers_nothing_until_it_powers_up_announcing_itself():
+    """``powered: false``, then ``gx2-sim power NODE on``: a node added mid-study."""
+    bench = Bench(NodeSettings(76, stream="euler"), NodeSettings(81, stream="euler",
+                                                                 powered=False))
+    bench.send(encode_ping(81))
+    bench.send(commands.poll("euler").packet(81))
+    events = bench.run(1.0)
+    assert replies(events, 81) == [] and len(replies(events, 76)) > 90
+    assert Nack() in events and PingOk() not in events  # no answer to the ping
+    assert bench.station.nodes[81].log.commands == []  # it heard nothing
+    assert not bench.station.power(81, False, bench.now)  # off already
+    bench.station.reboot(81, bench.now)  # SIGUSR1: a node switched off stays off
+    assert not [e for e in bench.run(0.5) if type(e) is Frame]
+
+    assert bench.station.power(81, True, bench.now)
+    events = bench.run(1.0)
+    frames = [e for e in events if type(e) is Frame]
+    assert [(f.node, f.is_discovery) for f in frames] == [(81, True)]
+    streamed = replies(events, 81)  # what it auto-starts, from its power-up
+    assert len(streamed) > 90 and events.index(frames[0]) < events.index(streamed[0])
+    assert decode(streamed[0].payload).timer < 0.05 * TICKS_PER_SECOND
+
+    assert bench.station.power(81, False, bench.now)
+    bench.run(0.1)  # (what it sent before, still in the air, arrives)
+    assert replies(bench.run(1.0), 81) == []
+    bench.send(encode_ping(81))
+    assert [e for e in bench.run(0.1) if type(e) is not Reply] == [Nack()]

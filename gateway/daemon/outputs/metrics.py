@@ -27,6 +27,7 @@ from gateway.common.endpoints import host_port
 from gateway.common.reading import as_map, number
 
 from ..health import Level
+from ..station.heard import HEARD_MAX
 from ..station.nodes import State
 from . import Needs, Output
 
@@ -153,6 +154,7 @@ def families(report: Mapping[str, Any]) -> Iterator[Metric]:
             if (value := number(count)) is not None:
                 discarded.add_metric([*values, str(reason)], value)
     yield discarded
+    yield from _heard(stations)
 
     nodes = [n for n in report.get("nodes") or () if isinstance(n, Mapping)
              and number(n.get("node")) is not None]
@@ -199,6 +201,24 @@ def families(report: Mapping[str, Any]) -> Iterator[Metric]:
         yield from _table(LSL, [], [([], lsl)])
     yield from _table(OUTPUT, ["output"], [([str(name)], as_map(said)) for name, said
                                            in as_map(report.get("outputs")).items()])
+
+
+def _heard(stations: list[Mapping[str, Any]]) -> Iterator[Metric]:
+    """Each base station's unconfigured nodes heard (its ``heard``), labelled with its
+    name whatever the number of stations (a new family: no unlabelled series to keep)."""
+    heard = GAUGE("gx2_station_heard_nodes", "Addresses the base station heard that are "
+                  f"not configured (at most {HEARD_MAX} remembered)", labels=["station"])
+    streaming = GAUGE("gx2_station_heard_streaming_nodes", "Of those, the ones streaming "
+                      "on its channel now (they take radio time from the configured ones)",
+                      labels=["station"])
+    for station in stations:
+        nodes = station.get("heard")
+        if isinstance(nodes, list):
+            name = [str(station.get("name"))]
+            heard.add_metric(name, len(nodes))
+            streaming.add_metric(name, sum(1 for node in nodes if isinstance(node, Mapping)
+                                           and number(node.get("rate_hz")) is not None))
+    yield from (heard, streaming)
 
 
 class StatusCollector(Collector):

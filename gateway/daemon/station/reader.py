@@ -5,9 +5,10 @@ decoder cuts it into events, and each reply record is decoded, tallied by its no
 (seq, device time, losses), published, shown to the supervisor (is the node doing what
 it should?) and handed to the scheduler (is anyone waiting for it?), in that order and
 without climbing back up. ACKs, NACKs and ping answers go to the scheduler; a
-discovery packet to the supervisor. A record from an address not configured here is
-counted, and handed to whoever listens to that address (a scan reading a node it
-found): the configured nodes' records never pay for it.
+discovery packet to the supervisor. A packet from an address not configured here is
+counted, remembered among those heard (:mod:`.heard`), and a record of one handed to
+whoever listens to that address (a scan reading a node it found): the configured
+nodes' records never pay for it.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from aspp.frame import HEADER_SIZE
 from aspp.records import Record
 from aspp.timing import BITS_PER_BYTE
 
+from .heard import Heard
 from .nodes import Delivery, Node
 from .outlet import Publishes
 from .scheduler import Scheduler
@@ -33,7 +35,7 @@ log = logging.getLogger("gx2.reader")
 class Reader:
     def __init__(self, nodes: dict[int, Node], publisher: Publishes, supervisor: Supervisor,
                  scheduler: Scheduler, idle_seconds: float, idle_timer: bool = True,
-                 byte_time: float = BITS_PER_BYTE / 115200) -> None:
+                 byte_time: float = BITS_PER_BYTE / 115200, station: str = "") -> None:
         self.decoder = Decoder()
         self.nodes = nodes
         self.publisher = publisher
@@ -47,6 +49,8 @@ class Reader:
         self._pending_read: tuple[float, float] | None = None
         """When the read that left bytes in the decoder was made."""
         self.unknown_node_packets = 0
+        self.heard = Heard(station)
+        """The addresses heard that are not configured (:mod:`.heard`)."""
         self.listeners: dict[int, Callable[[Reply, Record], None]] = {}
         """Addresses not configured here that an op listens to: each valid record from
         one is handed to its listener (:func:`gateway.daemon.scanning`)."""
@@ -108,11 +112,14 @@ class Reader:
                 node = self.nodes.get(event.node)  # type: ignore[union-attr]
                 if node is not None:
                     self.supervisor.discovery(node)
+                else:
+                    self.heard.discovery(event.raw, host_time)  # type: ignore[union-attr]
 
     def _on_reply(self, event: Reply, host_time: float, monotonic: float) -> None:
         node = self.nodes.get(event.node)
         if node is None:
             self.unknown_node_packets += 1
+            self.heard.reply(event.raw, host_time)
             if self.listeners:
                 self._to_listener(event)
             return

@@ -73,7 +73,7 @@ class Station:
         self.reader = Reader(self.nodes, self.recorded or publisher,  # type: ignore[arg-type]
                              self.supervisor, self.scheduler,
                              config.idle_ms / 1000, idle_timer=not self.replaying,
-                             byte_time=line_byte)
+                             byte_time=line_byte, station=self.name)
         self.channels = channels
         """Its serial channels in a recording: (reads, writes)."""
         self._publisher = publisher
@@ -92,8 +92,10 @@ class Station:
 
     def add_node(self, entry: NodeEntry) -> Node:
         """A node a reload added: its reader, supervisor and status see it from now on
-        (they share :attr:`nodes`); the supervisor arms it (:meth:`Supervisor.adopt`)."""
+        (they share :attr:`nodes`), and it is no longer among those heard that are not
+        configured; the supervisor arms it (:meth:`Supervisor.adopt`)."""
         node = self.nodes[entry.address] = self._node(entry)
+        self.reader.heard.forget(entry.address)
         return node
 
     async def retire(self, node: Node) -> str | None:

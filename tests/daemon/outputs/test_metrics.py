@@ -33,16 +33,26 @@ CONTRACT = {
 """The interface's metrics: (type, labels). The parser names a counter without _total."""
 
 
+LINK = {"state": "up", "reconnects": 2, "bytes_read": 123_456, "bytes_per_s": 9500.0,
+        "line_bytes_per_s": 11520.0, "discarded": {"garbage": 40, "truncated": 2},
+        "unknown_node_packets": 3, "bad_records": 0, "retries": 4, "failures": 1}
+HEARD = [{"address": 81, "record": "accel_angrate", "rate_hz": 100.0, "rssi": -61.0,
+          "lqi": 190.0, "packets": 3000, "last_heard": 1_800_000_099.9},
+         {"address": 82, "record": None, "rate_hz": None, "rssi": -50.0, "lqi": 200.0,
+          "packets": 1, "last_heard": 1_800_000_050.0}]
+"""Two nodes the station heard that are not configured: 81 streams, 82 powered up."""
+
+
 def report(**changes: Any) -> dict[str, Any]:
-    """A status report as the gateway makes it: node 76 streaming, 95 never heard."""
+    """A status report as the gateway makes it: node 76 streaming, 95 never heard; 81
+    and 82 heard, not configured."""
     base: dict[str, Any] = {
         "gateway": {"version": "1.2.3", "uptime": 100.0, "time": 1_800_000_100.0,
                     "published": 5000, "publish_failures": 0, "control_requests": 7,
                     "control_rejected": 1, "curve_denied": 0, "health": "OK",
                     "reasons": []},
-        "link": {"state": "up", "reconnects": 2, "bytes_read": 123_456, "bytes_per_s": 9500.0,
-                 "line_bytes_per_s": 11520.0, "discarded": {"garbage": 40, "truncated": 2},
-                 "unknown_node_packets": 3, "bad_records": 0, "retries": 4, "failures": 1},
+        "link": LINK,
+        "stations": [{**LINK, "name": "station1", "nodes": [76, 95], "heard": HEARD}],
         "nodes": [
             {"node": 76, "name": "left-wing", "station": "station1", "state": "streaming",
              "packets": 4990,
@@ -122,6 +132,23 @@ def test_the_values_are_the_reports(server) -> None:
     assert got["gx2_gateway_start_time_seconds"] == {(): 1_800_000_000.0}
     assert got["gx2_output_take_failures"] == {(("output", "live"),): 2.0}
     assert "process_cpu_seconds" in got  # the gateway's own CPU and memory
+
+
+def test_each_station_counts_the_nodes_it_heard_not_configured_and_those_streaming(
+        server) -> None:
+    server.report(report())
+    got = {name: values(family) for name, family in scrape(server).items()}
+    assert got["gx2_station_heard_nodes"] == {(("station", "station1"),): 2.0}
+    assert got["gx2_station_heard_streaming_nodes"] == {(("station", "station1"),): 1.0}
+    # several: one series each, by name; a station that heard none says 0
+    stations = [{**LINK, "name": "north", "heard": HEARD[1:]},
+                {**LINK, "name": "south", "heard": []}]
+    server.report(report(stations=stations))
+    got = {name: values(family) for name, family in scrape(server).items()}
+    assert got["gx2_station_heard_nodes"] == {(("station", "north"),): 1.0,
+                                              (("station", "south"),): 0.0}
+    assert got["gx2_station_heard_streaming_nodes"] == {(("station", "north"),): 0.0,
+                                                        (("station", "south"),): 0.0}
 
 
 def test_the_link_down_is_a_zero_and_recording_counters_appear_when_it_records(
