@@ -212,7 +212,7 @@ def run_several(args: argparse.Namespace, named: list[Gateway]) -> int:
         from .tail import run_tail_several
         return run_tail_several(args.nodes, named, args.timeout)
     if args.command == "top":
-        from .top import run_top_several
+        from .topsite import run_top_several
         return run_top_several(args.nodes, named, args.timeout, args.json)
     if args.command == "record":
         from .record import run_record
