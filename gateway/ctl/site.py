@@ -113,15 +113,15 @@ def _named(found: list[Gateway]) -> list[Gateway]:
 def _distinct(found: list[Gateway]) -> list[Gateway]:
     seen_names: set[str] = set()
     seen_controls: dict[str, str] = {}
-    for gateway in found:
+    for number, gateway in enumerate(found, 1):
+        if (other := seen_controls.get(gateway.where.control)) is not None:
+            raise CtlError(f"{other} and gateway {number} ({gateway.name}) are the same "
+                           f"gateway (control {gateway.where.control})", Exit.USAGE)
+        seen_controls[gateway.where.control] = gateway.name
         if gateway.name in seen_names:
             raise CtlError(f"two gateways are named {gateway.name}: name them apart in a "
                            "gateways file", Exit.USAGE)
         seen_names.add(gateway.name)
-        if (other := seen_controls.get(gateway.where.control)) is not None:
-            raise CtlError(f"{other} and {gateway.name} are the same gateway (control "
-                           f"{gateway.where.control})", Exit.USAGE)
-        seen_controls[gateway.where.control] = gateway.name
     return found
 
 
