@@ -4,6 +4,7 @@ gateways that share a node address."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -56,3 +57,21 @@ def test_record_refuses_a_node_address_two_gateways_have() -> None:
         apart([], found)
     assert caught.value.status == 2
     apart([76, 90], found)  # the nodes named differ: recorded together
+
+
+def test_dead_gateways_are_asked_side_by_side_and_each_is_a_line(tmp_path: Path) -> None:
+    """Two gateways that never answer cost one --timeout, not two; each is a line
+    saying so; exit 3 (the worst); --json says which, with its error."""
+    dead = [f"ipc://{tmp_path}/dead-{n}" for n in (1, 2)]
+    run = gx2ctl("--control", dead[0], "--timeout", "2", "status", "--control", dead[1])
+    assert run.status == 3, run
+    assert run.seconds < 3.9, f"asked one after the other: {run.seconds:.1f} s"
+    titles = [line for line in run.stdout.splitlines() if line.startswith("== ")]
+    assert [t.split(": no answer")[0] for t in titles] == [f"== {d}" for d in dead] * 2
+    assert run.stderr.startswith("gx2ctl: 2 of 2 gateways did not answer: ")
+    shown = gx2ctl("--control", dead[0], "--control", dead[1], "--timeout", "0.5",
+                   "--json", "status")
+    assert shown.status == 3
+    gateways = json.loads(shown.stdout)["gateways"]
+    assert [(g["name"], g["control"]) for g in gateways] == [(d, d) for d in dead]
+    assert all("no answer" in g["error"] for g in gateways)
