@@ -39,7 +39,7 @@ from gateway.recording.writer import RecordingWriter
 
 from . import PROG
 from .client import CtlError
-from .sitestream import quiet_for, sources, subscribe_all
+from .sitestream import Silences, quiet_for, sources, subscribe_all
 from .tail import Source, Stop, source
 
 if TYPE_CHECKING:
@@ -87,6 +87,7 @@ def run_record(path: str, nodes: list[int], seconds: float | None,
             raise CtlError(f"{why}: nothing recorded ({target} not made)", Exit.NODE_FAILED)
         capture = Capture(target, {"recorded_by": "gx2ctl record", "source": addresses})
         progress = Progress(target, sys.stderr.isatty())
+        silences = Silences(sub, found) if len(found) > 1 else None
         start = flushed = time.monotonic()
         event: Event | None = first
         try:
@@ -99,6 +100,8 @@ def run_record(path: str, nodes: list[int], seconds: float | None,
                 if now - flushed >= FLUSH_S:
                     capture.flush()
                     flushed = now
+                    if silences is not None:
+                        silences.check()  # one of several silent: said, the rest go on
                 progress.show(now - start)
                 if event is None and quiet_for(sub) > silence:
                     raise CtlError(f"{gateways} published nothing for {silence:g} s (not "
