@@ -15,7 +15,7 @@ from gateway.common.protocol import Exit
 
 from . import PROG
 from .client import CtlError
-from .tail import Source, _warn, find
+from .tail import Source, find, warn_malformed
 from .where import Gateway
 
 
@@ -63,7 +63,7 @@ def subscribe_all(nodes: Sequence[int], found: Sequence[tuple[Gateway, Source]],
                        "--server-key for all of them", Exit.USAGE)
     try:
         sub = Subscriber([source.address for _, source in found], nodes,
-                         keys=next(iter(keys), None), on_malformed=_warn, **options)
+                         keys=next(iter(keys), None), on_malformed=warn_malformed, **options)
     except GatewayError as error:
         raise CtlError(str(error), Exit.USAGE) from None
     with sub:

@@ -133,7 +133,7 @@ def subscribe(nodes: list[int], where: Endpoints, timeout: float,
     dead."""
     found = found or source(nodes, where, timeout)
     try:
-        sub = Subscriber(found.address, nodes, keys=found.keys, on_malformed=_warn,
+        sub = Subscriber(found.address, nodes, keys=found.keys, on_malformed=warn_malformed,
                          **options)
     except GatewayError as error:
         raise CtlError(str(error), Exit.USAGE) from None
@@ -172,6 +172,6 @@ def find(where: Endpoints, timeout: float) -> Source:
                   silence, tuple(configured))
 
 
-def _warn(endpoint: str, problem: Malformed) -> None:
+def warn_malformed(endpoint: str, problem: Malformed) -> None:
     sys.stdout.flush()
     print(f"{PROG}: skipped a message {problem}", file=sys.stderr, flush=True)

@@ -25,7 +25,7 @@ from gateway.common.reading import as_map
 from .cells import cell, reasons
 from .sitestream import names, sources, subscribe_all
 from .tail import Stop
-from .top import QUIT, REDRAW, TICK, Watch, _clock_text, _within, grouped, header, keyboard
+from .top import QUIT, REDRAW, TICK, Watch, clock_text, grouped, header, keyboard, within
 from .toptable import HEALTH_STYLE, cut, table
 from .where import Gateway
 
@@ -51,7 +51,7 @@ def frame(watched: Sequence[Watched], width: int, ellipsis: str = "…",
         each += [(one.watch.now(), one.watch.stale_for(one.silent_for))] * len(shown)
     rows = table(nodes, time.time(), width, ellipsis, each=each)
     first = Text(f"gx2ctl top: {len(watched)} gateways ")
-    first.append(_clock_text(time.time()), "dim")
+    first.append(clock_text(time.time()), "dim")
     head, rest = [first, rows[0]], rows[1:]
     body: list[Text] = []
     notes: list[Text] = []
@@ -66,7 +66,7 @@ def frame(watched: Sequence[Watched], width: int, ellipsis: str = "…",
         body += grouped(watch.status or {}, shown, mine, watch.now(), stale)
         notes += _notes(one.name, watch.status or {}, shown, stale)
     if height is not None:
-        body, notes = _within(height - 1 - len(head), body, notes)
+        body, notes = within(height - 1 - len(head), body, notes)
     return [cut(line, width, ellipsis) for line in (*head, *body, *notes)]
 
 
