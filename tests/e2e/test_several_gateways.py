@@ -178,3 +178,20 @@ def watch_both(running, terminal: Terminal) -> None:
     terminal.keys("q")
     wait_for(lambda: terminal.exit_status() is not None, 10, "top to quit")
     assert terminal.exit_status() == 0
+
+
+def test_top_json_prints_each_gateways_heartbeat_with_its_name(site) -> None:
+    _, listed = site
+    top = Running("gx2ctl", "--config", str(listed), "--json", "top", "90")
+    try:
+        heard: dict[str, list[int]] = {}
+
+        def both() -> bool:
+            beat = json.loads(top.wait_for_line(lambda text: text.startswith("{"), STARTUP))
+            heard[beat["name"]] = [n["node"] for n in beat["nodes"]]
+            return len(heard) == 2
+        wait_for(both, STARTUP, "a heartbeat of each gateway")
+        assert heard == {"hall-a": [], "hall-b": [90]}  # (only the node asked for)
+    finally:
+        top.proc.send_signal(signal.SIGINT)
+    assert top.finish(10) == 0, top.stderr
