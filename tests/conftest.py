@@ -61,14 +61,17 @@ def gateway(tmp_path: Path, zmq_context: zmq.Context) -> Iterator[Callable[..., 
     (its control endpoint answers and the base station is open; ``gateway(None, [],
     base_stations=[...])`` several, each open); ``wait=False`` returns
     at once, ``env`` replaces its environment, ``preexec`` runs in the child before it
-    starts (resource limits)."""
+    starts (resource limits), ``directory`` holds its configuration and log (default
+    ``tmp_path``: give each of several gateways its own)."""
     started: list[RunningGateway] = []
 
     def start(port: str | None, nodes: list[dict[str, Any]], *, wait: bool = True,
               env: dict[str, str] | None = None, preexec: Callable[[], None] | None = None,
-              **sections: Any) -> RunningGateway:
-        running = RunningGateway(gateway_config(port, nodes, **sections), tmp_path,
-                                 zmq_context, env, preexec)
+              directory: Path | None = None, **sections: Any) -> RunningGateway:
+        if directory is not None:
+            directory.mkdir(parents=True, exist_ok=True)
+        running = RunningGateway(gateway_config(port, nodes, **sections),
+                                 directory or tmp_path, zmq_context, env, preexec)
         started.append(running)
         if not wait:
             return running

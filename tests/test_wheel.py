@@ -83,7 +83,8 @@ def test_the_wheel_holds_every_module_and_the_shipped_files(wheel: Path) -> None
         shipped = shipped_files()
         assert {"gateway/share/deploy/gx2-gateway.service",
                 "gateway/share/deploy/99-gx2-basestation.rules",
-                "gateway/share/deploy/gx2-alerts.yml", "gateway/share/config/nodes.yaml",
+                "gateway/share/deploy/gx2-alerts.yml", "gateway/share/deploy/grafana-gx2.json",
+                "gateway/share/config/nodes.yaml",
                 "gateway/share/config/demo.yaml", "gateway/share/README.md"} <= set(shipped)
         for name, file in shipped.items():
             assert name in names, name

@@ -24,10 +24,10 @@ from . import PROG
 from .client import Client, CtlError
 from .offline import add_commands as add_offline_commands
 from .output import json_line, show
-from .where import Endpoints
+from .site import CLIENT_KEY_ENV, SERVER_KEY_ENV, gateways
+from .where import Endpoints, Gateway
 
 DEFAULT_TIMEOUT = 5.0
-CLIENT_KEY_ENV, SERVER_KEY_ENV = "GX2_CLIENT_KEY", "GX2_SERVER_KEY"
 
 
 def add_gateway_options(parser: argparse.ArgumentParser, suppress: bool = False) -> None:
@@ -37,11 +37,19 @@ def add_gateway_options(parser: argparse.ArgumentParser, suppress: bool = False)
     def default(value: object) -> object:
         return argparse.SUPPRESS if suppress else value
 
+    # after the command, gateways go to their own lists (AFTER), joined to those given
+    # before it: --config a.yaml status --config b.yaml is both gateways, not b alone
+    after = "_after" if suppress else ""
     where = parser.add_mutually_exclusive_group()
-    where.add_argument("--config", metavar="FILE", default=default(None),
-                       help="the gateway's nodes.yaml: use its control and publish endpoints")
-    where.add_argument("--control", type=endpoint, metavar="ENDPOINT", default=default(None),
-                       help=f"the gateway's control endpoint (default {DEFAULT_CONTROL})")
+    where.add_argument("--config", metavar="FILE", action="append", default=default(None),
+                       dest=f"config{after}",
+                       help="the gateway's nodes.yaml: use its control and publish "
+                       "endpoints; or a file listing gateways (gateways:). Given more "
+                       "than once: several gateways (status, top, tail, record)")
+    where.add_argument("--control", type=endpoint, metavar="ENDPOINT", action="append",
+                       default=default(None), dest=f"control{after}",
+                       help=f"the gateway's control endpoint (default {DEFAULT_CONTROL}); "
+                       "more than once: several gateways")
     parser.add_argument("--timeout", type=bounded(float, 0.01, 86400),
                         default=default(DEFAULT_TIMEOUT), metavar="SECONDS",
                         help=f"give up (exit 3) after this long (default {DEFAULT_TIMEOUT:g})")
@@ -144,50 +152,6 @@ def add_op(commands: Any, groups: dict[str, Any], op: Op,
         sub.add_argument(switch.flag, dest=switch.name, action="store_true", help=switch.help)
 
 
-# --- where the gateway is (gateway.ctl.where) ---------------------------------------------
-
-def endpoints(args: argparse.Namespace) -> Endpoints:
-    """From --config (loaded here: its errors exit 2), --control, or the default; CURVE
-    keys from the options, the environment, or the config."""
-    client_key = args.client_key or os.environ.get(CLIENT_KEY_ENV)
-    server_key = args.server_key or os.environ.get(SERVER_KEY_ENV)
-    if args.config is None:
-        keys = client_keys(client_key, server_key, None)
-        return Endpoints(args.control or DEFAULT_CONTROL, None, keys)
-    # the gateway's own validator (pydantic): loaded only when a config is used
-    from gateway.daemon.config import ConfigError, load_config
-    try:
-        config = load_config(args.config)
-    except ConfigError as error:
-        raise CtlError(str(error), Exit.USAGE) from None
-    secured = config.curve is not None
-    if secured and server_key is None:
-        sibling = curve.public_sibling(config.curve.server_key)
-        server_key = str(sibling) if sibling.exists() else config.curve.server_key
-    keys = client_keys(client_key, server_key, args.config if secured else None)
-    return Endpoints(config.control.endpoint, config.publish.endpoint, keys,
-                     secured and config.curve.publish, config.publish.heartbeat_s,
-                     tuple(n.address for n in config.all_nodes))
-
-
-def client_keys(client_key: str | None, server_key: str | None,
-                secured_by: str | None) -> curve.ClientKeys | None:
-    """The CURVE keys to connect with, or None for a plain connection."""
-    if client_key is None and server_key is None and secured_by is None:
-        return None
-    if client_key is None:
-        why = f"{secured_by} configures curve" if secured_by else "--server-key is given"
-        raise CtlError(f"{why}: give this client's key pair with --client-key FILE or "
-                       f"${CLIENT_KEY_ENV} (make one with gx2ctl keygen)", Exit.USAGE)
-    if server_key is None:
-        raise CtlError(f"--client-key is given: give the gateway's public key with "
-                       f"--server-key KEY or ${SERVER_KEY_ENV}", Exit.USAGE)
-    try:
-        return curve.load_client_keys(client_key, server_key)
-    except curve.CurveError as error:
-        raise CtlError(str(error), Exit.USAGE) from None
-
-
 # --- commands ---------------------------------------------------------------------------
 
 def fields_of(op: Op, args: argparse.Namespace) -> dict[str, Any]:
@@ -238,9 +202,35 @@ def run_keygen(prefix: str) -> int:
     return Exit.OK
 
 
+SEVERAL = ("status", "tail", "top", "record")
+"""The commands that take several gateways; the others act on one node of one."""
+
+
+def run_several(args: argparse.Namespace, named: list[Gateway]) -> int:
+    """A command given several gateways."""
+    if args.command not in SEVERAL:
+        raise CtlError(f"{args.command} acts on one gateway, and {len(named)} are given "
+                       f"({', '.join(g.name for g in named)}): give one --config or "
+                       f"--control (several: {', '.join(SEVERAL)})", Exit.USAGE)
+    if args.command == "tail":
+        from .tail import run_tail_several
+        return run_tail_several(args.nodes, named, args.timeout)
+    if args.command == "top":
+        from .topsite import run_top_several
+        return run_top_several(args.nodes, named, args.timeout, args.json)
+    if args.command == "record":
+        from .record import run_record
+        return run_record(args.file, args.nodes, args.seconds, named, args.timeout)
+    from .sitestatus import run_status
+    return run_status(named, args.timeout, args.json, bool(args.check), bool(args.wide))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    for name in ("config", "control"):
+        joined = [*(getattr(args, name, None) or ()), *vars(args).pop(f"{name}_after", ())]
+        setattr(args, name, joined or None)
     if getattr(args, "config", None) and getattr(args, "control", None):
         # (one before the command and one after it: each group saw only one)
         parser.error("argument --control: not allowed with argument --config")
@@ -253,7 +243,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.command in ("export", "plot"):
             from .offline import run_export, run_plot
             return (run_export if args.command == "export" else run_plot)(args)
-        where = endpoints(args)
+        named = gateways(args)
+        if len(named) > 1:
+            return run_several(args, named)
+        where = named[0].where
         if args.command == "tail":
             from .tail import run_tail
             return run_tail(args.nodes, where, args.timeout)
@@ -262,7 +255,7 @@ def main(argv: list[str] | None = None) -> int:
             return run_top(args.nodes, where, args.timeout, args.json)
         if args.command == "record":
             from .record import run_record
-            return run_record(args.file, args.nodes, args.seconds, where, args.timeout)
+            return run_record(args.file, args.nodes, args.seconds, named, args.timeout)
         if args.command == "scan":
             from .scan import run_scan
             return run_scan(args.station, args.addresses, where, args.timeout, args.json)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import contextlib
 import sys
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -39,10 +39,11 @@ from gateway.recording.writer import RecordingWriter
 
 from . import PROG
 from .client import CtlError
-from .tail import Source, Stop, source, subscribe
+from .sitestream import Silences, quiet_for, sources, subscribe_all
+from .tail import Source, Stop, source
 
 if TYPE_CHECKING:
-    from .where import Endpoints
+    from .where import Gateway
 
 FLUSH_S = 1.0
 PROGRESS_S = 0.5
@@ -51,8 +52,10 @@ WAIT_S = 0.1
 """The longest a mark waits to be written while nothing else arrives."""
 
 
-def run_record(path: str, nodes: list[int], seconds: float | None, where: Endpoints,
-               timeout: float) -> int:
+def run_record(path: str, nodes: list[int], seconds: float | None,
+               named: Sequence[Gateway], timeout: float) -> int:
+    """Record from the gateways ``named`` (one, or several into one file: their nodes
+    must differ, and the recording goes on while any of them publishes)."""
     target = Path(path)
     if target.suffix != SUFFIX:  # (x.csv would hold MCAP, and a directory skip it)
         raise CtlError(f"{target}: gx2ctl record writes MCAP: name the file "
@@ -61,20 +64,30 @@ def run_record(path: str, nodes: list[int], seconds: float | None, where: Endpoi
         raise CtlError(f"{target} exists: record to a new file", Exit.USAGE)
     creatable(target)
     stop = Stop()
-    found = source(nodes, where, timeout)
-    # the marks' socket first: by the time the subscriber hears the gateway, it has
+    if len(named) == 1:
+        found = [(named[0], source(nodes, named[0].where, timeout))]
+    else:
+        found = sources(nodes, named, timeout, every=True)
+        apart(nodes, found)
+    addresses = ", ".join(s.address for _, s in found)
+    gateways = f"the gateway{'s' if len(found) > 1 else ''} at {addresses}"
+    silence = max(s.silence for _, s in found)
+    heartbeat = "its heartbeat" if len(found) == 1 else "a heartbeat"
+    # the marks' sockets first: by the time the subscriber hears the gateway, they have
     # joined too, and a mark made once gx2ctl record shows its file is kept
-    with marks_of(found) as marks, \
-            subscribe(nodes, where, timeout, found, status=True) as (sub, silence):
+    with contextlib.ExitStack() as stack:
+        marks = [stack.enter_context(marks_of(s)) for _, s in found]
+        sub = stack.enter_context(subscribe_all(nodes, found, status=True))
         events = Events(sub, marks)
         first = events.first(silence, stop)
         if first is None:
-            why = (f"interrupted before the gateway at {found.address} was heard"
-                   if stop.requested else f"no message from the gateway at "
-                   f"{found.address} in {silence:g} s, not even its heartbeat")
+            why = (f"interrupted before {gateways} {'was' if len(found) == 1 else 'were'}"
+                   " heard" if stop.requested else
+                   f"no message from {gateways} in {silence:g} s, not even {heartbeat}")
             raise CtlError(f"{why}: nothing recorded ({target} not made)", Exit.NODE_FAILED)
-        capture = Capture(target, {"recorded_by": "gx2ctl record", "source": found.address})
+        capture = Capture(target, {"recorded_by": "gx2ctl record", "source": addresses})
         progress = Progress(target, sys.stderr.isatty())
+        silences = Silences(sub, found) if len(found) > 1 else None
         start = flushed = time.monotonic()
         event: Event | None = first
         try:
@@ -87,17 +100,34 @@ def run_record(path: str, nodes: list[int], seconds: float | None, where: Endpoi
                 if now - flushed >= FLUSH_S:
                     capture.flush()
                     flushed = now
+                    if silences is not None:
+                        silences.check()  # one of several silent: said, the rest go on
                 progress.show(now - start)
-                if event is None and sub.silent_for() > silence:
-                    raise CtlError(f"the gateway at {found.address} published nothing "
-                                   f"for {silence:g} s (not even its heartbeat); "
-                                   f"{target} holds what came before", Exit.NO_ANSWER)
+                if event is None and quiet_for(sub) > silence:
+                    raise CtlError(f"{gateways} published nothing for {silence:g} s (not "
+                                   f"even {heartbeat}); {target} holds what came before",
+                                   Exit.NO_ANSWER)
                 event = events.next(PROGRESS_S)
         finally:
             capture.finish()
             if not capture.failed:  # (a disk that failed: its line says it all)
                 progress.done(time.monotonic() - start)
     return Exit.OK
+
+
+def apart(nodes: Sequence[int], found: Sequence[tuple[Gateway, Source]]) -> None:
+    """Usage error unless the nodes recorded are each of one gateway only: the file's
+    channels are named by node address, and two nodes of one address would be mixed."""
+    owner: dict[int, str] = {}
+    for gateway, found_source in found:
+        for node in found_source.nodes:
+            if nodes and node not in nodes:
+                continue
+            if node in owner:
+                raise CtlError(f"node {node} is in both {owner[node]} and {gateway.name}: "
+                               "one file keeps one node of an address; record them to "
+                               "separate files, or name the nodes to record", Exit.USAGE)
+            owner[node] = gateway.name
 
 
 def creatable(target: Path) -> None:
@@ -175,16 +205,19 @@ def marks_of(found: Source) -> Iterator[Marks]:
 class Events:
     """Records, heartbeats and marks as they come."""
 
-    def __init__(self, sub: Subscriber, marks: Marks) -> None:
+    def __init__(self, sub: Subscriber, marks: Sequence[Marks]) -> None:
         self.sub = sub
         self.marks = marks
+
+    def _mark(self) -> Marked | None:
+        return next((m for marks in self.marks if (m := marks.take()) is not None), None)
 
     def next(self, timeout: float) -> Event | None:
         """The next event, or None after ``timeout`` s. A mark is looked for between
         records, and at least every WAIT_S while none comes."""
         deadline = time.monotonic() + timeout
         while True:
-            mark = self.marks.take()
+            mark = self._mark()
             if mark is not None:
                 return mark
             left = deadline - time.monotonic()
@@ -192,12 +225,12 @@ class Events:
             if event is not None:
                 return event
             if left <= WAIT_S:
-                return self.marks.take()
+                return self._mark()
 
     def first(self, silence: float, stop: Stop) -> Event | None:
         """The first event, or None if the gateway stays silent for ``silence`` s (or
         a signal comes first)."""
-        while not stop.requested and self.sub.silent_for() <= silence:
+        while not stop.requested and quiet_for(self.sub) <= silence:
             event = self.next(PROGRESS_S)
             if event is not None:
                 return event

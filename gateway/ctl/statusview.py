@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import sys
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from gateway.common.protocol import HealthLevel
@@ -162,6 +163,20 @@ def heard_lines(station: Mapping[str, Any], now: float, width: int | None) -> li
 
 def status_lines(result: Mapping[str, Any], now: float, width: int | None = None) -> list[str]:
     """Every line of a readable status, none wider than ``width`` (None: no limit)."""
+    lines = heading_lines(result, now, width)
+    nodes = node_maps(result)
+    if not nodes:
+        return [*lines, "no nodes"]
+    stations = station_maps(result)
+    lines.append("")
+    lines += node_table([Group(None, nodes, stations if len(stations) > 1 else [])],
+                        now, width)
+    return lines + reason_lines(nodes, width)
+
+
+def heading_lines(result: Mapping[str, Any], now: float, width: int | None) -> list[str]:
+    """The lines above the table: the gateway, each base station's line, the recording,
+    the replay."""
     gateway = as_map(result.get("gateway"))
     health = gateway.get("health")
     why = reasons(gateway)
@@ -199,37 +214,62 @@ def status_lines(result: Mapping[str, Any], now: float, width: int | None = None
         lines += items_line("replay", [
             f"{cell(replay.get('reads'))} reads played"
             + (", finished" if replay.get("finished") is True else "")], width)
-    nodes = node_maps(result)
-    if not nodes:
-        return [*lines, "no nodes"]
-    lines.append("")
-    lines += node_table(nodes, stations if several else [], now, width)
+    return lines
+
+
+def reason_lines(nodes: Sequence[Mapping[str, Any]], width: int | None,
+                 prefix: str = "") -> list[str]:
+    """Why each node that is not OK is not (``prefix``: the gateway's name and a /)."""
+    lines = []
     for node in nodes:
         if why := reasons(node):
-            lines += items_line(f"{cell(node.get('node'))} {cell(node.get('health'))}:",
+            lines += items_line(f"{prefix}{cell(node.get('node'))} {cell(node.get('health'))}:",
                                 why.split("; "), width, ";")
     return lines
 
 
-def node_table(nodes: Sequence[Mapping[str, Any]], stations: Sequence[Mapping[str, Any]],
-               now: float, width: int | None) -> list[str]:
-    """The table of nodes; given ``stations``, grouped by them, each group under a line
-    naming its station and its line's share (the columns aligned across groups)."""
+@dataclass(frozen=True)
+class Group:
+    """The nodes of one gateway in the table, under a line ``== title`` (none for the
+    only gateway), by base station when ``stations`` are given."""
+
+    title: str | None
+    nodes: Sequence[Mapping[str, Any]]
+    stations: Sequence[Mapping[str, Any]] = ()
+
+
+def node_table(groups: Sequence[Group], now: float, width: int | None) -> list[str]:
+    """The table of nodes: one set of columns, fitted to the width over every group's
+    rows; each group under its title, and within it, given its stations, each
+    station's nodes under a line naming the station and its line's share."""
+    nodes = [node for group in groups for node in group.nodes]
     rows = [[column.cell(node, now) for column in NODE_COLUMNS] for node in nodes]
     shown = fit(NODE_COLUMNS, rows, width, GIVE_WAY)
     header, *body = plain_table(NODE_COLUMNS, rows, shown)
-    if not stations:
-        return [header, *body]
     lines = [header]
+    for group in groups:
+        mine, body = body[:len(group.nodes)], body[len(group.nodes):]
+        if group.title is not None:
+            lines.append(clipped(group.title, width))
+        lines += by_station(group.nodes, mine, group.stations, width)
+    return lines
+
+
+def by_station(nodes: Sequence[Mapping[str, Any]], rows: list[str],
+               stations: Sequence[Mapping[str, Any]], width: int | None) -> list[str]:
+    """The rows under a line for each of ``stations`` (none: as they are)."""
+    if not stations:
+        return rows
+    lines = []
     names = [cell(s.get("name")) for s in stations]
     for name, station in zip(names, stations, strict=True):
-        group = [row for node, row in zip(nodes, body, strict=True)
+        group = [row for node, row in zip(nodes, rows, strict=True)
                  if cell(node.get("station")) == name]
         share = line_share(station)
         lines.append(clipped(f"-- {name} ({cell(station.get('state'))}"
                              + (f", {share}" if share else "") + ")", width))
         lines += group or ["(no nodes)"]
-    others = [row for node, row in zip(nodes, body, strict=True)
+    others = [row for node, row in zip(nodes, rows, strict=True)
               if cell(node.get("station")) not in names]
     if others:
         lines += ["-- no station", *others]

@@ -8,7 +8,7 @@ import contextlib
 import signal
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from types import FrameType
 from typing import TYPE_CHECKING, Any
@@ -16,13 +16,14 @@ from typing import TYPE_CHECKING, Any
 from gateway.client import GatewayError, Malformed, Subscriber
 from gateway.common import curve
 from gateway.common.endpoints import connectable
+from gateway.common.jsontext import json_line
 from gateway.common.protocol import Exit
 
 from . import PROG
 from .client import Client, CtlError
 
 if TYPE_CHECKING:
-    from .where import Endpoints
+    from .where import Endpoints, Gateway
 
 
 
@@ -82,6 +83,34 @@ FLUSH_S = 0.1
 """Printed lines reach a pipe at least this often."""
 
 
+def run_tail_several(nodes: list[int], named: Sequence[Gateway], timeout: float) -> int:
+    """Print the records of several gateways, each line with the ``gateway`` it came
+    from (its name). One that falls silent is said on stderr and the others go on; exit
+    3 only once all are silent (or none could be found)."""
+    from .sitestream import Silences, names, sources, subscribe_all
+    stop = Stop()
+    found = sources(nodes, named, timeout, every=False)
+    called = names(found)
+    with subscribe_all(nodes, found) as sub:
+        silences = Silences(sub, found)
+        flushed = time.monotonic()
+        while not stop.requested:
+            message = sub.receive(FLUSH_S)
+            now = time.monotonic()
+            if message is not None:
+                print(json_line({**message.payload,  # type: ignore[union-attr]
+                                 "gateway": called[message.gateway]}))
+            if message is None or now - flushed >= FLUSH_S:
+                sys.stdout.flush()
+                flushed = now
+                # (looked at on each flush: another gateway's records never hide one
+                # falling silent)
+                if silences.check():
+                    raise silences.all_silent()
+    sys.stdout.flush()
+    return Exit.OK
+
+
 @dataclass(frozen=True)
 class Source:
     """A gateway's publish endpoint as a subscriber connects to it."""
@@ -91,6 +120,8 @@ class Source:
     """CURVE keys, if the gateway encrypts what it publishes."""
     silence: float
     """Seconds of silence after which the gateway is taken for dead."""
+    nodes: tuple[int, ...] = ()
+    """The nodes it has."""
 
 
 @contextlib.contextmanager
@@ -102,7 +133,7 @@ def subscribe(nodes: list[int], where: Endpoints, timeout: float,
     dead."""
     found = found or source(nodes, where, timeout)
     try:
-        sub = Subscriber(found.address, nodes, keys=found.keys, on_malformed=_warn,
+        sub = Subscriber(found.address, nodes, keys=found.keys, on_malformed=warn_malformed,
                          **options)
     except GatewayError as error:
         raise CtlError(str(error), Exit.USAGE) from None
@@ -114,6 +145,16 @@ def source(nodes: list[int], where: Endpoints, timeout: float) -> Source:
     """Where to subscribe to the gateway ``where`` names: its publish endpoint, key and
     nodes come from the configuration, or else from its status reply. A node it does
     not have is a usage error."""
+    found = find(where, timeout)
+    unknown = [node for node in nodes if node not in found.nodes]
+    if unknown:
+        raise CtlError(f"node {unknown[0]} is not configured in this gateway (it has "
+                       f"{', '.join(map(str, found.nodes)) or 'none'})", Exit.USAGE)
+    return found
+
+
+def find(where: Endpoints, timeout: float) -> Source:
+    """Where to subscribe to the gateway ``where`` names, and the nodes it has."""
     found, secured = where.publish, where.publish_secured
     heartbeat, configured = where.heartbeat_s, where.nodes
     if found is None or configured is None:
@@ -126,15 +167,11 @@ def source(nodes: list[int], where: Endpoints, timeout: float) -> Source:
             gateway.get("heartbeat_s"), (int, float)) else None
         listed = status.get("nodes") if isinstance(status.get("nodes"), list) else []
         configured = tuple(n.get("node") for n in listed if isinstance(n, dict))
-    unknown = [node for node in nodes if node not in configured]
-    if unknown:
-        raise CtlError(f"node {unknown[0]} is not configured in this gateway (it has "
-                       f"{', '.join(map(str, configured)) or 'none'})", Exit.USAGE)
     silence = max(timeout, HEARTBEATS_MISSED * heartbeat if heartbeat else 0.0)
     return Source(connectable(found, where.control), where.keys if secured else None,
-                  silence)
+                  silence, tuple(configured))
 
 
-def _warn(endpoint: str, problem: Malformed) -> None:
+def warn_malformed(endpoint: str, problem: Malformed) -> None:
     sys.stdout.flush()
     print(f"{PROG}: skipped a message {problem}", file=sys.stderr, flush=True)

@@ -120,7 +120,7 @@ def _bytes(value: float) -> str:
     return f"{value:,.0f} B/s"
 
 
-def _clock_text(now: float) -> str:
+def clock_text(now: float) -> str:
     """The local time of day at ``now`` (a gateway's clock may say anything)."""
     try:
         return time.strftime("%H:%M:%S", time.localtime(now))
@@ -169,7 +169,7 @@ def header(watch: Watch, now: float, silent_for: float) -> list[Text]:
         first.append(f"{counts[level]} {level}",
                      "dim" if stale else style if counts[level] else "")
         first.append(" ")
-    first.append(f" {_clock_text(now)}", "dim")
+    first.append(f" {clock_text(now)}", "dim")
 
     stations = station_maps(status)
     if len(stations) == 1:
@@ -235,7 +235,7 @@ def frame(watch: Watch, now: float, silent_for: float, width: int,
             notes.append(Text(f"{cell(node.get('node'))} ").append(
                 f"{cell(node.get('health'))}: {why}", style(node.get("health"))))
     if height is not None:
-        body, notes = _within(height - 1 - len(head), body, notes)
+        body, notes = within(height - 1 - len(head), body, notes)
     return [cut(line, width, ellipsis) for line in (*head, *body, *notes)]
 
 
@@ -258,7 +258,7 @@ def grouped(status: Mapping[str, Any], nodes: Sequence[Mapping[str, Any]],
                    if cell(node.get("station")) not in names]
 
 
-def _within(room: int, body: list[Text], notes: list[Text]) -> tuple[list[Text], list[Text]]:
+def within(room: int, body: list[Text], notes: list[Text]) -> tuple[list[Text], list[Text]]:
     """The node rows and reasons that fit in ``room`` lines: every node (or all but the
     last that fit, and a ``+N more`` row counting the rest), then the reasons that fit.
     At least the count is shown, however little room there is."""

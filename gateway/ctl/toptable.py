@@ -97,31 +97,34 @@ def cut(line: Text, width: int, ellipsis: str = "…") -> Text:
 
 
 def table(nodes: Sequence[Mapping[str, Any]], now: float, width: int,
-          ellipsis: str = "…", stale_for: float | None = None) -> list[Text]:
+          ellipsis: str = "…", stale_for: float | None = None,
+          each: Sequence[tuple[float, float | None]] | None = None) -> list[Text]:
     """The header and a row per node, each line at most ``width`` cells. ``stale_for``:
     seconds since the status they come from, given once a heartbeat was missed; each
     row is then grey, its health unknown (``stale 2.1s``), never a green OK that
-    nothing vouches for any more."""
-    cells = [[column.cell(node, now) for column in COLUMNS] for node in nodes]
-    if stale_for is not None:
-        unknown = f"stale {age_text(stale_for)}"
-        for row in cells:
-            row[HEALTH] = unknown
+    nothing vouches for any more. ``each``: per node, its own (now, stale_for), for
+    nodes of several gateways in one table."""
+    each = each if each is not None else [(now, stale_for)] * len(nodes)
+    cells = [[column.cell(node, at) for column in COLUMNS]
+             for node, (at, _) in zip(nodes, each, strict=True)]
+    for row, (_, stale) in zip(cells, each, strict=True):
+        if stale is not None:
+            row[HEALTH] = f"stale {age_text(stale)}"
     shown = fit(COLUMNS, cells, width, GIVE_WAY)
     header = Text(" " * GAP).join(Text(sized(COLUMNS[i].header, w, COLUMNS[i].right))
                                   for i, w in shown)
     header.stylize("bold")
     lines = [header]
-    for node, row in zip(nodes, cells, strict=True):
+    for node, row, (_, stale) in zip(nodes, cells, each, strict=True):
         parts = []
         for i, w in shown:
             text = Text(sized(row[i], w, COLUMNS[i].right, ellipsis))
-            if i == HEALTH and stale_for is None:
+            if i == HEALTH and stale is None:
                 text.stylize(HEALTH_STYLE.get(str(node.get("health")), ""))
             parts.append(text)
         row_text = Text(" " * GAP).join(parts)
         row_text.rstrip()
-        if stale_for is not None:
+        if stale is not None:
             row_text.stylize("dim")
         lines.append(row_text)
     return lines

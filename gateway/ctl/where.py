@@ -19,3 +19,13 @@ class Endpoints:
     heartbeat_s: float | None = None
     nodes: tuple[int, ...] | None = None
     """The configured nodes (None: ask the gateway's status)."""
+
+
+@dataclass(frozen=True)
+class Gateway:
+    """One of the gateways gx2ctl was given, by the name it shows it under."""
+
+    name: str
+    where: Endpoints
+    config: str | None = None
+    """The configuration file it was named by, if any."""

@@ -147,3 +147,29 @@ def test_the_nodes_a_station_heard_are_under_its_line_streaming_first_then_the_l
           f"last {a - 100}.0 s ago" for a in range(101, 106)),
         "         and 4 more heard (gx2ctl --json status lists them)"], lines
     assert not any("heard" in line for line in lines[:south])  # north heard none
+
+
+def test_several_gateways_share_one_table_fitted_to_the_width() -> None:
+    """One header over every gateway's nodes (the columns aligned across them), each
+    gateway's nodes under its name and by station, a gateway without an answer a line
+    in its place; nothing wider than the terminal; reasons named by gateway."""
+    from gateway.ctl.client import CtlError
+    from gateway.ctl.sitestatus import Answer
+    from gateway.ctl.sitestatus import status_lines as several_lines
+    from gateway.ctl.where import Endpoints, Gateway
+
+    def gateway(name: str) -> Gateway:
+        return Gateway(name, Endpoints(f"tcp://{name}:5556", None))
+    one = status(link("ch11"), nodes=[node(90, "ch11")])
+    answers = [Answer(gateway("hall-a"), TWO), Answer(gateway("hall-b"), one),
+               Answer(gateway("hall-c"), None, CtlError("no answer from hall-c", 3))]
+    lines = several_lines(answers, NOW, 80)
+    assert max(len(line) for line in lines) <= 80
+    table = lines[lines.index("") + 1:]
+    assert [line.split()[0] for line in table if line[:1].isdigit()] == ["76", "77", "78",
+                                                                          "90"]
+    assert sum(1 for line in table if line.startswith("node ")) == 1
+    a, b = table.index("== hall-a"), table.index("== hall-b")
+    assert table[a + 1].startswith("-- north (up, line 87%") and "-- ch11" not in table[b + 1]
+    assert table[-2:] == ["== hall-c: no answer from hall-c", "hall-a/78 WARN: radio loss 6.0%"]
+    assert len({line.index(" streaming ") for line in table if " streaming " in line}) == 1
