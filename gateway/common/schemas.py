@@ -163,6 +163,9 @@ def status_schema() -> Schema:
                             "replay://"),
             "live": _part(["object", "null"], "the live view (Foxglove WebSocket): its "
                           "endpoint, viewers and channels; null without live:"),
+            "mqtt": _part(["object", "null"], "the MQTT output: its broker, whether it is "
+                          "connected (and why not), messages sent, dropped (queue, "
+                          "offline) and thinned by rate_hz; null without mqtt:"),
             "outputs": {"type": "object", "additionalProperties": _part(
                 "object", "one output: take_failures, the messages it failed to take (a "
                 "bug, contained: every other output still got them)", ("take_failures",),

@@ -1,0 +1,271 @@
+"""The MQTT output (``mqtt:``): records as JSON into a broker the site already runs,
+with the gateway's status and every node's availability retained, and the gateway's
+own availability as its last will (docs/site.md).
+
+Built on paho-mqtt 2, its network loop in a thread of its own, fed by a second thread
+of ours from a bounded queue: ``take`` on the loop only decides whether the record is
+due (``rate_hz``) and appends it, 0.2 us of the loop's time a record against 11 us for
+paho's ``publish`` called on the loop and 126 us for aiomqtt, whose publishing and
+socket writes all run on the loop (bench/mqttclient.py, docs/performance.md). A
+broker that is slow, down or unreachable costs the queue (``mqtt.queue`` messages, and
+at most IN_FLIGHT more inside paho): what does not fit, or comes while the broker is
+away, is dropped and counted, never waited for; paho reconnects with a backoff
+(RECONNECT_S) and the retained messages are sent again on each connection.
+
+Imported only when ``mqtt:`` is configured, as live.py is.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import ssl
+import threading
+from collections.abc import Mapping
+from typing import Any
+from urllib.parse import urlsplit
+
+from paho.mqtt.client import CallbackAPIVersion, Client, MQTTErrorCode
+
+from gateway.common.reading import as_map
+from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC, parse
+
+from ..config import MQTT_SCHEMES, MqttConfig
+from ..station.nodes import State
+from . import Message, Needs, Output
+
+log = logging.getLogger("gx2.mqtt")
+
+RECONNECT_S = (1, 30)
+"""paho's reconnect backoff: from 1 s, doubling, to 30 s at most."""
+IN_FLIGHT = 1000
+"""Messages handed to paho and not yet written to its socket: past this, the broker is
+slow and the queue fills (and drops) rather than paho's own unbounded one."""
+KEEPALIVE_S = 30
+"""The broker notices a gateway gone silent (and sends its will) in 1.5 times this."""
+OFFLINE_STATES = frozenset({State.UNKNOWN, State.UNREACHABLE, State.SILENT,
+                            State.LINK_DOWN})
+"""A node in these states is ``offline``; in any other it answers: ``online``."""
+WILL_QOS = 1
+"""The last will and the availability messages: delivered at least once (the records
+and status are QoS 0)."""
+
+
+class Sampler:
+    """Which samples of a topic go out under ``rate_hz``: one once at least 95 % of
+    its period has passed in sample time since the last one sent (a 100 Hz stream at
+    10 Hz: every 10th sample, evenly, whatever the link's jitter did to arrival)."""
+
+    __slots__ = ("_due",)
+
+    def __init__(self) -> None:
+        self._due: dict[bytes, float] = {}
+
+    def due(self, topic: bytes, every_s: float, payload: Mapping[str, Any]) -> bool:
+        when = payload.get("time") or payload.get("host_time") or 0.0
+        last = self._due.get(topic)
+        if last is not None and last <= when < last + 0.95 * every_s:
+            return False
+        self._due[topic] = when
+        return True
+
+
+class MqttOutput(Output):
+    def __init__(self, config: MqttConfig) -> None:
+        self.config = config
+        self.base = f"{config.prefix}/{config.name}"
+        self.url = config.url
+        parts = urlsplit(config.url)
+        self._host = parts.hostname or ""
+        self._port = parts.port or MQTT_SCHEMES[parts.scheme]
+        self._queue: collections.deque[tuple[str, Message | bytes, bool]] = \
+            collections.deque()
+        self._wake = threading.Event()
+        self._closing = threading.Event()
+        self._sampler = Sampler()
+        self._every: dict[bytes, tuple[str, float | None]] = {}
+        """Gateway topic -> (MQTT topic, least seconds between two sent, or None)."""
+        self._availability: dict[int, str] = {}
+        """Node -> what was last said of it (``online``/``offline``)."""
+        self.connected = False
+        self.connects = 0
+        self.sent = 0
+        """Messages handed to paho while connected."""
+        self._handed = self._written = 0
+        """Since this connection: messages handed to paho, and those it wrote to its
+        socket (its on_publish, for QoS 0); paho forgets the rest when it reconnects."""
+        self.dropped = {"queue": 0, "offline": 0}
+        """Messages never sent: the queue was full, or the broker was away."""
+        self.thinned = 0
+        """Records not sent by ``rate_hz`` (by design: no loss)."""
+        self.error: str | None = None
+        """Why it is not connected (the last refusal or failure), None once it is."""
+        self.client = self._client()
+        self._drainer = threading.Thread(target=self._drain, name="gx2-mqtt", daemon=True)
+
+    def _client(self) -> Client:
+        config = self.config
+        client = Client(CallbackAPIVersion.VERSION2,
+                        client_id=config.client_id or f"gx2-gateway-{config.name}")
+        if config.username is not None:
+            client.username_pw_set(config.username, config.password)
+        if urlsplit(config.url).scheme == "mqtts":
+            client.tls_set(ca_certs=config.tls_ca, certfile=config.tls_cert,
+                           keyfile=config.tls_key, cert_reqs=ssl.CERT_REQUIRED)
+        client.will_set(f"{self.base}/availability", "offline", qos=WILL_QOS, retain=True)
+        client.reconnect_delay_set(*RECONNECT_S)
+        client.on_connect = self._on_connect
+        client.on_connect_fail = self._on_connect_fail
+        client.on_disconnect = self._on_disconnect
+        client.on_publish = self._on_publish
+        return client
+
+    # -- the loop's side ----------------------------------------------------------------
+
+    def take(self, message: Message) -> None:
+        """A published message: queued if due, dropped and counted if the queue is full."""
+        target = self._every.get(message.topic)
+        if target is None:
+            target = self._every[message.topic] = self._target(message.topic)
+        name, every_s = target
+        if not name:
+            return
+        if every_s is not None and not self._sampler.due(message.topic, every_s,
+                                                         message.payload):
+            self.thinned += 1
+            return
+        self._put(name, message, message.topic == STATUS_TOPIC)
+
+    def _put(self, topic: str, message: Message | bytes, retain: bool) -> None:
+        if len(self._queue) >= self.config.queue:
+            self.dropped["queue"] += 1
+            return
+        self._queue.append((topic, message, retain))
+        if not self._wake.is_set():
+            self._wake.set()
+
+    def _target(self, topic: bytes) -> tuple[str, float | None]:
+        """The MQTT topic of a gateway topic and its least interval ("" for none)."""
+        if topic == STATUS_TOPIC:
+            return f"{self.base}/status", None
+        if topic == MARK_TOPIC:
+            return f"{self.base}/mark", None
+        found = parse(topic.decode())
+        if found is None:
+            return "", None
+        node, record = found
+        return f"{self.base}/{node}/{record}", self.config.every_s(record)
+
+    def report(self, status: Mapping[str, Any]) -> None:
+        """Each node's availability, said (retained) when it changes."""
+        for node in status.get("nodes") or ():
+            address, state = as_map(node).get("node"), as_map(node).get("state")
+            if not isinstance(address, int):
+                continue
+            said = "offline" if state in OFFLINE_STATES else "online"
+            if self._availability.get(address) != said:
+                self._availability[address] = said
+                self._put(f"{self.base}/{address}/availability", said.encode(), True)
+
+    def status(self) -> dict[str, Any]:
+        return {"url": self.url, "topic": self.base, "connected": self.connected,
+                "connects": self.connects, "error": self.error, "sent": self.sent,
+                "dropped": dict(self.dropped), "thinned": self.thinned,
+                "queued": len(self._queue)}
+
+    # -- its threads ----------------------------------------------------------------------
+
+    def start(self) -> None:
+        self.client.connect_async(self._host, self._port, keepalive=KEEPALIVE_S)
+        self.client.loop_start()
+        self._drainer.start()
+
+    def _drain(self) -> None:
+        """Hand the queue to paho while connected, drop it (counted) while not; wait
+        while paho has IN_FLIGHT messages it has not written (a slow broker)."""
+        queue, publish = self._queue, self.client.publish
+        while not self._closing.is_set():
+            self._wake.wait(0.5)
+            self._wake.clear()
+            while queue and not self._closing.is_set():
+                if self._handed - self._written >= IN_FLIGHT and self.connected:
+                    self._wake.wait(0.05)
+                    self._wake.clear()
+                    continue
+                topic, message, retain = queue.popleft()
+                if not self.connected:
+                    self.dropped["offline"] += 1
+                    continue
+                payload = message.json() if isinstance(message, Message) else message
+                if publish(topic, payload, qos=WILL_QOS if topic.endswith(
+                        "/availability") else 0, retain=retain).rc \
+                        == MQTTErrorCode.MQTT_ERR_SUCCESS:
+                    self.sent += 1
+                    self._handed += 1
+                else:
+                    self.dropped["offline"] += 1
+
+    def _on_connect(self, client: Client, userdata: Any, flags: Any, reason: Any,
+                    properties: Any) -> None:
+        if reason.is_failure:
+            self._failed(f"the broker refused the connection: {reason}")
+            return
+        log.info("MQTT: connected to %s, publishing under %s/", self.url, self.base)
+        self.connected, self.error = True, None
+        self.connects += 1
+        self._handed = self._written = 0
+        client.publish(f"{self.base}/availability", "online", qos=WILL_QOS, retain=True)
+        for node, said in list(self._availability.items()):
+            client.publish(f"{self.base}/{node}/availability", said, qos=WILL_QOS,
+                           retain=True)
+        self._wake.set()
+
+    def _on_connect_fail(self, client: Client, userdata: Any) -> None:
+        self._failed(f"cannot connect to {self._host}:{self._port}")
+
+    def _on_disconnect(self, client: Client, userdata: Any, flags: Any, reason: Any,
+                       properties: Any) -> None:
+        was = self.connected
+        self.connected = False
+        if was and not self._closing.is_set():
+            self._failed(f"disconnected: {reason}")
+
+    def _failed(self, why: str) -> None:
+        """Said once a WARN, each time the reason changes; retried by paho's backoff."""
+        self.connected = False
+        if why != self.error:
+            log.warning("MQTT %s: %s (retrying from %d s to %d s apart; records meanwhile "
+                        "are dropped and counted)", self.url, why, *RECONNECT_S)
+        self.error = why
+
+    def _on_publish(self, *_: Any) -> None:
+        self._written += 1
+        if self._handed - self._written < IN_FLIGHT // 2:
+            self._wake.set()
+
+    def close(self, seconds: float) -> None:
+        """Say the gateway and its nodes are offline (a clean exit sends no will), then
+        disconnect, within ``seconds``."""
+        self._closing.set()
+        self._wake.set()
+        if self.connected:
+            for node in self._availability:
+                self.client.publish(f"{self.base}/{node}/availability", "offline",
+                                    qos=WILL_QOS, retain=True)
+            said = self.client.publish(f"{self.base}/availability", "offline",
+                                       qos=WILL_QOS, retain=True)
+            try:
+                said.wait_for_publish(max(0.0, seconds / 2))
+            except (RuntimeError, ValueError):  # (the connection went meanwhile)
+                pass
+        self.client.disconnect()
+        stopping = threading.Thread(target=self.client.loop_stop, daemon=True,
+                                    name="gx2-mqtt-stop")
+        stopping.start()
+        stopping.join(max(0.0, seconds / 2))
+
+
+def make(needs: Needs) -> MqttOutput:
+    assert needs.config.mqtt is not None
+    return MqttOutput(needs.config.mqtt)
+
