@@ -5,6 +5,7 @@ makes its own)."""
 
 from __future__ import annotations
 
+import getpass
 import json
 import shutil
 import socket
@@ -33,7 +34,10 @@ class Broker:
         self.url = f"mqtt://127.0.0.1:{self.port}"
         self.directory = directory
         lines = [f"listener {self.port} 127.0.0.1", "persistence false",
-                 "log_dest stderr", "log_type error", "log_type warning"]
+                 "log_dest stderr", "log_type error", "log_type warning",
+                 # started as root it would become the user mosquitto, who cannot read
+                 # the test's files (its password file); as anyone else this is ignored
+                 f"user {getpass.getuser()}"]
         if users:
             assert MOSQUITTO_PASSWD is not None, "mosquitto_passwd is not installed"
             passwords = directory / "mosquitto.passwd"
