@@ -6,6 +6,7 @@ bad credentials, and --check on a bad url."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import signal
 import subprocess
@@ -163,7 +164,7 @@ def test_rate_hz_sends_every_nth_sample(simulator, gateway, broker) -> None:
     finally:
         listener.close()
     got = seqs(listener, f"{BASE}/76/accel_angrate")
-    steps = [b - a for a, b in zip(got, got[1:], strict=False)]
+    steps = [b - a for a, b in itertools.pairwise(got)]
     assert steps.count(10) >= len(steps) - 1, steps  # 100 Hz at 10 Hz: every 10th
     sub.drain(0.3)
     euler = seqs(listener, f"{BASE}/77/euler")  # not named: every sample

@@ -18,6 +18,7 @@ Imported only when ``mqtt:`` is configured, as live.py is.
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import ssl
 import threading
@@ -254,10 +255,8 @@ class MqttOutput(Output):
                                     qos=WILL_QOS, retain=True)
             said = self.client.publish(f"{self.base}/availability", "offline",
                                        qos=WILL_QOS, retain=True)
-            try:
+            with contextlib.suppress(RuntimeError, ValueError):  # (the connection went)
                 said.wait_for_publish(max(0.0, seconds / 2))
-            except (RuntimeError, ValueError):  # (the connection went meanwhile)
-                pass
         self.client.disconnect()
         stopping = threading.Thread(target=self.client.loop_stop, daemon=True,
                                     name="gx2-mqtt-stop")
