@@ -19,7 +19,10 @@ in a process of its own whose imports come from one tree or the other, in turn:
    With ``--record``, B runs with ``record:`` configured (a tree that records); with
    ``--metrics``, B serves metrics and is scraped once a second meanwhile, as a
    Prometheus server would (ten times as often as its default interval); with
-   ``--live``, B serves the live view, with no viewer connected.
+   ``--live``, B serves the live view, with no viewer connected; with ``--mqtt``, B
+   sends to a mosquitto this script starts on a free loopback port (``--mqtt-rate-hz
+   N``: with ``rate_hz: N``), subscribed to by nobody, as a broker forwarding to
+   nothing costs the gateway the same as one with subscribers.
 
 The pipeline measures A then B (the order alternates each round, so neither side always
 goes first); the table gives each round's figures and the median of the rounds' B/A
@@ -29,6 +32,7 @@ ratios, so a neighbour that slows the machine for a while slows both sides of a 
 from __future__ import annotations
 
 import argparse
+import atexit
 import statistics
 import subprocess
 import sys
@@ -43,6 +47,7 @@ from benchutil import REPO, cpu_ns, free_port
 
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
+from tests.helpers.broker import Broker
 
 PIPELINE = r'''
 import asyncio, inspect, multiprocessing, sys, time
@@ -132,7 +137,8 @@ def gateway_command(tree: Path, config: Path) -> list[str]:
 
 
 def saturated_cpu(trees: dict[str, Path], seconds: float, record: bool,
-                  metrics: bool = False, live: bool = False) -> dict[str, float]:
+                  metrics: bool = False, live: bool = False,
+                  mqtt: dict[str, object] | None = None) -> dict[str, float]:
     """Each tree's gateway on a simulator of its own (this tree's), all at once, so
     that they share whatever the machine is doing: % of one core over ``seconds``,
     from the kernel's nanosecond count of each process's threads."""
@@ -154,6 +160,8 @@ def saturated_cpu(trees: dict[str, Path], seconds: float, record: bool,
                 scrapes.append(f"http://{config['metrics']['endpoint']}/metrics")
             if live and side == "B":  # (and no viewer: what serving it costs by itself)
                 config["live"] = {"endpoint": f"127.0.0.1:{free_port()}"}
+            if mqtt and side == "B":
+                config["mqtt"] = mqtt
             (work / "nodes.yaml").write_text(yaml.safe_dump(config))
             sim = Simulator(nodes, link=work / "gx2").start()
             started.append((side, sim, subprocess.Popen(
@@ -205,8 +213,19 @@ def main() -> int:
                         help="B serves metrics, scraped once a second (A does not)")
     parser.add_argument("--live", action="store_true",
                         help="B serves the live view, no viewer connected (A does not)")
+    parser.add_argument("--mqtt", action="store_true",
+                        help="B sends to a local mosquitto this script starts (A does not)")
+    parser.add_argument("--mqtt-rate-hz", type=float,
+                        help="with --mqtt: B's mqtt.rate_hz (every record)")
     parser.add_argument("--skip-pipeline", action="store_true")
     args = parser.parse_args()
+    mqtt: dict[str, object] | None = None
+    if args.mqtt:
+        broker = Broker(Path(tempfile.mkdtemp(prefix="gx2-ab-broker-")))
+        atexit.register(broker.stop)
+        mqtt = {"url": broker.url, "name": "ab"}
+        if args.mqtt_rate_hz:
+            mqtt["rate_hz"] = args.mqtt_rate_hz
     base_rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", args.base],
                               capture_output=True, text=True, check=True).stdout.strip()
     head_rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short",
@@ -227,7 +246,7 @@ def main() -> int:
                     got = {side: pipeline(trees[side], args.packets) for side in order}
                     rows["pipeline"].append((got["A"], got["B"]))
                 got = saturated_cpu(trees, args.seconds, args.record, args.metrics,
-                                    args.live)
+                                    args.live, mqtt)
                 rows["cpu"].append((got["A"], got["B"]))
                 print(f"round {round_ + 1}: " + ", ".join(
                     f"{name} A {a:,.1f} B {b:,.1f}" for name, values in rows.items()
@@ -239,7 +258,8 @@ def main() -> int:
     print(f"\nA = {base_rev}, B = {head_rev}{' (with uncommitted changes)' if dirty else ''}"
           f"{', B records' if args.record else ''}"
           f"{', B serves metrics scraped every second' if args.metrics else ''}"
-          f"{', B serves the live view (no viewer)' if args.live else ''}; "
+          f"{', B serves the live view (no viewer)' if args.live else ''}"
+          f"{f', B sends to MQTT ({mqtt})' if mqtt else ''}; "
           f"{args.rounds} interleaved rounds")
     print("| measure | A, each round | B, each round | B / A (median of rounds) |")
     print("|---|---|---|---|")
