@@ -22,6 +22,12 @@ The three ways:
   everything, the socket's writes included, on the loop.
 
     .venv/bin/python bench/mqttclient.py [--records 20000] [--rounds 3]
+    .venv/bin/python bench/mqttclient.py --sustain [--seconds 3]
+
+``--sustain``: the gateway's MQTT output itself (gateway/daemon/outputs/mqtt.py, its
+queue, its thread and paho's), given records at rising rates for ``--seconds`` each, a
+fresh 0xC2 record each time (its JSON made in the output's thread, as in the gateway):
+the records per second it sends into the broker, and how many it dropped, at each rate.
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ import threading
 import time
 from pathlib import Path
 
+import orjson
 from benchutil import REPO
 
 from gateway.common.jsontext import compact_bytes
@@ -135,6 +142,38 @@ async def aiomqtt_task(port: int, n: int) -> tuple[float, int]:
     return loop_cpu, sent[0]
 
 
+def sustain(port: int, seconds: float) -> None:
+    """Records per second the MQTT output delivers, offered at rising rates."""
+    from gateway.common.topics import topic
+    from gateway.daemon.config import MqttConfig
+    from gateway.daemon.outputs import Message
+    from gateway.daemon.outputs.mqtt import MqttOutput
+
+    payload = orjson.loads(PAYLOAD)
+    output = MqttOutput(MqttConfig(url=f"mqtt://127.0.0.1:{port}", name="bench"))
+    output.start()
+    while not output.connected:
+        time.sleep(0.01)
+    name = topic(76, "accel_angrate")
+    print(f"{'offered/s':>10} {'sent/s':>8} {'dropped':>8} {'process CPU %':>14}")
+    for rate in (1_000, 2_000, 4_000, 8_000, 16_000, 32_000):
+        sent0, dropped0 = output.sent, sum(output.dropped.values())
+        cpu0, t0 = _process_cpu(), time.monotonic()
+        offered = 0
+        while (elapsed := time.monotonic() - t0) < seconds:
+            while offered < rate * elapsed:
+                output.take(Message(name, {**payload, "seq": offered}))
+                offered += 1
+            time.sleep(0.005)  # (the pace of a loop's reads, not a synchronisation)
+        wall = time.monotonic() - t0
+        cpu = (_process_cpu() - cpu0) / wall * 100
+        print(f"{offered / wall:10.0f} {(output.sent - sent0) / wall:8.0f} "
+              f"{sum(output.dropped.values()) - dropped0:8d} {cpu:14.0f}", flush=True)
+        if output.connects != 1 or output.error:
+            print(f"  the broker: {output.status()}")
+    output.close(2.0)
+
+
 WAYS = {"paho-direct": paho_direct, "paho-queue": paho_queue, "aiomqtt": aiomqtt_task}
 
 
@@ -158,7 +197,20 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--records", type=int, default=20_000)
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--sustain", action="store_true",
+                        help="the gateway's MQTT output at rising rates")
+    parser.add_argument("--seconds", type=float, default=3.0)
     args = parser.parse_args()
+    if args.sustain:
+        with tempfile.TemporaryDirectory() as directory:
+            broker = Broker(Path(directory))
+            try:
+                sustain(broker.port, args.seconds)
+            finally:
+                broker.stop()
+        print(f"\n{sys.executable} {Path(__file__).relative_to(REPO)} --sustain "
+              f"--seconds {args.seconds:g}")
+        return
     results: dict[str, list[tuple[float, float, float]]] = {way: [] for way in WAYS}
     with tempfile.TemporaryDirectory() as directory:
         broker = Broker(Path(directory))

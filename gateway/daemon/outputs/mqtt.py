@@ -8,9 +8,10 @@ due (``rate_hz``) and appends it, 0.2 us of the loop's time a record against 11 
 paho's ``publish`` called on the loop and 126 us for aiomqtt, whose publishing and
 socket writes all run on the loop (bench/mqttclient.py, docs/performance.md). A
 broker that is slow, down or unreachable costs the queue (``mqtt.queue`` messages, and
-at most IN_FLIGHT more inside paho): what does not fit, or comes while the broker is
-away, is dropped and counted, never waited for; paho reconnects with a backoff
-(RECONNECT_S) and the retained messages are sent again on each connection.
+at most as many more inside paho: a batch is handed over once paho has written the
+last): what does not fit, or comes while the broker is away, is dropped and counted,
+never waited for; paho reconnects with a backoff (RECONNECT_S) and the retained
+messages are sent again on each connection.
 
 Imported only when ``mqtt:`` is configured, as live.py is.
 """
@@ -39,9 +40,11 @@ log = logging.getLogger("gx2.mqtt")
 
 RECONNECT_S = (1, 30)
 """paho's reconnect backoff: from 1 s, doubling, to 30 s at most."""
-IN_FLIGHT = 1000
-"""Messages handed to paho and not yet written to its socket: past this, the broker is
-slow and the queue fills (and drops) rather than paho's own unbounded one."""
+BATCH_S = 0.05
+"""Seconds the records of a stream gather in the queue before the output's thread hands
+them to paho at once: a wake of each thread a record cost 0.3 ms of CPU each, three
+times the gateway's own work a record (bench/ab.py --mqtt, docs/performance.md). A
+record waits this long at most on top of the network."""
 KEEPALIVE_S = 30
 """The broker notices a gateway gone silent (and sends its will) in 1.5 times this."""
 OFFLINE_STATES = frozenset({State.UNKNOWN, State.UNREACHABLE, State.SILENT,
@@ -92,9 +95,6 @@ class MqttOutput(Output):
         self.connects = 0
         self.sent = 0
         """Messages handed to paho while connected."""
-        self._handed = self._written = 0
-        """Since this connection: messages handed to paho, and those it wrote to its
-        socket (its on_publish, for QoS 0); paho forgets the rest when it reconnects."""
         self.dropped = {"queue": 0, "offline": 0}
         """Messages never sent: the queue was full, or the broker was away."""
         self.thinned = 0
@@ -118,7 +118,6 @@ class MqttOutput(Output):
         client.on_connect = self._on_connect
         client.on_connect_fail = self._on_connect_fail
         client.on_disconnect = self._on_disconnect
-        client.on_publish = self._on_publish
         return client
 
     # -- the loop's side ----------------------------------------------------------------
@@ -182,27 +181,27 @@ class MqttOutput(Output):
         self._drainer.start()
 
     def _drain(self) -> None:
-        """Hand the queue to paho while connected, drop it (counted) while not; wait
-        while paho has IN_FLIGHT messages it has not written (a slow broker)."""
-        queue, publish = self._queue, self.client.publish
+        """Hand the queue to paho while connected, drop it (counted) while not: woken
+        by the first message after a pause, it lets BATCH_S of them gather, so that it
+        and paho's thread wake some 20 times a second under a stream, not once a
+        record. While paho has not written the last batch (a slow broker), it waits."""
+        queue, client = self._queue, self.client
         while not self._closing.is_set():
             self._wake.wait(0.5)
+            self._closing.wait(BATCH_S)
             self._wake.clear()
-            while queue and not self._closing.is_set():
-                if self._handed - self._written >= IN_FLIGHT and self.connected:
-                    self._wake.wait(0.05)
-                    self._wake.clear()
-                    continue
+            if self.connected and client.want_write():
+                continue  # (the last batch is still being written: the queue fills)
+            for _ in range(len(queue)):
                 topic, message, retain = queue.popleft()
                 if not self.connected:
                     self.dropped["offline"] += 1
                     continue
                 payload = message.json() if isinstance(message, Message) else message
-                if publish(topic, payload, qos=WILL_QOS if topic.endswith(
-                        "/availability") else 0, retain=retain).rc \
+                qos = WILL_QOS if retain and not topic.endswith("/status") else 0
+                if client.publish(topic, payload, qos=qos, retain=retain).rc \
                         == MQTTErrorCode.MQTT_ERR_SUCCESS:
                     self.sent += 1
-                    self._handed += 1
                 else:
                     self.dropped["offline"] += 1
 
@@ -214,7 +213,6 @@ class MqttOutput(Output):
         log.info("MQTT: connected to %s, publishing under %s/", self.url, self.base)
         self.connected, self.error = True, None
         self.connects += 1
-        self._handed = self._written = 0
         client.publish(f"{self.base}/availability", "online", qos=WILL_QOS, retain=True)
         for node, said in list(self._availability.items()):
             client.publish(f"{self.base}/{node}/availability", said, qos=WILL_QOS,
@@ -238,11 +236,6 @@ class MqttOutput(Output):
             log.warning("MQTT %s: %s (retrying from %d s to %d s apart; records meanwhile "
                         "are dropped and counted)", self.url, why, *RECONNECT_S)
         self.error = why
-
-    def _on_publish(self, *_: Any) -> None:
-        self._written += 1
-        if self._handed - self._written < IN_FLIGHT // 2:
-            self._wake.set()
 
     def close(self, seconds: float) -> None:
         """Say the gateway and its nodes are offline (a clean exit sends no will), then
