@@ -157,15 +157,23 @@ class MqttOutput(Output):
         return f"{self.base}/{node}/{record}", self.config.every_s(record)
 
     def report(self, status: Mapping[str, Any]) -> None:
-        """Each node's availability, said (retained) when it changes."""
+        """Each node's availability, said (retained) when it changes; a node a reload
+        removed is said ``offline`` once, and forgotten."""
+        reported: set[int] = set()
         for node in status.get("nodes") or ():
             address, state = as_map(node).get("node"), as_map(node).get("state")
             if not isinstance(address, int):
                 continue
-            said = "offline" if state in OFFLINE_STATES else "online"
-            if self._availability.get(address) != said:
-                self._availability[address] = said
-                self._put(f"{self.base}/{address}/availability", said.encode(), True)
+            reported.add(address)
+            self._say(address, "offline" if state in OFFLINE_STATES else "online")
+        for address in set(self._availability) - reported:
+            self._say(address, "offline")
+            del self._availability[address]
+
+    def _say(self, address: int, said: str) -> None:
+        if self._availability.get(address) != said:
+            self._availability[address] = said
+            self._put(f"{self.base}/{address}/availability", said.encode(), True)
 
     def status(self) -> dict[str, Any]:
         return {"url": self.url, "topic": self.base, "connected": self.connected,

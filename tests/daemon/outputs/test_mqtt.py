@@ -44,3 +44,17 @@ def test_topics_are_under_the_prefix_and_name() -> None:
     assert output._target(topic(77, "euler")) == ("site/a/gw1/77/euler", 0.2)
     assert output._target(STATUS_TOPIC) == ("site/a/gw1/status", None)
     assert output._port == 8883
+
+
+def test_availability_is_said_on_change_and_offline_for_a_node_removed() -> None:
+    output = MqttOutput(MqttConfig(url="mqtt://127.0.0.1:1", name="gw"))
+    output.report({"nodes": [{"node": 76, "state": "streaming"},
+                             {"node": 77, "state": "unreachable"}]})
+    output.report({"nodes": [{"node": 76, "state": "streaming"},
+                             {"node": 77, "state": "unreachable"}]})  # (no change)
+    output.report({"nodes": [{"node": 77, "state": "polled"}]})  # 76 removed by a reload
+    said = [(topic, payload) for topic, payload, retain in output._queue if retain]
+    assert said == [("gx2/gw/76/availability", b"online"),
+                    ("gx2/gw/77/availability", b"offline"),
+                    ("gx2/gw/77/availability", b"online"),
+                    ("gx2/gw/76/availability", b"offline")]
