@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import shutil
 import signal
 import subprocess
 import urllib.request
@@ -30,21 +31,26 @@ BASE = "site/hall"
 
 @pytest.fixture
 def broker(tmp_path: Path):
-    """``broker(users=None)``: mosquitto on a free loopback port, stopped afterwards."""
+    """``broker(users=None, tls=None)``: mosquitto on a free loopback port, stopped
+    afterwards."""
     started: list[Broker] = []
 
-    def start(users: dict[str, str] | None = None) -> Broker:
+    def start(users: dict[str, str] | None = None,
+              tls: tuple[Path, Path] | None = None) -> Broker:
         directory = tmp_path / f"broker{len(started)}"
         directory.mkdir()
-        started.append(Broker(directory, users))
+        started.append(Broker(directory, users, tls=tls))
         return started[-1]
     yield start
     for one in started:
         one.stop()
 
 
-def mqtt_gateway(simulator, gateway, url: str, **mqtt):
-    sim = simulator(NodeSettings(76, stream="accel_angrate"), NodeSettings(77, stream="euler"))
+def mqtt_gateway(simulator, gateway, url: str, sim=None, **mqtt):
+    """A gateway sending to ``url`` on ``sim`` (a new gx2-sim of nodes 76 and 77 if
+    None), its nodes streaming."""
+    sim = sim or simulator(NodeSettings(76, stream="accel_angrate"),
+                           NodeSettings(77, stream="euler"))
     gw = gateway(sim.path, NODES, mqtt={"url": url, "prefix": "site", "name": "hall", **mqtt},
                  metrics={})
     gw.wait_streaming(76, 77)
@@ -208,6 +214,39 @@ def test_the_right_credentials_are_let_in(simulator, gateway, broker) -> None:
                  "records")
     finally:
         listener.close()
+
+
+def certificate(directory: Path, name: str) -> tuple[Path, Path]:
+    """A self-signed certificate for 127.0.0.1 and its key (openssl(1))."""
+    openssl = shutil.which("openssl")
+    if openssl is None:
+        pytest.skip("openssl is not installed")
+    cert, key = directory / f"{name}.crt", directory / f"{name}.key"
+    subprocess.run([openssl, "req", "-x509", "-newkey", "EC", "-pkeyopt",
+                    "ec_paramgen_curve:P-256", "-nodes", "-keyout", str(key), "-out",
+                    str(cert), "-days", "1", "-subj", "/CN=127.0.0.1", "-addext",
+                    "subjectAltName=IP:127.0.0.1"], check=True, capture_output=True,
+                   timeout=30)
+    return cert, key
+
+
+def test_mqtts_connects_to_a_broker_its_ca_vouches_for_and_no_other(
+        simulator, gateway, broker, tmp_path: Path) -> None:
+    cert, key = certificate(tmp_path, "broker")
+    stranger, _ = certificate(tmp_path, "stranger")
+    mosquitto = broker(tls=(cert, key))
+    sim = simulator(NodeSettings(76, stream="accel_angrate"), NodeSettings(77, stream="euler"))
+    gw = mqtt_gateway(simulator, gateway, mosquitto.url, sim, tls_ca=str(cert))
+    said = wait_for(lambda: (s := gw.status()["mqtt"])["sent"] > 100 and s, 10,
+                    "records sent over TLS")
+    assert said["connected"] is True and said["error"] is None
+    gw.terminate()
+
+    refused = mqtt_gateway(simulator, gateway, mosquitto.url, sim, tls_ca=str(stranger))
+    said = wait_for(lambda: (s := refused.status()["mqtt"])["error"] and s, 10,
+                    "the certificate refused")
+    assert said["connected"] is False and said["sent"] == 0, said
+    assert "certificate" in refused.log().lower()
 
 
 @pytest.mark.parametrize(("url", "said"), [

@@ -28,16 +28,19 @@ class Broker:
     port (a broker restarted mid-stream)."""
 
     def __init__(self, directory: Path, users: dict[str, str] | None = None,
-                 port: int | None = None) -> None:
+                 port: int | None = None, tls: tuple[Path, Path] | None = None) -> None:
+        """``tls``: a PEM certificate and its key, served on the port (mqtts://)."""
         assert MOSQUITTO is not None, "mosquitto is not installed"
         self.port = port or free_port()
-        self.url = f"mqtt://127.0.0.1:{self.port}"
+        self.url = f"{'mqtts' if tls else 'mqtt'}://127.0.0.1:{self.port}"
         self.directory = directory
         lines = [f"listener {self.port} 127.0.0.1", "persistence false",
                  "log_dest stderr", "log_type error", "log_type warning",
                  # started as root it would become the user mosquitto, who cannot read
                  # the test's files (its password file); as anyone else this is ignored
                  f"user {getpass.getuser()}"]
+        if tls:
+            lines += [f"certfile {tls[0]}", f"keyfile {tls[1]}"]
         if users:
             assert MOSQUITTO_PASSWD is not None, "mosquitto_passwd is not installed"
             passwords = directory / "mosquitto.passwd"

@@ -22,6 +22,7 @@ import collections
 import contextlib
 import logging
 import ssl
+import sys
 import threading
 from collections.abc import Mapping
 from typing import Any
@@ -228,7 +229,11 @@ class MqttOutput(Output):
         self._wake.set()
 
     def _on_connect_fail(self, client: Client, userdata: Any) -> None:
-        self._failed(f"cannot connect to {self._host}:{self._port}")
+        # paho calls this inside its ``except OSError``: the error is the one handled
+        error = sys.exc_info()[1]
+        why = (getattr(error, "reason", None) or getattr(error, "strerror", None)
+               or str(error)) if error is not None else "no reason given"
+        self._failed(f"cannot connect to {self._host}:{self._port}: {why}")
 
     def _on_disconnect(self, client: Client, userdata: Any, flags: Any, reason: Any,
                        properties: Any) -> None:
