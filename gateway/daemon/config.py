@@ -257,6 +257,11 @@ class MqttConfig(Strict):
     """Messages waiting for the broker before new ones are dropped (and counted)."""
     client_id: Annotated[str, Field(min_length=1, max_length=128)] | None = None
     """The MQTT client id: ``gx2-gateway-<name>`` if not given."""
+    homeassistant: bool = False
+    """Announce each node's health, rate, radio losses and RSSI to Home Assistant's MQTT
+    discovery (again whenever Home Assistant says it is online)."""
+    homeassistant_prefix: Annotated[str, AfterValidator(check_prefix)] = "homeassistant"
+    """Home Assistant's discovery prefix (its MQTT integration's setting)."""
 
     @model_validator(mode="before")
     @classmethod

@@ -216,6 +216,34 @@ def test_the_right_credentials_are_let_in(simulator, gateway, broker) -> None:
         listener.close()
 
 
+def test_home_assistant_discovery_announces_each_nodes_sensors_again_when_it_restarts(
+        simulator, gateway, broker) -> None:
+    mosquitto = broker()
+    listener = Listener(mosquitto, "homeassistant/sensor/#")
+    try:
+        mqtt_gateway(simulator, gateway, mosquitto.url, homeassistant=True)
+        configs = wait_for(lambda: len(taken := listener.taken()) >= 8 and taken, 10,
+                           "8 sensors announced")
+        assert len(configs) == 8, [t for t, _, _ in configs]
+        by_topic = {topic: json.loads(payload) for topic, payload, _ in configs}
+        rssi = by_topic["homeassistant/sensor/gx2_hall_76_rssi/config"]
+        assert rssi["state_topic"] == f"{BASE}/status"
+        assert rssi["unit_of_measurement"] == "dBm" and rssi["unique_id"] == "gx2_hall_76_rssi"
+        assert [a["topic"] for a in rssi["availability"]] == [f"{BASE}/availability",
+                                                              f"{BASE}/76/availability"]
+        # each sensor reads a key every node has in the status the gateway retains
+        node = next(n for n in json.loads(retained(mosquitto, f"{BASE}/status"))["nodes"]
+                    if n["node"] == 76)
+        for config in by_topic.values():
+            key = config["value_template"].split("{{ n.")[1].split(" }}")[0]
+            assert key in node, key
+
+        listener.client.publish("homeassistant/status", "online")  # Home Assistant restarted
+        wait_for(lambda: len(listener.taken()) >= 16, 10, "the sensors announced again")
+    finally:
+        listener.close()
+
+
 def certificate(directory: Path, name: str) -> tuple[Path, Path]:
     """A self-signed certificate for 127.0.0.1 and its key (openssl(1))."""
     openssl = shutil.which("openssl")

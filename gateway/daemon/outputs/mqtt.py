@@ -36,6 +36,7 @@ from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC, parse
 from ..config import MQTT_SCHEMES, MqttConfig
 from ..station.nodes import State
 from . import Message, Needs, Output
+from .homeassistant import discovery
 
 log = logging.getLogger("gx2.mqtt")
 
@@ -92,6 +93,10 @@ class MqttOutput(Output):
         """Gateway topic -> (MQTT topic, least seconds between two sent, or None)."""
         self._availability: dict[int, str] = {}
         """Node -> what was last said of it (``online``/``offline``)."""
+        self._names: dict[int, str | None] = {}
+        """Node -> its name, for each node in the status reports."""
+        self._discovery = config.homeassistant_prefix if config.homeassistant else None
+        """Home Assistant's discovery prefix, None without discovery."""
         self.connected = False
         self.connects = 0
         self.sent = 0
@@ -119,6 +124,7 @@ class MqttOutput(Output):
         client.on_connect = self._on_connect
         client.on_connect_fail = self._on_connect_fail
         client.on_disconnect = self._on_disconnect
+        client.on_message = self._on_message
         return client
 
     # -- the loop's side ----------------------------------------------------------------
@@ -166,10 +172,23 @@ class MqttOutput(Output):
             if not isinstance(address, int):
                 continue
             reported.add(address)
+            if address not in self._names:
+                name = as_map(node).get("name")
+                self._names[address] = name if isinstance(name, str) else None
+                self._announce(address)
             self._say(address, "offline" if state in OFFLINE_STATES else "online")
         for address in set(self._availability) - reported:
             self._say(address, "offline")
             del self._availability[address]
+            self._announce(address, removed=True)
+            self._names.pop(address, None)
+
+    def _announce(self, address: int, removed: bool = False) -> None:
+        """A node's sensors to Home Assistant's discovery (an empty config: removed)."""
+        if self._discovery is not None:
+            for topic, config in discovery(self._discovery, self.base, self.config.name,
+                                           address, self._names.get(address)):
+                self._put(topic, b"" if removed else config, True)
 
     def _say(self, address: int, said: str) -> None:
         if self._availability.get(address) != said:
@@ -226,7 +245,17 @@ class MqttOutput(Output):
         for node, said in list(self._availability.items()):
             client.publish(f"{self.base}/{node}/availability", said, qos=WILL_QOS,
                            retain=True)
+        if self._discovery is not None:
+            client.subscribe(f"{self._discovery}/status")
+            for node in list(self._names):
+                self._announce(node)
         self._wake.set()
+
+    def _on_message(self, client: Client, userdata: Any, message: Any) -> None:
+        """Home Assistant's status: ``online`` when it (re)starts: announce again."""
+        if message.payload == b"online":
+            for node in list(self._names):
+                self._announce(node)
 
     def _on_connect_fail(self, client: Client, userdata: Any) -> None:
         # paho calls this inside its ``except OSError``: the error is the one handled
