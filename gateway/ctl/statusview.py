@@ -155,6 +155,17 @@ def status_lines(result: Mapping[str, Any], now: float, width: int | None = None
             f"dropped {cell(recording.get('dropped'))}"
             + (f" (last error: {cell(error)})" if isinstance(error, str) and error else ""),
             *_kept(recording)], width)
+    mqtt = result.get("mqtt")
+    if isinstance(mqtt, Mapping):
+        error = mqtt.get("error")
+        dropped = as_map(mqtt.get("dropped"))
+        lines += items_line("mqtt", [
+            f"{cell(mqtt.get('url'))} {cell(mqtt.get('topic'))}/",
+            "connected" if mqtt.get("connected") is True else "not connected"
+            + (f" ({cell(error)})" if isinstance(error, str) and error else ""),
+            f"sent {cell(mqtt.get('sent'))}",
+            f"dropped {cell(dropped.get('queue'))} (queue full), "
+            f"{cell(dropped.get('offline'))} (broker away)"], width)
     replay = result.get("replay")
     if isinstance(replay, Mapping):
         lines += items_line("replay", [

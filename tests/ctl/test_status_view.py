@@ -123,3 +123,17 @@ def test_a_long_port_cut_to_the_width_keeps_the_state_and_why() -> None:
     at = next(i for i, line in enumerate(lines) if line.startswith("link "))
     assert lines[at].startswith("link     /dev/serial/by-id/") and lines[at].endswith("…")
     assert lines[at + 1].strip().startswith("down for 1 min 05 s (No such file or directory)")
+
+
+def test_the_mqtt_output_is_a_line_saying_whether_it_is_connected_and_what_it_dropped(
+        ) -> None:
+    said = {**TWO, "mqtt": {"url": "mqtt://broker:1883", "topic": "gx2/hall",
+                            "connected": False, "error": "the broker refused the "
+                            "connection: Not authorized", "sent": 1200,
+                            "dropped": {"queue": 3, "offline": 450}}}
+    lines = status_lines(said, NOW, None)
+    line = next(line for line in lines if line.startswith("mqtt"))
+    assert line == ("mqtt     mqtt://broker:1883 gx2/hall/, not connected (the broker "
+                    "refused the connection: Not authorized), sent 1200, dropped 3 (queue "
+                    "full), 450 (broker away)"), line
+    assert not any(line.startswith("mqtt") for line in status_lines(TWO, NOW, None))
