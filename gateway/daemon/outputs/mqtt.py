@@ -285,7 +285,7 @@ class MqttOutput(Output):
         self._closing.set()
         self._wake.set()
         if self.connected:
-            for node in self._availability:
+            for node in list(self._availability):  # (the loop may still report)
                 self.client.publish(f"{self.base}/{node}/availability", "offline",
                                     qos=WILL_QOS, retain=True)
             said = self.client.publish(f"{self.base}/availability", "offline",
