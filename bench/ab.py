@@ -23,7 +23,10 @@ in a process of its own whose imports come from one tree or the other, in turn:
    runs ``lsl:`` and an inlet in a process of its own pulls every stream (as
    LabRecorder does), the whole run in a private network namespace with only the
    loopback up (tests/helpers/lslnet.py: LSL's multicast never leaves the machine; as
-   root).
+   root); with ``--mqtt``, B sends to a mosquitto this script starts on a free
+   loopback port (``--mqtt-rate-hz N``: with ``rate_hz: N``), subscribed to by nobody,
+   as a broker forwarding to nothing costs the gateway the same as one with
+   subscribers.
 
 The pipeline measures A then B (the order alternates each round, so neither side always
 goes first); the table gives each round's figures and the median of the rounds' B/A
@@ -33,6 +36,7 @@ ratios, so a neighbour that slows the machine for a while slows both sides of a 
 from __future__ import annotations
 
 import argparse
+import atexit
 import os
 import statistics
 import subprocess
@@ -48,6 +52,7 @@ from benchutil import REPO, cpu_ns, free_port
 
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
+from tests.helpers.broker import Broker
 
 PIPELINE = r'''
 import asyncio, inspect, multiprocessing, sys, time
@@ -154,7 +159,8 @@ while True:
 
 def saturated_cpu(trees: dict[str, Path], seconds: float, record: bool,
                   metrics: bool = False, live: bool = False,
-                  lsl: bool = False) -> dict[str, float]:
+                  lsl: bool = False, mqtt: dict[str, object] | None = None
+                  ) -> dict[str, float]:
     """Each tree's gateway on a simulator of its own (this tree's), all at once, so
     that they share whatever the machine is doing: % of one core over ``seconds``,
     from the kernel's nanosecond count of each process's threads."""
@@ -181,6 +187,8 @@ def saturated_cpu(trees: dict[str, Path], seconds: float, record: bool,
                 config["lsl"] = {"prefix": "ab"}
                 inlets.append(subprocess.Popen([sys.executable, "-c", INLET, "ab",
                                                 str(len(nodes))]))
+            if mqtt and side == "B":
+                config["mqtt"] = mqtt
             (work / "nodes.yaml").write_text(yaml.safe_dump(config))
             sim = Simulator(nodes, link=work / "gx2").start()
             started.append((side, sim, subprocess.Popen(
@@ -254,10 +262,21 @@ def main() -> int:
     parser.add_argument("--lsl", action="store_true",
                         help="B runs lsl:, an inlet pulling every stream (A does not); "
                         "all in a private network namespace (root)")
+    parser.add_argument("--mqtt", action="store_true",
+                        help="B sends to a local mosquitto this script starts (A does not)")
+    parser.add_argument("--mqtt-rate-hz", type=float,
+                        help="with --mqtt: B's mqtt.rate_hz (every record)")
     parser.add_argument("--skip-pipeline", action="store_true")
     args = parser.parse_args()
     if args.lsl and NAMESPACED not in os.environ:
         return in_lsl_namespace()
+    mqtt: dict[str, object] | None = None
+    if args.mqtt:
+        broker = Broker(Path(tempfile.mkdtemp(prefix="gx2-ab-broker-")))
+        atexit.register(broker.stop)
+        mqtt = {"url": broker.url, "name": "ab"}
+        if args.mqtt_rate_hz:
+            mqtt["rate_hz"] = args.mqtt_rate_hz
     base_rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", args.base],
                               capture_output=True, text=True, check=True).stdout.strip()
     head_rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short",
@@ -278,7 +297,7 @@ def main() -> int:
                     got = {side: pipeline(trees[side], args.packets) for side in order}
                     rows["pipeline"].append((got["A"], got["B"]))
                 got = saturated_cpu(trees, args.seconds, args.record, args.metrics,
-                                    args.live, args.lsl)
+                                    args.live, args.lsl, mqtt)
                 rows["cpu"].append((got["A"], got["B"]))
                 print(f"round {round_ + 1}: " + ", ".join(
                     f"{name} A {a:,.1f} B {b:,.1f}" for name, values in rows.items()
@@ -291,7 +310,8 @@ def main() -> int:
           f"{', B records' if args.record else ''}"
           f"{', B serves metrics scraped every second' if args.metrics else ''}"
           f"{', B serves the live view (no viewer)' if args.live else ''}"
-          f"{', B runs lsl: with an inlet pulling every stream' if args.lsl else ''}; "
+          f"{', B runs lsl: with an inlet pulling every stream' if args.lsl else ''}"
+          f"{f', B sends to MQTT ({mqtt})' if mqtt else ''}; "
           f"{args.rounds} interleaved rounds")
     print("| measure | A, each round | B, each round | B / A (median of rounds) |")
     print("|---|---|---|---|")

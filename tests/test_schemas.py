@@ -130,7 +130,8 @@ def test_the_gateways_own_schemas_are_valid_and_name_their_keys() -> None:
     for schema in (status, mark):
         Draft202012Validator.check_schema(schema)
     assert set(status["properties"]) == {"gateway", "link", "stations", "nodes", "recording",
-                                          "replay", "live", "lsl", "outputs"}
+                                          "replay", "live", "lsl", "outputs",
+                                          "mqtt"}
     assert types(status["properties"]["recording"]) == {"object", "null"}
     assert set(mark["required"]) == {"text", "time", "nodes", "host_time"}
 

@@ -179,6 +179,9 @@ def status_schema() -> Schema:
                           "endpoint, viewers and channels; null without live:"),
             "lsl": _part(["object", "null"], "the Lab Streaming Layer outlets: their "
                          "streams, samples pushed, queued, dropped; null without lsl:"),
+            "mqtt": _part(["object", "null"], "the MQTT output: its broker, whether it is "
+                          "connected (and why not), messages sent, dropped (queue, "
+                          "offline) and thinned by rate_hz; null without mqtt:"),
             "outputs": {"type": "object", "additionalProperties": _part(
                 "object", "one output: take_failures, the messages it failed to take (a "
                 "bug, contained: every other output still got them)", ("take_failures",),

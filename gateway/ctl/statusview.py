@@ -209,6 +209,17 @@ def heading_lines(result: Mapping[str, Any], now: float, width: int | None) -> l
             f"{cell(count)} stream{'' if count == 1 else 's'}",
             f"pushed {cell(lsl.get('pushed'))}", f"dropped {cell(lsl.get('dropped'))}"],
             width)
+    mqtt = result.get("mqtt")
+    if isinstance(mqtt, Mapping):
+        error = mqtt.get("error")
+        dropped = as_map(mqtt.get("dropped"))
+        lines += items_line("mqtt", [
+            f"{cell(mqtt.get('url'))} {cell(mqtt.get('topic'))}/",
+            "connected" if mqtt.get("connected") is True else "not connected"
+            + (f" ({cell(error)})" if isinstance(error, str) and error else ""),
+            f"sent {cell(mqtt.get('sent'))}",
+            f"dropped {cell(dropped.get('queue'))} (queue full), "
+            f"{cell(dropped.get('offline'))} (broker away)"], width)
     replay = result.get("replay")
     if isinstance(replay, Mapping):
         lines += items_line("replay", [

@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import os
 import re
+import socket
 from pathlib import Path
 from typing import Annotated, Any
+from urllib.parse import urlsplit
 
 from pydantic import (
     AfterValidator,
@@ -221,6 +223,108 @@ class LslConfig(Strict):
         return value
 
 
+MQTT_SCHEMES = {"mqtt": 1883, "mqtts": 8883}
+"""The schemes of ``mqtt.url`` and each one's default port (mqtts: TLS)."""
+MQTT_LEVEL = r"^[^/+#\x00]+$"
+"""One level of an MQTT topic: no separator, no wildcard."""
+
+
+def check_mqtt_url(url: str) -> str:
+    """``mqtt://HOST[:PORT]`` or ``mqtts://HOST[:PORT]``; ValueError (one line) if not."""
+    parts = urlsplit(url)
+    if parts.scheme not in MQTT_SCHEMES:
+        raise ValueError(f"{url!r}: the scheme is {parts.scheme or 'missing'!r}; "
+                         "give mqtt://HOST:PORT or mqtts://HOST:PORT")
+    try:
+        port = parts.port
+    except ValueError:
+        raise ValueError(f"{url!r}: the port is not a number in 1..65535") from None
+    if not parts.hostname or port == 0 or parts.path not in ("", "/") or parts.query \
+            or parts.username is not None:
+        raise ValueError(f"{url!r}: give mqtt://HOST:PORT (no path, query or user: the "
+                         "user is mqtt.username)")
+    return url
+
+
+def check_prefix(prefix: str) -> str:
+    """Topic levels joined by ``/``, none empty, no wildcard."""
+    if not all(re.match(MQTT_LEVEL, level) for level in prefix.split("/")):
+        raise ValueError(f"{prefix!r}: topic levels joined by '/', none empty, without "
+                         "'+' or '#'")
+    return prefix
+
+
+class MqttConfig(Strict):
+    """The MQTT output (docs/site.md): records as JSON, the status and availability,
+    to a broker the site runs."""
+
+    url: Annotated[str, AfterValidator(check_mqtt_url)]
+    """``mqtt://HOST:PORT`` (1883 if no port) or ``mqtts://HOST:PORT`` (TLS, 8883)."""
+    prefix: Annotated[str, AfterValidator(check_prefix)] = "gx2"
+    name: Annotated[str, Field(pattern=MQTT_LEVEL, max_length=64,
+                               default_factory=socket.gethostname)]
+    """The gateway's topic level (``<prefix>/<name>/...``): the host's name if not given."""
+    username: Annotated[str, Field(min_length=1)] | None = None
+    password: str | None = None
+    tls_ca: Annotated[str, Field(min_length=1)] | None = None
+    """PEM certificates the broker's is checked against (mqtts://); the system's if not
+    given."""
+    tls_cert: Annotated[str, Field(min_length=1)] | None = None
+    """A PEM client certificate, for a broker that asks for one (with tls_key)."""
+    tls_key: Annotated[str, Field(min_length=1)] | None = None
+    rate_hz: Annotated[float, Field(gt=0)] | dict[str, Annotated[float, Field(gt=0)]] \
+        | None = None
+    """Records sent at most this often, per node and record: a number for every record,
+    or a map record name -> Hz (records not named go at their full rate). None: every
+    sample."""
+    queue: Annotated[int, Field(ge=100, le=1_000_000)] = 10_000
+    """Messages waiting for the broker before new ones are dropped (and counted)."""
+    client_id: Annotated[str, Field(min_length=1, max_length=128)] | None = None
+    """The MQTT client id: ``gx2-gateway-<name>`` if not given."""
+    homeassistant: bool = False
+    """Announce each node's health, rate, radio losses and RSSI to Home Assistant's MQTT
+    discovery (again whenever Home Assistant says it is online)."""
+    homeassistant_prefix: Annotated[str, AfterValidator(check_prefix)] = "homeassistant"
+    """Home Assistant's discovery prefix (its MQTT integration's setting)."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _pairs(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            if (data.get("tls_cert") is None) != (data.get("tls_key") is None):
+                raise ValueError("tls_cert and tls_key: give both, or neither")
+            if data.get("password") is not None and data.get("username") is None:
+                raise ValueError("password: given without username")
+            url = data.get("url")
+            if (isinstance(url, str) and url.startswith("mqtt://") and any(
+                    data.get(key) is not None for key in ("tls_ca", "tls_cert"))):
+                raise ValueError("tls_ca and tls_cert need an mqtts:// url")
+        return data
+
+    @field_validator("tls_ca", "tls_cert")
+    @classmethod
+    def _cert(cls, path: str | None) -> str | None:
+        return tls.check_cert(path)
+
+    @field_validator("tls_key")
+    @classmethod
+    def _key(cls, path: str | None, info: ValidationInfo) -> str | None:
+        return tls.check_key(path, info.data.get("tls_cert"))
+
+    @field_validator("rate_hz")
+    @classmethod
+    def _records(cls, value: Any) -> Any:
+        if isinstance(value, dict):
+            for record in value:
+                checked(record)
+        return value
+
+    def every_s(self, record: str) -> float | None:
+        """Least seconds of sample time between two records sent (None: every one)."""
+        rate = self.rate_hz.get(record) if isinstance(self.rate_hz, dict) else self.rate_hz
+        return None if rate is None else 1.0 / rate
+
+
 FLOOR_UNSEEN_S = 30.0
 """The default of health.floor_unseen_s: from 30 s unseen, ``time`` may be late by 1 ms
 (aspp.clock.DRIFT_ERROR), the worst error the sample time's targets allow
@@ -294,6 +398,8 @@ class GatewayConfig(Strict):
     metrics: MetricsConfig | None = None
     live: LiveConfig | None = None
     lsl: LslConfig | None = None
+    mqtt: MqttConfig | None = None
+    """Added: the MQTT output (section 9 of the interface)."""
     health: HealthConfig = HealthConfig()
     nodes: list[NodeEntry] | None = None
     """The one station's nodes (with ``base_station:``); :attr:`all_nodes` is every

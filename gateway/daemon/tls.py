@@ -1,5 +1,6 @@
-"""The live view's certificate and key (``live.tls_cert``, ``live.tls_key``), checked
-as the configuration is read: a file foxglove-sdk cannot use fails ``--check`` (exit 2,
+"""The live view's certificate and key (``live.tls_cert``, ``live.tls_key``), and the
+MQTT output's (``mqtt.tls_ca``, ``tls_cert``, ``tls_key``), checked as the
+configuration is read: a file foxglove-sdk cannot use fails ``--check`` (exit 2,
 naming the key), not the start that follows it.
 
 Python's ``ssl`` parses them (OpenSSL): it accepts what the SDK's rustls takes (PEM
@@ -58,8 +59,8 @@ def check_key(path: str | None, cert: str | None) -> str | None:
         ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(cert, path,
                                                                 password=_no_passphrase)
     except _Encrypted:
-        raise ValueError(f"{path}: is encrypted: the live view takes a key without a "
-                         "passphrase") from None
+        raise ValueError(f"{path}: is encrypted: give a key without a passphrase (the "
+                         "gateway starts unattended)") from None
     except OSError as error:
         if not isinstance(error, ssl.SSLError):
             raise ValueError(f"{path}: {error.strerror or error}") from None

@@ -173,3 +173,17 @@ def test_several_gateways_share_one_table_fitted_to_the_width() -> None:
     assert table[a + 1].startswith("-- north (up, line 87%") and "-- ch11" not in table[b + 1]
     assert table[-2:] == ["== hall-c: no answer from hall-c", "hall-a/78 WARN: radio loss 6.0%"]
     assert len({line.index(" streaming ") for line in table if " streaming " in line}) == 1
+
+
+def test_the_mqtt_output_is_a_line_saying_whether_it_is_connected_and_what_it_dropped(
+        ) -> None:
+    said = {**TWO, "mqtt": {"url": "mqtt://broker:1883", "topic": "gx2/hall",
+                            "connected": False, "error": "the broker refused the "
+                            "connection: Not authorized", "sent": 1200,
+                            "dropped": {"queue": 3, "offline": 450}}}
+    lines = status_lines(said, NOW, None)
+    line = next(line for line in lines if line.startswith("mqtt"))
+    assert line == ("mqtt     mqtt://broker:1883 gx2/hall/, not connected (the broker "
+                    "refused the connection: Not authorized), sent 1200, dropped 3 (queue "
+                    "full), 450 (broker away)"), line
+    assert not any(line.startswith("mqtt") for line in status_lines(TWO, NOW, None))

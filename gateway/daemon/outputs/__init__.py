@@ -4,7 +4,7 @@ fan-out that gives each message to each of them.
 An output is one module of this package with a ``make(needs)`` and a row of
 :data:`OUTPUTS`: ZeroMQ (:mod:`.zeromq`), the MCAP recorder (:mod:`.recorder`), the
 Foxglove live view (:mod:`.live`), Prometheus metrics (:mod:`.metrics`), Lab Streaming
-Layer outlets (:mod:`.lsl`). Its life is
+Layer outlets (:mod:`.lsl`), MQTT (:mod:`.mqtt`). Its life is
 the contract of :class:`Output`: built with all it needs (nothing is wired into it
 afterwards), started, given each published message on the loop (``take``: never
 blocks, awaits or raises; an output whose work is slow queues it, bounded, and drops
@@ -123,6 +123,7 @@ OUTPUTS: dict[str, Row] = {
     "live": Row("live", "live", in_status=True),
     "recording": Row("record", "recorder", in_status=True),
     "lsl": Row("lsl", "lsl", in_status=True),
+    "mqtt": Row("mqtt", "mqtt", in_status=True),
 }
 """Every output, by name, in the order they are built: one is built when its section
 is configured, and only then is its module imported (prometheus-client takes 64 ms to

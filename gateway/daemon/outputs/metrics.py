@@ -95,6 +95,13 @@ LSL = (
     ("gx2_lsl_dropped_total", COUNTER, "Samples never pushed (queue full, or liblsl "
      "refused them)", "dropped"),
 )
+MQTT = (
+    ("gx2_mqtt_connects_total", COUNTER, "Connections made to the MQTT broker", "connects"),
+    ("gx2_mqtt_sent_total", COUNTER, "Messages handed to the MQTT broker's connection",
+     "sent"),
+    ("gx2_mqtt_thinned_total", COUNTER, "Records not sent over MQTT by its rate_hz",
+     "thinned"),
+)
 OUTPUT = (
     ("gx2_output_take_failures_total", COUNTER, "Messages an output failed to take (a "
      "bug, contained: the other outputs still got them; the log says what)",
@@ -199,6 +206,17 @@ def families(report: Mapping[str, Any]) -> Iterator[Metric]:
     lsl = report.get("lsl")
     if isinstance(lsl, Mapping):
         yield from _table(LSL, [], [([], lsl)])
+    mqtt = report.get("mqtt")
+    if isinstance(mqtt, Mapping):
+        yield GAUGE("gx2_mqtt_connected", "1 while the MQTT output is connected to its "
+                    "broker", value=float(mqtt.get("connected") is True))
+        yield from _table(MQTT, [], [([], mqtt)])
+        dropped = COUNTER("gx2_mqtt_dropped_total", "Messages the MQTT output dropped: "
+                          "its queue full, or the broker away", labels=["reason"])
+        for reason, count in as_map(mqtt.get("dropped")).items():
+            if (value := number(count)) is not None:
+                dropped.add_metric([str(reason)], value)
+        yield dropped
     yield from _table(OUTPUT, ["output"], [([str(name)], as_map(said)) for name, said
                                            in as_map(report.get("outputs")).items()])
 

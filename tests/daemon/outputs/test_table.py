@@ -45,7 +45,8 @@ def test_a_new_output_in_the_table_is_in_the_status_report_under_its_name(
             fan.publish(76, "accel", {"seq": 1})
             # the outputs not configured say null, as they did before the table
             assert outputs_status(fan) == {"counted": {"taken": 1}, "recording": None,
-                                           "live": None, "lsl": None}
+                                           "live": None, "lsl": None,
+                                           "mqtt": None}
         finally:
             for output in fan.by_name.values():
                 output.close(0.0)

@@ -1,0 +1,60 @@
+"""The MQTT output's own choices, without a broker: what rate_hz lets through, and a
+queue that stays bounded (dropped and counted) when nothing drains it."""
+
+from __future__ import annotations
+
+from gateway.common.topics import STATUS_TOPIC, topic
+from gateway.daemon.config import MqttConfig
+from gateway.daemon.outputs import Message
+from gateway.daemon.outputs.mqtt import MqttOutput, Sampler
+
+
+def test_rate_hz_takes_every_nth_sample_by_sample_time_whatever_the_arrival() -> None:
+    sampler = Sampler()
+    start = 1_700_000_000.0
+    taken = [seq for seq in range(1000)
+             if sampler.due(b"t", 0.1, {"time": start + seq * 0.01,
+                                        # arrivals in bursts, as a busy line delivers
+                                        "host_time": start + (seq // 7) * 0.07 + 0.05})]
+    assert taken == list(range(0, 1000, 10))
+
+
+def test_a_node_whose_time_goes_back_is_sent_at_once() -> None:
+    sampler = Sampler()
+    assert sampler.due(b"t", 1.0, {"time": 100.0})
+    assert not sampler.due(b"t", 1.0, {"time": 100.5})
+    assert sampler.due(b"t", 1.0, {"time": 3.0})  # (a reboot: a new estimate)
+
+
+def test_the_queue_is_bounded_and_what_does_not_fit_is_counted() -> None:
+    output = MqttOutput(MqttConfig(url="mqtt://127.0.0.1:1", name="t", queue=100))
+    for seq in range(150):  # never started: nothing drains it
+        output.take(Message(topic(76, "accel_angrate"), {"seq": seq, "time": float(seq)}))
+    output.take(Message(STATUS_TOPIC, {"gateway": {}}))
+    said = output.status()
+    assert said["queued"] == 100 and said["dropped"] == {"queue": 51, "offline": 0}, said
+    assert said["connected"] is False and said["sent"] == 0
+
+
+def test_topics_are_under_the_prefix_and_name() -> None:
+    output = MqttOutput(MqttConfig(url="mqtts://broker.example", prefix="site/a", name="gw1",
+                                   rate_hz={"euler": 5}))
+    assert output._target(topic(76, "accel_angrate")) == ("site/a/gw1/76/accel_angrate",
+                                                          None)
+    assert output._target(topic(77, "euler")) == ("site/a/gw1/77/euler", 0.2)
+    assert output._target(STATUS_TOPIC) == ("site/a/gw1/status", None)
+    assert output._port == 8883
+
+
+def test_availability_is_said_on_change_and_offline_for_a_node_removed() -> None:
+    output = MqttOutput(MqttConfig(url="mqtt://127.0.0.1:1", name="gw"))
+    output.report({"nodes": [{"node": 76, "state": "streaming"},
+                             {"node": 77, "state": "unreachable"}]})
+    output.report({"nodes": [{"node": 76, "state": "streaming"},
+                             {"node": 77, "state": "unreachable"}]})  # (no change)
+    output.report({"nodes": [{"node": 77, "state": "polled"}]})  # 76 removed by a reload
+    said = [(topic, payload) for topic, payload, retain in output._queue if retain]
+    assert said == [("gx2/gw/76/availability", b"online"),
+                    ("gx2/gw/77/availability", b"offline"),
+                    ("gx2/gw/77/availability", b"online"),
+                    ("gx2/gw/76/availability", b"offline")]
