@@ -16,7 +16,7 @@ import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from aspp.orientation import Quaternion, quaternion_from_euler
+from aspp.orientation import Quaternion, quaternion_from_euler, quaternion_from_matrix
 from aspp.records import ORIENTED
 from gateway.common.topics import frame_topic
 from gateway.recording.files import OutOfRange, message_times, ns
@@ -39,7 +39,12 @@ def child_frame(address: int, name: str | None) -> str:
 
 
 def _of_matrix(payload: Mapping[str, Any]) -> Quaternion:
-    return payload["quaternion"]  # type: ignore[no-any-return]  # (nodes.Node.tally's)
+    """The record's quaternion (Node.tally's), or its matrix's where it has none (a file
+    of messages recorded before records carried one, replayed)."""
+    quaternion = payload.get("quaternion")
+    if quaternion is None:
+        return quaternion_from_matrix(payload["orientation"])
+    return quaternion  # type: ignore[no-any-return]
 
 
 def _of_euler(payload: Mapping[str, Any]) -> Quaternion:

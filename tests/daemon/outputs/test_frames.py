@@ -88,6 +88,11 @@ def test_which_records_give_a_frame_and_its_name() -> None:
     assert frames.maker(76, "euler")({**euler, "yaw": math.nan}) is None  # type: ignore[misc]
     assert frames.maker(76, "euler")({**euler, "time": UNIX * 1e9}) is None  # type: ignore[misc]
     assert frames.maker(76, "euler")({**euler, "roll": None}) is None  # type: ignore[misc]
+    # a matrix record recorded before records carried a quaternion, replayed: its matrix's
+    old = {"orientation": [[0, 1, 0], [-1, 0, 0], [0, 0, 1]], "timer": timer,
+           "host_time": UNIX + 1, "time": UNIX + 0.5}
+    turned = frames.maker(76, "orientation")(old).payload["rotation"]  # type: ignore[misc, union-attr]
+    assert turned == pytest.approx({"x": 0, "y": 0, "z": math.sqrt(0.5), "w": math.sqrt(0.5)})
 
 
 class Publication(Output):
