@@ -3,7 +3,8 @@ what a Foxglove client receives on gx2/<node>/frame holds to Foxglove's FrameTra
 (its JSON Schema as Foxglove publishes it, written out here apart from the gateway's),
 at the sample's instant, turned as the record's quaternion; the recording's frame
 channel read back with the mcap package's reader; ZeroMQ subscribers' topics as they
-were; the records' angles and quaternion in gx2ctl export's tables."""
+were; the records' angles and quaternion in gx2ctl export's tables; a replay making the
+frames afresh, once each."""
 
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from gateway.sim.physics import Motion
 from tests.helpers.ports import free_port
 from tests.helpers.processes import gx2ctl
 from tests.helpers.viewer import Viewer
+from tests.helpers.waiting import wait_for
 
 NUMBER = {"type": "number"}
 FOXGLOVE_FRAME_TRANSFORM = {
@@ -72,7 +74,7 @@ def running(simulator, gateway, tmp_path: Path):
 
 
 def test_a_foxglove_client_gets_each_nodes_frame_and_the_recording_keeps_it(
-        running, tmp_path: Path) -> None:
+        running, gateway, tmp_path: Path) -> None:
     gw = running
     sub = gw.subscribe("gx2/")
     viewer = Viewer(f"ws://{gw.config['live']['endpoint']}")
@@ -153,3 +155,22 @@ def test_a_foxglove_client_gets_each_nodes_frame_and_the_recording_keeps_it(
             "quaternion_z"} <= set(rows[0])
     assert float(rows[0]["quaternion_w"]) == pytest.approx(
         samples[min(samples)]["quaternion"][0], abs=1e-9)
+
+    # replayed, the frames are made afresh from the records, once each (the recorded
+    # frame channels are not played again on top of them)
+    again = tmp_path / "again"
+    replay = gateway(f"replay://{path}?exit=true&speed=0", NODES, wait=False,
+                     record={"directory": str(again)})
+    wait_for(lambda: replay.proc.poll() is not None, 60, "the replay to end (exit=true)")
+    assert replay.proc.returncode == 0, replay.log()
+    (replayed,) = again.glob("*.mcap")
+    with replayed.open("rb") as stream:
+        played = [(channel.topic, json.loads(message.data))
+                  for _, channel, message in make_reader(stream).iter_messages()
+                  if channel.message_encoding == "json"]
+    for topic, record in (("gx2/76/frame", record_topic), ("gx2/77/frame", "gx2/77/euler")):
+        frames = [p for t, p in played if t == topic]
+        assert len(frames) == len([p for t, p in played if t == record]) == len(
+            recorded[topic]), topic
+        assert [f["rotation"] for f in frames] == [
+            json.loads(m.data)["rotation"] for _, _, m in recorded[topic]], topic
