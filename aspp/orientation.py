@@ -52,26 +52,24 @@ def quaternion_from_matrix(m: Matrix) -> Quaternion:
     (the square root that loses no precision); normalised, since a float32 matrix from
     the node is only nearly orthonormal."""
     (m11, m12, m13), (m21, m22, m23), (m31, m32, m33) = m
-    # R = M^T: R11 = m11, R12 = m21, R13 = m31, R21 = m12, ... so R32 - R23 = m23 - m32;
-    # r is 4 times the largest element (w, x, y or z) squared, k a quarter of its
-    # inverse, so every other element is a difference or sum times k
+    # R = M^T: R11 = m11, R12 = m21, R13 = m31, R21 = m12, ... so R32 - R23 = m23 - m32
     trace = m11 + m22 + m33
     if trace >= m11 and trace >= m22 and trace >= m33:
-        r = math.sqrt(max(0.0, 1.0 + trace))
-        k = 0.5 / r if r else 0.0
-        q = (0.5 * r, (m23 - m32) * k, (m31 - m13) * k, (m12 - m21) * k)
+        s = 2.0 * math.sqrt(max(0.0, 1.0 + trace))
+        q = (0.25 * s, (m23 - m32) / s if s else 0.0, (m31 - m13) / s if s else 0.0,
+             (m12 - m21) / s if s else 0.0)
     elif m11 >= m22 and m11 >= m33:
-        r = math.sqrt(max(0.0, 1.0 + m11 - m22 - m33))
-        k = 0.5 / r if r else 0.0
-        q = ((m23 - m32) * k, 0.5 * r, (m21 + m12) * k, (m31 + m13) * k)
+        s = 2.0 * math.sqrt(max(0.0, 1.0 + m11 - m22 - m33))
+        q = ((m23 - m32) / s if s else 0.0, 0.25 * s, (m21 + m12) / s if s else 0.0,
+             (m31 + m13) / s if s else 0.0)
     elif m22 >= m33:
-        r = math.sqrt(max(0.0, 1.0 + m22 - m11 - m33))
-        k = 0.5 / r if r else 0.0
-        q = ((m31 - m13) * k, (m21 + m12) * k, 0.5 * r, (m32 + m23) * k)
+        s = 2.0 * math.sqrt(max(0.0, 1.0 + m22 - m11 - m33))
+        q = ((m31 - m13) / s if s else 0.0, (m21 + m12) / s if s else 0.0, 0.25 * s,
+             (m32 + m23) / s if s else 0.0)
     else:  # (also every comparison with a NaN: it comes out NaN)
-        r = math.sqrt(max(0.0, 1.0 + m33 - m11 - m22))
-        k = 0.5 / r if r else 0.0
-        q = ((m12 - m21) * k, (m31 + m13) * k, (m32 + m23) * k, 0.5 * r)
+        s = 2.0 * math.sqrt(max(0.0, 1.0 + m33 - m11 - m22))
+        q = ((m12 - m21) / s if s else 0.0, (m31 + m13) / s if s else 0.0,
+             (m32 + m23) / s if s else 0.0, 0.25 * s)
     return _unit(q)
 
 
