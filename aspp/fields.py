@@ -118,6 +118,9 @@ MAT3 = FieldType("mat3", "9f", 9, "matrix")
 TEMPS4 = FieldType("4 x u16", "4H", 4, "ints")
 TEXT16 = FieldType("16 chars", "16s", 1, "text")
 TIMER = FieldType("timer", "I", 1, "int")
+QUAT4 = FieldType("quaternion", "4f", 4, "vector")
+"""A quaternion (w, x, y, z): never on the wire, the gateway computes it
+(:data:`aspp.records.DERIVED`)."""
 
 Check = Callable[[str, object], None]
 

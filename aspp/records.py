@@ -24,6 +24,7 @@ from .events import type_strict
 from .fields import (
     F32,
     MAT3,
+    QUAT4,
     TEMPS4,
     TEXT16,
     TIMER,
@@ -225,6 +226,23 @@ _SPECS = (
                 reply=(Field("test_config", U8, "the built-in test configuration "
                              "(BIT bits 2..5)"),), reply_may_run_long=True),
 )
+
+_QUATERNION = Field("quaternion", QUAT4, ": w, x, y, z; unit quaternion of the sensor's "
+                    "orientation in the earth frame (the rotation of M's transpose, as "
+                    "roll, pitch, yaw), w >= 0")
+DERIVED_FROM_MATRIX = (*_EULER, _QUATERNION)
+"""Fields the gateway adds to every record with an orientation matrix, computed from it
+(:mod:`aspp.orientation`), so that a subscriber, PlotJuggler or a table needs no
+conversion: the same roll, pitch, yaw as the node's euler record, and the quaternion."""
+ORIENTED: frozenset[str] = frozenset(
+    spec.name for spec in _SPECS if spec.reply and _ORIENTATION in spec.reply)
+"""The records with an orientation matrix: those that carry DERIVED_FROM_MATRIX."""
+
+
+def derived(spec: CommandSpec) -> tuple[Field, ...]:
+    """The fields the gateway adds to ``spec``'s record as published, after its own."""
+    return DERIVED_FROM_MATRIX if spec.name in ORIENTED else ()
+
 
 BY_CODE: dict[int, CommandSpec] = {spec.code: spec for spec in _SPECS}
 BY_NAME: dict[str, CommandSpec] = {spec.name: spec for spec in _SPECS}

@@ -9,6 +9,7 @@ import math
 import pytest
 from jsonschema import Draft202012Validator, ValidationError
 
+from aspp.frame import encode_reply_packet
 from aspp.records import all_specs, decode, encode
 from gateway.common.jsontext import strict
 from gateway.common.schemas import (
@@ -18,6 +19,8 @@ from gateway.common.schemas import (
     schema_for_topic,
     status_schema,
 )
+from gateway.daemon.config import NodeEntry
+from gateway.daemon.station.nodes import Node
 
 # docs/interface.md, sections 2 and 4: each record's fields, and the kinds they have
 CONTRACT = {
@@ -46,6 +49,11 @@ CONTRACT = {
     "device_id": ("selector", "text"),
     "built_in_test": ("test_config",),
 }
+# section 9: a record with an orientation matrix also carries its angles and quaternion
+FROM_MATRIX = ("roll", "pitch", "yaw", "quaternion")
+for _name, _fields in list(CONTRACT.items()):
+    if "orientation" in _fields:
+        CONTRACT[_name] = (*_fields, *FROM_MATRIX)
 VECTORS = {"raw_accel", "raw_ang_rate", "accel", "ang_rate", "delta_angle", "delta_velocity",
            "mag", "accel_bias", "gyro_bias", "stab_accel", "stab_mag"}
 MATRICES = {"orientation", "orientation_update"}
@@ -71,13 +79,11 @@ def is_float(schema: dict) -> bool:
 
 
 def published(record: str, **fields: object) -> dict:
-    """A record as the gateway publishes it (nodes.Node.tally), then as recorded (JSON:
-    tuples become lists, NaN null)."""
-    decoded = decode(encode(record, **fields))
-    payload = {**decoded.as_dict(), "node": 76, "record": record, "command": decoded.command,
-               "seq": 1, "host_time": 1.7e9, "lqi": 200, "rssi": -60}
-    if decoded.spec.timed:
-        payload.update(device_time=0.5, time=1.7e9 - 0.01)
+    """A record as the gateway publishes it (by nodes.Node.tally itself), then as
+    recorded (JSON: tuples become lists, NaN null)."""
+    raw = encode_reply_packet(76, encode(record, **fields))
+    payload = Node(NodeEntry(address=76)).tally(raw, decode(raw, 7, len(raw) - 4), 1.7e9,
+                                                100.0)
     return strict(payload)
 
 
@@ -115,6 +121,9 @@ def test_a_records_schema_names_every_field_the_contract_publishes(spec) -> None
             assert is_float(field)
         elif name in INTEGERS:
             assert types(field) == {"integer"}
+        elif name == "quaternion":
+            assert field["minItems"] == field["maxItems"] == 4 and is_float(field["items"])
+            assert "w, x, y, z" in field["description"]
         elif name == "temperature":
             assert field["minItems"] == field["maxItems"] == 4
             assert types(field["items"]) == {"integer"}

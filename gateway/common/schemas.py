@@ -1,4 +1,5 @@
-"""JSON Schemas of the published messages: a node's records, the gateway's status, marks.
+"""JSON Schemas of the published messages: a node's records, the gateway's status, marks,
+and a node's frame (Foxglove's own FrameTransform, for the live view and recordings).
 
 A recording's JSON channels each carry one (schema encoding ``jsonschema``): PlotJuggler
 skips a channel without a schema ("Skipping MCAP channel with missing schema",
@@ -19,9 +20,9 @@ from typing import Any
 
 from aspp.fields import U8, Field
 from aspp.frame import MAX_NODE, MIN_NODE
-from aspp.records import BY_NAME, CommandSpec, all_specs
+from aspp.records import BY_NAME, CommandSpec, all_specs, derived
 
-from .topics import MARK_TOPIC, STATUS_TOPIC, parse
+from .topics import MARK_TOPIC, STATUS_TOPIC, is_frame, parse
 
 Schema = dict[str, Any]
 
@@ -101,7 +102,8 @@ def record_schema(spec: CommandSpec) -> Schema:
     ``gx2/<address>/<record>``; ValueError for a command without a reply."""
     if spec.reply is None:
         raise ValueError(f"{spec.name} has no reply: nothing is published for it")
-    properties = {f.name: field_schema(f) for f in spec.reply}
+    added = derived(spec)
+    properties = {f.name: field_schema(f) for f in (*spec.reply, *added)}
     properties["record"] = _described({"type": "string", "const": spec.name},
                                       "the record's name")
     properties["command"] = _described({"type": "integer", "const": spec.code},
@@ -109,7 +111,8 @@ def record_schema(spec: CommandSpec) -> Schema:
     common = _COMMON + (_TIMED if spec.timed else ())
     for name, value, meaning, unit in common:
         properties[name] = _described(value, meaning, unit)
-    required = [*spec.field_names, "record", "command", *(c[0] for c in common)]
+    required = [*spec.field_names, *(f.name for f in added), "record", "command",
+                *(c[0] for c in common)]
     properties["station"] = _STATION  # (not required: a record may come without it)
     return {
         "$schema": DRAFT,
@@ -216,7 +219,7 @@ def record_notes(record: str) -> Notes:
     notes = {name: (meaning, unit) for name, _, meaning, unit in _COMMON + _TIMED}
     spec = BY_NAME.get(record)
     if spec is not None and spec.reply is not None:
-        notes.update((f.name, (_meaning(f), f.unit)) for f in spec.reply)
+        notes.update((f.name, (_meaning(f), f.unit)) for f in (*spec.reply, *derived(spec)))
     return notes
 
 
@@ -249,9 +252,52 @@ def _table() -> dict[str, tuple[str, Schema]]:
     return table
 
 
+FRAME_NAME = "foxglove.FrameTransform"
+"""The schema name by which Foxglove knows a frame transform, whatever its encoding."""
+
+
+def frame_schema() -> Schema:
+    """A node's orientation on gx2/<address>/frame: Foxglove's FrameTransform as its
+    JSON encoding has it (a time as ``sec`` and ``nsec``), so the 3D panel draws it."""
+    def xyz(*axes: str) -> Schema:
+        return {"type": "object", "properties": {a: {"type": "number"} for a in axes},
+                "required": list(axes)}
+    return {
+        "$schema": DRAFT,
+        "title": FRAME_NAME,
+        "description": "A transform between two reference frames in 3D space: a node's "
+                       "orientation (its sensor frame in the earth frame, parent_frame_id) "
+                       "at the sample's time, as gx2-gateway's live view and recordings "
+                       "carry it on gx2/<address>/frame",
+        "type": "object",
+        "properties": {
+            "timestamp": {"type": "object", "description": "Timestamp of transform",
+                          "properties": {"sec": {"type": "integer", "minimum": 0},
+                                         "nsec": {"type": "integer", "minimum": 0,
+                                                  "maximum": 999_999_999}},
+                          "required": ["sec", "nsec"]},
+            "parent_frame_id": {"type": "string", "description": "Name of the parent frame"},
+            "child_frame_id": {"type": "string", "description": "Name of the child frame"},
+            "translation": {**xyz("x", "y", "z"),
+                            "description": "Translation component of the transform"},
+            "rotation": {**xyz("x", "y", "z", "w"),
+                         "description": "Rotation component of the transform"},
+        },
+        "required": ["timestamp", "parent_frame_id", "child_frame_id", "translation",
+                     "rotation"],
+    }
+
+
 def schema_for_topic(topic: str) -> tuple[str, Schema] | None:
     """The name and schema of what is published on ``topic``; None for a topic the
     gateway does not publish (a record it does not know). The schema is shared: do not
     change it."""
+    if is_frame(topic):
+        return FRAME_NAME, _frame()
     node = parse(topic)
     return _table().get(node[1] if node is not None else topic)
+
+
+@cache
+def _frame() -> Schema:
+    return frame_schema()

@@ -1,7 +1,8 @@
 """Publish topics: ``gx2/<address>/<record>`` for a node's records (decimal address,
 no padding, so a subscriber to ``gx2/76/`` gets node 76 and never node 760) and
 ``gx2/gateway/status`` for the gateway's own heartbeat and ``gx2/gateway/mark`` for the
-marks made with ``gx2ctl mark``, which no node topic can equal.
+marks made with ``gx2ctl mark``, which no node topic can equal. ``gx2/<address>/frame``
+is a node's orientation as Foxglove draws it (the live view and recordings only).
 """
 
 from __future__ import annotations
@@ -26,12 +27,34 @@ def node_prefix(node: int) -> str:
     return f"gx2/{node}/"
 
 
-def parse(name: str) -> tuple[int, str] | None:
-    """``(address, record)`` of a node's topic, None for any other."""
+FRAME = "frame"
+"""The last part of a node's frame topic, ``gx2/<address>/frame``: its orientation as
+Foxglove's FrameTransform, in the live view and recordings only (never on ZeroMQ), and
+no record (no ``seq``, none of a record's fields)."""
+
+
+def frame_topic(node: int) -> bytes:
+    return f"gx2/{node}/{FRAME}".encode("ascii")
+
+
+def is_frame(name: str) -> bool:
+    """Whether ``name`` is a node's frame topic."""
+    return name.endswith("/" + FRAME) and parse_node(name) is not None
+
+
+def parse_node(name: str) -> tuple[int, str] | None:
+    """``(address, last part)`` of any topic under a node's ``gx2/<address>/``."""
     parts = name.split("/")
     if len(parts) == 3 and parts[0] == "gx2" and parts[1].isdecimal() and parts[2]:
         return int(parts[1]), parts[2]
     return None
+
+
+def parse(name: str) -> tuple[int, str] | None:
+    """``(address, record)`` of a node's record topic, None for any other (a node's
+    frame topic included: it carries no record)."""
+    found = parse_node(name)
+    return None if found is None or found[1] == FRAME else found
 
 
 STATION_NAME = r"^[A-Za-z0-9][A-Za-z0-9_-]{0,31}$"

@@ -42,6 +42,7 @@ from .errors import StartupError
 from .health import SAMPLE_PERIOD, Health
 from .operations import Operations
 from .outputs import Needs, Output, Outputs, build, close_built
+from .outputs.frames import Frames
 from .reload import Reloader
 from .sd_notify import Notifier
 from .station.replay import ReplayLink
@@ -84,7 +85,8 @@ class Gateway:
         built: dict[str, Output] = {}
         try:
             built = build(Needs(config, self._context, server, self._recording_metadata))
-            self.outputs = Outputs(built)
+            self.outputs = Outputs(built, Frames({node.address: node.name
+                                                  for node in config.all_nodes}))
             replays = ReplayReaders()  # (a recording of several stations: read once)
             self.stations = Stations(
                 Station(station, self.outputs,

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from decimal import ROUND_HALF_EVEN, Decimal
 from typing import Any
 
-from aspp.records import BY_NAME
+from aspp.records import BY_NAME, derived
 from gateway.common.schemas import Notes, mark_notes, record_notes
 
 UNSIGNED = (("uint8", 0xFF), ("uint16", 0xFFFF), ("uint32", 0xFFFF_FFFF))
@@ -49,7 +49,8 @@ def record_columns(record: str, leading: Sequence[str],
     notes = record_notes(record)
     notes["lost_before"] = LOST_BEFORE
     spec = BY_NAME.get(record)
-    types = {f.name: f.type for f in spec.reply} if spec is not None and spec.reply else {}
+    types = ({f.name: f.type for f in (*spec.reply, *derived(spec))}
+             if spec is not None and spec.reply else {})
     columns = [_noted(name, _LEADING_KINDS[name], notes, name) for name in leading]
     for column, field, _ in fields:
         kind = types.get(field)

@@ -3,7 +3,9 @@
 Columns: ``time``, ``host_time``, ``device_time``, ``seq``, ``lost_before``, ``lqi``,
 ``rssi``, then the record's fields in the order of its layout (:mod:`aspp.records`),
 vectors as ``<field>_x/_y/_z``, matrices as ``<field>_11`` .. ``<field>_33`` (row,
-column), a record's list of integers as ``<field>_1`` .. ``<field>_n``. A value a record
+column), a record's list of integers as ``<field>_1`` .. ``<field>_n``; then the fields
+the gateway adds (a matrix's ``roll``, ``pitch``, ``yaw``, and ``quaternion_w`` ..
+``quaternion_z``: :data:`aspp.records.DERIVED_FROM_MATRIX`). A value a record
 does not have (an untimed record's ``time``) or NaN (JSON's null) is an empty cell or a
 null.
 
@@ -36,7 +38,7 @@ from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import IO, Any
 
-from aspp.records import BY_NAME
+from aspp.records import BY_NAME, derived
 from gateway.common.topics import parse
 
 from .columns import Column, mark_columns, record_columns
@@ -64,16 +66,18 @@ def field_columns(record: str, payload: Mapping[str, Any]) -> list[tuple[str, st
     (index -1: the value itself, not an element of it)."""
     spec = BY_NAME.get(record)
     if spec is not None:
-        shapes = [(f.name, f.type.shape, f.type.items) for f in spec.reply]
+        shapes = [(f.name, f.type.shape, f.type.items, f.elements)
+                  for f in (*spec.reply, *derived(spec))]
     else:
-        shapes = [(name, _shape(value), len(value) if isinstance(value, list) else 1)
+        shapes = [(name, _shape(value), len(value) if isinstance(value, list) else 1, ())
                   for name, value in payload.items() if name not in BOOKKEEPING]
     columns: list[tuple[str, str, int]] = []
-    for name, shape, items in shapes:
+    for name, shape, items, elements in shapes:
         if name in BOOKKEEPING:
             continue
         if shape == "vector":
-            columns += [(f"{name}_{axis}", name, i) for i, axis in enumerate(AXES)]
+            columns += [(f"{name}_{axis}", name, i)
+                        for i, axis in enumerate(elements or AXES)]
         elif shape == "matrix":
             columns += [(f"{name}_{cell}", name, i) for i, cell in enumerate(MATRIX)]
         elif shape == "ints":

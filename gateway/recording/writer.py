@@ -80,12 +80,15 @@ class RecordingWriter:
                                  sampled, self.messages)
 
     def message(self, topic: str, payload: Mapping[str, Any],
-                data: bytes | None = None) -> None:
-        """A published message: a node's record, or the gateway's status (``data``:
-        its JSON, if it has been made already); OutOfRange, and nothing written, if its
-        times cannot be recorded (mcap would fail part-way, its statistics already
-        holding them, and then fail to finish the file)."""
-        logged, sampled = (ns(when) for when in message_times(payload))
+                data: bytes | None = None, times: tuple[float, float] | None = None
+                ) -> None:
+        """A published message: a node's record or frame, or the gateway's status
+        (``data``: its JSON, if it has been made already; ``times``: its (logged,
+        sampled) UNIX times, if its payload does not say them as a record's does);
+        OutOfRange, and nothing written, if its times cannot be recorded (mcap would
+        fail part-way, its statistics already holding them, and then fail to finish
+        the file)."""
+        logged, sampled = (ns(when) for when in times or message_times(payload))
         if data is None:
             data = compact_bytes(payload)
         self.messages += 1

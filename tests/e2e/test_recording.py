@@ -17,6 +17,7 @@ import yaml
 from mcap.reader import NonSeekingReader, make_reader
 
 from gateway.common.jsontext import strict
+from gateway.common.topics import parse
 from gateway.recording.reader import read
 from gateway.recording.reports import Reading
 from gateway.sim.node import NodeSettings
@@ -68,9 +69,9 @@ def payloads(entries: list[tuple[str, Any, Any]]) -> dict[tuple[int, int], tuple
 
 
 def node_records(entries: list[tuple[str, Any, Any]]) -> list[tuple[str, dict, Any]]:
-    """(topic, payload, message) of every node record."""
+    """(topic, payload, message) of every node record (a node's frame is none)."""
     return [(topic, json.loads(message.data), message) for topic, message, _ in entries
-            if topic.startswith("gx2/") and topic.split("/")[1].isdecimal()]
+            if parse(topic) is not None]
 
 
 def record_simulator(simulator, gateway, directory: Path, seconds: float, **record: Any):

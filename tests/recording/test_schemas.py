@@ -28,8 +28,11 @@ STATUS, MARK = "gx2/gateway/status", "gx2/gateway/mark"
 
 
 def schema_name(topic: str) -> str:
-    """gx2/76/euler: gx2.euler; gx2/gateway/status: gx2.gateway.status."""
+    """gx2/76/euler: gx2.euler; gx2/gateway/status: gx2.gateway.status; a node's frame,
+    gx2/76/frame: Foxglove's own foxglove.FrameTransform."""
     _, where, what = topic.split("/")
+    if where.isdecimal() and what == "frame":
+        return "foxglove.FrameTransform"
     return f"gx2.{what}" if where.isdecimal() else f"gx2.{where}.{what}"
 
 

@@ -38,6 +38,7 @@ if TYPE_CHECKING:
     from gateway.common.curve import KeyPair
 
     from ..config import GatewayConfig
+    from .frames import Frames
 
 log = logging.getLogger("gx2.outputs")
 
@@ -49,11 +50,15 @@ class Message:
     topic, or the recorder in its thread: the two may race for one message, and then
     both make the same bytes)."""
 
-    __slots__ = ("_json", "payload", "topic")
+    __slots__ = ("_json", "payload", "times", "topic")
 
-    def __init__(self, topic: bytes, payload: dict[str, Any]) -> None:
+    def __init__(self, topic: bytes, payload: dict[str, Any],
+                 times: tuple[float, float] | None = None) -> None:
         self.topic = topic
         self.payload = payload
+        self.times = times
+        """(logged, sampled) UNIX times where the payload does not say them as a
+        record's do (a node's frame); None: ``message_times(payload)``."""
         self._json: bytes | None = None
 
     def json(self) -> bytes:
@@ -189,8 +194,10 @@ class Outputs:
     as they are (it packs msgpack, no JSON): a gateway with no other output makes no
     :class:`Message` at all."""
 
-    def __init__(self, outputs: Mapping[str, Output]) -> None:
+    def __init__(self, outputs: Mapping[str, Output], frames: Frames | None = None) -> None:
         self.by_name = dict(outputs)
+        self._frames = frames
+        """Which records give a node's frame (:mod:`.frames`); None: none does."""
         self._publication: Any = self.by_name["zeromq"]
         """ZeroMQ's output (its send: the message's publication)."""
         publication = self._publication
@@ -204,7 +211,8 @@ class Outputs:
         outputs still got them)."""
         self._logged: set[tuple[str, type[BaseException]]] = set()
         self._topics: dict[tuple[int, str], list[Any]] = {}
-        """(node, record) -> [its topic, messages published on it]."""
+        """(node, record) -> [its topic, messages published on it, what makes its
+        frame (None: it gives none)]."""
         self.reads_reports = any(type(output).report is not Output.report
                                  for output in self.by_name.values())
         """Some output reads the status reports: one is made each second at least."""
@@ -226,7 +234,9 @@ class Outputs:
         key = (node, record)
         entry = self._topics.get(key)
         if entry is None:
-            entry = self._topics[key] = [topic(node, record), 0]
+            frames = self._frames
+            entry = self._topics[key] = [topic(node, record), 0, frames and frames.maker(
+                node, record)]
         # (_give, inlined: one call fewer a record, about 500 instructions of the
         # 85,000 a record takes, bench/instructions.py)
         if self._takes:
@@ -237,15 +247,30 @@ class Outputs:
                     take(message)
                 except Exception as error:  # (one output's bug, contained)
                     self._take_failed(take, message, error)
+            if entry[2] is not None:  # its frame, after it, to the same outputs
+                self._give_frame(entry[2], payload)
         if self._publication.send(entry[0], payload):
             entry[1] += 1
             return True
         return False
 
+    def _give_frame(self, make: Callable[[dict[str, Any]], Message | None],
+                    payload: dict[str, Any]) -> None:
+        """A record's frame (:mod:`.frames`) to the outputs that take messages, not to
+        ZeroMQ (its subscribers' topics are the records')."""
+        frame = make(payload)
+        if frame is None:
+            return
+        for take in self._takes:
+            try:
+                take(frame)
+            except Exception as error:  # (one output's bug, contained)
+                self._take_failed(take, frame, error)
+
     def published(self) -> dict[int, dict[str, int]]:
         """Messages published on each topic: node -> record name -> count."""
         counts: dict[int, dict[str, int]] = {}
-        for (node, record), (_, count) in self._topics.items():
+        for (node, record), (_, count, _) in self._topics.items():
             if count:
                 counts.setdefault(node, {})[record] = count
         return counts

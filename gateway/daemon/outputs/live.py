@@ -1,9 +1,11 @@
 """The live view: a Foxglove WebSocket server (``live:``), so that Foxglove shows the
-signals as they come.
+signals as they come, and each node's orientation in its 3D panel.
 
 It is foxglove-sdk's server (a Rust core, in threads of its own), given every message
 the gateway publishes: a channel per topic as it first appears (a node's records, the
-status, the marks), JSON with the recording's schema (gateway.common.schemas), each
+status, the marks; a node's frame, ``gx2/<address>/frame``, Foxglove's own
+``foxglove.FrameTransform``: :mod:`.frames`), JSON with the recording's schema
+(gateway.common.schemas, where the frame's is Foxglove's JSON Schema of it), each
 message at its sample's instant (recording/files.py, ``message_times``). Nothing on
 the loop waits for a viewer: the SDK keeps a queue per viewer (``backlog`` messages)
 and drops the oldest for one that reads slowly, and a channel no viewer subscribes to
@@ -151,7 +153,7 @@ class LiveServer(Output):
         if channel is None or not channel.has_sinks():
             return
         try:
-            log_time = ns(message_times(message.payload)[1])
+            log_time = ns((message.times or message_times(message.payload))[1])
         except OutOfRange as error:  # (raised here, on the loop, it would end the replay)
             self._refuse(topic, error)
             return

@@ -10,7 +10,7 @@ from collections.abc import Mapping
 from types import ModuleType
 from typing import Any, NamedTuple
 
-from aspp.records import BY_NAME
+from aspp.records import BY_NAME, derived
 from gateway.recording.export import field_columns
 
 STREAM_TYPES: dict[str, str] = {
@@ -30,6 +30,7 @@ CHANNEL_TYPES: dict[str, str] = {
     "mag": "MagneticField", "stab_mag": "MagneticField",
     "orientation": "OrientationMatrix", "orientation_update": "OrientationMatrix",
     "roll": "Orientation", "pitch": "Orientation", "yaw": "Orientation",
+    "quaternion": "OrientationQuaternion",
     "delta_angle": "DeltaAngle", "delta_velocity": "DeltaVelocity",
     "temperature": "Temperature",
 }
@@ -57,11 +58,12 @@ class Channel(NamedTuple):
 
 
 def channels(record: str, payload: Mapping[str, Any]) -> list[Channel]:
-    """A record's channels: its fields' scalars in the record table's order, the timer
-    left out (the link fields and the bookkeeping are no fields of the table)."""
+    """A record's channels: its fields' scalars in the record table's order, then those
+    the gateway adds to a record with a matrix (roll, pitch, yaw, the quaternion), the
+    timer left out (the link fields and the bookkeeping are no fields of the table)."""
     spec = BY_NAME.get(record)
-    units = {f.name: f.unit or UNITLESS for f in spec.reply or ()} if spec is not None \
-        else {}
+    units = {f.name: f.unit or UNITLESS for f in (*(spec.reply or ()), *derived(spec))} \
+        if spec is not None else {}
     return [Channel(column, units.get(field, ""), CHANNEL_TYPES.get(field, field), field,
                     index)
             for column, field, index in field_columns(record, payload)

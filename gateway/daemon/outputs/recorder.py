@@ -277,7 +277,8 @@ class Recorder(Output):
         try:
             if item[0] == QUEUED_MESSAGE:
                 message = item[2]
-                writer.message(item[1].decode(), message.payload, message.json())
+                writer.message(item[1].decode(), message.payload, message.json(),
+                               message.times)
             else:
                 writer.serial(item[1], item[2], item[3], topic=item[4])
         except OSError:

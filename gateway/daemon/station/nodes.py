@@ -18,7 +18,8 @@ from typing import Any, NamedTuple
 
 from aspp.clock import NodeClock
 from aspp.events import LINK_QUALITY
-from aspp.records import Record
+from aspp.orientation import euler_from_matrix, quaternion_from_matrix
+from aspp.records import ORIENTED, Record
 from aspp.timing import (
     BITS_PER_BYTE,
     CLOCK_HZ,
@@ -209,6 +210,10 @@ class Node:
         payload = dict(zip(spec.field_names, record.values),  # noqa: B905
                        node=self.address, record=name, command=spec.code, seq=seq,
                        host_time=host_time, lqi=lqi, rssi=rssi, station=self.station)
+        if name in ORIENTED:  # (its angles and quaternion: aspp.records.DERIVED_FROM_MATRIX)
+            matrix = payload["orientation"]
+            payload["roll"], payload["pitch"], payload["yaw"] = euler_from_matrix(matrix)
+            payload["quaternion"] = quaternion_from_matrix(matrix)
         is_stream = name == self.record
         timer = payload.get("timer")
         if timer is not None:

@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from aspp.records import BY_CODE, BY_NAME, STREAMABLE
+from aspp.records import BY_CODE, BY_NAME, STREAMABLE, derived
 from gateway.daemon.config import LslConfig
 from gateway.daemon.outputs import Message
 from gateway.daemon.outputs.lsl import LslClock, LslOutput
@@ -33,7 +33,8 @@ def test_every_streamable_record_is_a_stream_of_its_scalars_less_the_timer(code:
     spec = BY_CODE[code]
     assert spec.name in STREAM_TYPES
     layout = channels(spec.name, payload_of(spec.name))
-    assert len(layout) == sum(f.type.items for f in spec.reply or () if f.name != "timer")
+    assert len(layout) == sum(f.type.items for f in (*(spec.reply or ()), *derived(spec))
+                              if f.name != "timer")
     assert len({c.label for c in layout}) == len(layout)
     assert all(c.unit for c in layout), layout  # (every streamed field has a unit)
     assert all(c.kind == CHANNEL_TYPES[c.field] for c in layout)
@@ -41,9 +42,12 @@ def test_every_streamable_record_is_a_stream_of_its_scalars_less_the_timer(code:
 
 def test_a_matrix_is_nine_channels_row_major_named_as_export_names_its_columns() -> None:
     layout = channels("orientation", payload_of("orientation"))
-    assert [c.label for c in layout] == [f"orientation_{r}{c}" for r in (1, 2, 3)
-                                         for c in (1, 2, 3)]
-    assert [c.index for c in layout] == list(range(9))
+    assert [c.label for c in layout[:9]] == [f"orientation_{r}{c}" for r in (1, 2, 3)
+                                             for c in (1, 2, 3)]
+    assert [c.index for c in layout[:9]] == list(range(9))
+    # then the angles and the quaternion the gateway adds to a record with a matrix
+    assert [c.label for c in layout[9:]] == ["roll", "pitch", "yaw", "quaternion_w",
+                                             "quaternion_x", "quaternion_y", "quaternion_z"]
 
 
 def test_the_source_id_is_the_same_on_every_start() -> None:
