@@ -105,7 +105,8 @@ def describe(path: Path, whole: bool = True) -> Described:
     """One file: from its summary (and its mark chunks) if it has a whole one, else
     read through. Not ``whole``: its span only, and no mark (what a window of times
     and a read without a window need: the summary, else the chunks' headers; so a
-    file without summary is not read twice)."""
+    file without summary is not read twice), but for a file whose framing breaks
+    (read through: its span past the break is only known so)."""
     described = Described(path, path.stat().st_size if path.exists() else 0)
     index, report = index_of(path)
     reading = Reading()
@@ -116,11 +117,11 @@ def describe(path: Path, whole: bool = True) -> Described:
         if not whole:
             return described
         described.marks = [_marked(entry) for entry in read(path, reading, [MARK])]
-    elif not whole:
-        if not report.skipped:
-            span = walked_span(path)
-            if span is not None:
-                described.start, described.end = span
+    elif not whole and (report.skipped or (walked := walked_span(path)).whole):
+        # (a file whose framing breaks is read through: past the break, the reader
+        # finds messages its chunks' headers could not tell of)
+        if not report.skipped and walked.span is not None:
+            described.start, described.end = walked.span
         return described
     else:
         counts: dict[str, int] = {}

@@ -124,6 +124,13 @@ CHUNK_HEAD = struct.Struct("<QQQII")
 FOOTER_BYTES = RECORD_HEAD.size + 20 + len(MAGIC)
 PRIVATE_OPCODES = 0x80
 """Opcodes from here on are for any writer's own records, skipped by their length."""
+_OPCODES = frozenset(int(opcode) for opcode in Opcode)
+
+
+def known_opcode(opcode: int) -> bool:
+    """An opcode a record can have: where another is found, the framing is broken."""
+    return opcode >= PRIVATE_OPCODES or opcode in _OPCODES
+
 SCAN_BYTES = 1 << 20
 LARGEST_CHUNK = 1 << 30
 """A chunk said to be larger is damaged (ours close at CHUNK_BYTES): not decompressed."""

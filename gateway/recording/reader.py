@@ -23,10 +23,10 @@ from .files import (
     LARGEST_CHUNK,
     MAGIC,
     MESSAGE_HEAD,
-    PRIVATE_OPCODES,
     RECORD_HEAD,
     SCAN_BYTES,
     RecordingError,
+    known_opcode,
     unreadable,
 )
 from .index import ChunkSpan, FileIndex, channel_of, parse
@@ -204,7 +204,7 @@ class _Walk:
             opcode, length = RECORD_HEAD.unpack(head) if len(head) == RECORD_HEAD.size \
                 else (0, 0)
             after = at + RECORD_HEAD.size + length
-            if not _known(opcode) or after > end:
+            if not known_opcode(opcode) or after > end:
                 at = self._resync(at, end, chunk=opcode == Opcode.CHUNK)
                 continue
             if opcode == Opcode.DATA_END:
@@ -343,7 +343,7 @@ class _Walk:
         try:
             while at < len(summary):
                 opcode, length = RECORD_HEAD.unpack_from(summary, at)
-                if not _known(opcode):
+                if not known_opcode(opcode):
                     return False
                 at += RECORD_HEAD.size + length
             index = parse(summary)
@@ -361,7 +361,7 @@ class _Walk:
         while at + RECORD_HEAD.size <= footer:
             opcode, length = RECORD_HEAD.unpack(self._at(at, RECORD_HEAD.size))
             at += RECORD_HEAD.size + length
-            if not _known(opcode) or at > footer:
+            if not known_opcode(opcode) or at > footer:
                 return None
             if opcode == Opcode.DATA_END:
                 return at
@@ -463,7 +463,7 @@ class _Walk:
         if len(head) < RECORD_HEAD.size:
             return False
         opcode, length = RECORD_HEAD.unpack(head)
-        return _known(opcode) and at + RECORD_HEAD.size + length <= end
+        return known_opcode(opcode) and at + RECORD_HEAD.size + length <= end
 
     def _resync(self, at: int, end: int, chunk: bool) -> int:
         """The next chunk after ``at`` that reads, the stretch before it lost; none in a
@@ -510,18 +510,12 @@ class _Walk:
         return self._chunk(self._at(body_at, length)) is not None
 
 
-_OPCODES = frozenset(int(opcode) for opcode in Opcode)
 _INDEX_OFFSET = struct.Struct("<HQ")
 """A chunk index's entry: a channel, and where that channel's message index is."""
 _INDEX_HEAD = struct.Struct("<BQHI")
 """A message index record's head: opcode, length, channel, its entries' byte length."""
 _DATA_END_BYTES = RECORD_HEAD.size + 4
 """A data end record: its head and a CRC."""
-
-
-def _known(opcode: int) -> bool:
-    """An opcode a record can have: where another is found, the framing is broken."""
-    return opcode >= PRIVATE_OPCODES or opcode in _OPCODES
 
 
 def _decompress(compression: str, data: bytes, size: int) -> bytes:

@@ -1,0 +1,50 @@
+"""Windows of recordings at their edges, run as users run them: a file whose framing
+breaks, times no recording can hold, nodes and records the files do not hold, and the
+lines that say what was read."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+from gateway.recording.files import RECORD_HEAD
+from tests.helpers.processes import gx2ctl
+from tests.helpers.recorded import RATE, T0, make_file
+from tests.recording.test_windows import column, iso
+
+CHUNK = 0x06
+
+
+def break_framing(path: Path, nth: int) -> None:
+    """Overwrite the length of the ``nth`` chunk record (from 1): the records after it
+    can only be found by scanning past it."""
+    data = bytearray(path.read_bytes())
+    at, seen = 8, 0
+    while at < len(data):
+        opcode, length = RECORD_HEAD.unpack_from(data, at)
+        if opcode == CHUNK:
+            seen += 1
+            if seen == nth:
+                struct.pack_into("<Q", data, at + 1, 0xFF_FFFF_FFFF)
+                path.write_bytes(bytes(data))
+                return
+        at += RECORD_HEAD.size + length
+    raise AssertionError(f"no chunk {nth} in {path}")
+
+
+def test_a_window_reads_past_broken_framing_and_says_partial(tmp_path: Path) -> None:
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    broken = make_file(folder / "gx2-a.mcap", 0, 15, finish=False)
+    break_framing(broken, 5)  # second 4: seconds 5 to 14 are past it
+    make_file(folder / "gx2-b.mcap", 20, 10)
+    out = tmp_path / "out"
+    ran = gx2ctl("export", str(folder), "--out", str(out), "--from", iso(T0 + 6),
+                 "--to", iso(T0 + 25))
+    assert ran.status == 1, ran.stderr
+    assert "gx2-a.mcap: skipped 1 damaged chunk" in ran.stderr
+    times = column(out / "11_accel_angrate.csv", "host_time")
+    assert len(times) == 9 * RATE + 5 * RATE and min(times) == T0 + 6
+    alone = gx2ctl("export", str(broken), "--out", str(tmp_path / "alone"), "--from", "10")
+    assert alone.status == 1, alone.stderr
+    assert len(column(tmp_path / "alone" / "11_accel_angrate.csv", "host_time")) == 5 * RATE
