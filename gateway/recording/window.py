@@ -17,6 +17,7 @@ from datetime import datetime
 from gateway.common.topics import parse
 
 from .catalogue import Described, Marked, span_of
+from .files import NS_LIMIT
 from .reader import Entry, Span, read
 from .reports import Reading
 
@@ -38,6 +39,9 @@ class Asked:
     trial: int | None = None
     nodes: tuple[int, ...] = ()
     records: tuple[str, ...] = ()
+    names: tuple[str, str, str, str] = ("--from", "--to", "--between-marks", "--trial")
+    """What the user wrote for start, stop, between and trial, as errors name them
+    (a replay URL's keys: from, to, between, trial)."""
 
     @property
     def marked(self) -> bool:
@@ -92,27 +96,32 @@ def _number(text: str) -> float | None:
         return None
 
 
-def _dated(text: str) -> bool:
+def dated(text: str) -> bool:
     """Whether a bound is written as a date (else it names a mark)."""
     return text[:4].isdigit() and text[4:5] == "-"
 
 
 def _named(text: str) -> bool:
-    return _number(text) is None and not _dated(text)
+    return _number(text) is None and not dated(text)
 
 
-def bound(text: str, origin: int | None, marks: list[Marked], end: bool) -> int:
-    """A ``--from``/``--to`` as a log_time (ns): ISO 8601 with a zone, seconds from
-    ``origin`` (the recordings' start), or the first mark with that text."""
-    name = "--to" if end else "--from"
+def bound(text: str, origin: int | None, marks: list[Marked], end: bool,
+          name: str = "") -> int:
+    """A ``--from``/``--to`` (``name``) as a log_time (ns): ISO 8601 with a zone,
+    seconds from ``origin`` (the recordings' start), or the first mark with that text."""
+    name = name or ("--to" if end else "--from")
     seconds = _number(text)
     if seconds is not None:
         if not math.isfinite(seconds) or origin is None:
             raise WindowError(f"{name} {text}: not a time in these recordings")
+        if abs(seconds) * 1e9 >= NS_LIMIT:
+            raise WindowError(f"{name} {text}: seconds from the recordings' start beyond "
+                              "what any recording holds (it ends by 1.8e10 s)")
         return origin + round(seconds * 1e9)
-    if _dated(text):
+    if dated(text):
         try:
-            moment = datetime.fromisoformat(text)
+            # (a lowercase z is UTC's too: 2026-11-25t10:00:00z)
+            moment = datetime.fromisoformat(text[:-1] + "Z" if text.endswith("z") else text)
         except ValueError:
             raise WindowError(f"{name} {text}: not an ISO 8601 time") from None
         if moment.tzinfo is None:
@@ -149,9 +158,10 @@ def windows(asked: Asked, files: list[Described]) -> list[Window]:
     nodes, records = frozenset(asked.nodes), frozenset(asked.records)
     everything = span_of(files)
     marks = _marks(files)
+    name_from, name_to, name_between, name_trial = asked.names
     if asked.between is not None:
         if asked.start or asked.stop:
-            raise WindowError("--between-marks takes the place of --from and --to")
+            raise WindowError(f"{name_between} takes the place of {name_from} and {name_to}")
         found = trials(*asked.between, marks)
         if not found:
             raise WindowError(f"no trial from a mark {asked.between[0]!r} to a mark "
@@ -159,19 +169,20 @@ def windows(asked: Asked, files: list[Described]) -> list[Window]:
         numbered = list(enumerate(found, 1))
         if asked.trial is not None:
             if not 1 <= asked.trial <= len(found):
-                raise WindowError(f"--trial {asked.trial}: there are {len(found)} "
+                raise WindowError(f"{name_trial} {asked.trial}: there are {len(found)} "
                                   f"trial{'s' * (len(found) != 1)} (1 is the first)")
             numbered = [numbered[asked.trial - 1]]
         return [Window(span, nodes, records, _label(n, span)) for n, span in numbered]
     if asked.trial is not None:
-        raise WindowError("--trial picks one of the trials of --between-marks")
+        raise WindowError(f"{name_trial} picks one of the trials of {name_between}")
     if not (asked.start or asked.stop):
         return [Window(None, nodes, records)]
     origin = everything[0] if everything else None
-    start = bound(asked.start, origin, marks, end=False) if asked.start else 0
-    stop = bound(asked.stop, origin, marks, end=True) if asked.stop else 2 ** 64
-    if stop <= start:
-        raise WindowError(f"--to ({when(stop)}) is not after --from ({when(start)})")
+    start = bound(asked.start, origin, marks, False, name_from) if asked.start else 0
+    stop = bound(asked.stop, origin, marks, True, name_to) if asked.stop else 2 ** 64
+    if asked.start and asked.stop and stop <= start:
+        raise WindowError(f"{name_to} ({when(stop)}) is not after {name_from} "
+                          f"({when(start)})")
     if everything is None or stop <= everything[0] or start > everything[1]:
         held = (f"the recordings span {when(everything[0])} to {when(everything[1])}"
                 if everything else "the recordings hold no messages")

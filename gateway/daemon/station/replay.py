@@ -188,7 +188,8 @@ def _window(url: str, files: list[Path], options: dict[str, list[str]]
         if not text.isdecimal() or int(text) < 1:
             raise ValueError(f"{url!r}: trial must be a number from 1, not {text!r}")
         trial = int(text)
-    asked = Asked(last("from"), last("to"), between, trial)
+    asked = Asked(_time(last("from")), _time(last("to")), between, trial,
+                  names=WINDOW_OPTIONS)
     described = catalogue(files, whole=asked.marked)
     try:
         found = windows(asked, described)
@@ -198,6 +199,13 @@ def _window(url: str, files: list[Path], options: dict[str, list[str]]
         raise ValueError(f"{url!r}: {len(found)} trials between those marks: pick one "
                          "with trial=N")
     return [d.path for d in touched(described, found[0])], found[0].span
+
+
+def _time(text: str | None) -> str | None:
+    """A ``from``/``to`` as written: a URL's query reads ``+`` as a space, and in a date
+    a space before its zone's offset can only have been one (12:06:45+01:00)."""
+    from gateway.recording.window import dated
+    return text.replace(" ", "+") if text is not None and dated(text) else text
 
 
 def _playable(topic: str) -> bool:
