@@ -125,6 +125,19 @@ def _windows(args: argparse.Namespace, paths: list[Path]
         raise CtlError(str(error), Exit.USAGE) from None
 
 
+def _check_held(args: argparse.Namespace, files: list[Described]) -> None:
+    """Exit 2 if the files hold none of the nodes and records asked (those the
+    catalogue had not counted, a file without summary, counted now)."""
+    from gateway.recording.catalogue import describe
+    from gateway.recording.window import Asked, WindowError, check_held
+    counted = [d if d.counted else describe(d.path) for d in files]
+    try:
+        check_held(Asked(nodes=tuple(args.nodes), records=tuple(args.records)), counted,
+                   known=True)
+    except WindowError as error:
+        raise CtlError(str(error), Exit.USAGE) from None
+
+
 def run_export(args: argparse.Namespace) -> int:
     from gateway.recording.reports import Reading
     from gateway.recording.window import Reader, touched
@@ -132,12 +145,17 @@ def run_export(args: argparse.Namespace) -> int:
     files, chosen = _windows(args, paths)
     reading = Reading()
     reader = Reader(files, reading)
-    found = 0
+    found = tables = 0
     for window in chosen:
         out = Path(args.out) / window.label if window.label else Path(args.out)
         total = sum(d.bytes for d in touched(files, window))
-        found += _export_window(args, paths, out, reading, reader.entries(window), total)
+        written, marks = _export_window(args, paths, out, reading, reader.entries(window),
+                                        total)
+        found += written + marks
+        tables += written
     status = _report(reading)
+    if not tables and (args.nodes or args.records):
+        _check_held(args, files)
     if not found:
         raise CtlError(f"no node records in {', '.join(args.files)}"
                        + (" in that window" if args.start or args.stop or args.between
@@ -149,8 +167,9 @@ def run_export(args: argparse.Namespace) -> int:
 
 
 def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
-                   reading: Reading, entries: Any, total: int) -> int:
-    """One window's tables written to ``out``, a line each; how many (marks too)."""
+                   reading: Reading, entries: Any, total: int) -> tuple[int, int]:
+    """One window's tables written to ``out``, a line each; how many, and how many
+    marks."""
     from gateway.recording.export import MARKS, MissingExtra, RecordingError, export
     written: list[Path] = []
     try:
@@ -172,7 +191,7 @@ def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
         print(f"{path}  {table.rows:,} rows" + (f" ({apart})" if apart else ""))
     if marks:
         print(f"{out / f'{MARKS}.{args.form}'}  {marks:,} marks")
-    return len(tables) + marks
+    return len(tables), marks
 
 
 def run_plot(args: argparse.Namespace) -> int:

@@ -51,6 +51,9 @@ class Described:
     """Its writer stopped without finishing it: it ends at its last whole chunk."""
     indexed: bool = False
     """Described from its summary, its messages unread (but for its marks)."""
+    counted: bool = True
+    """Its nodes and records are known (False: only its span was asked, and it has no
+    summary to tell them without reading it through)."""
     problem: str = ""
     """The reader's line about it (empty: it read whole)."""
     overlaps: list[Path] = field(default_factory=list)
@@ -122,6 +125,7 @@ def describe(path: Path, whole: bool = True) -> Described:
         # finds messages its chunks' headers could not tell of)
         if not report.skipped and walked.span is not None:
             described.start, described.end = walked.span
+        described.counted = bool(report.skipped)
         return described
     else:
         counts: dict[str, int] = {}

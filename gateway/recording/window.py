@@ -133,6 +133,34 @@ def bound(text: str, origin: int | None, marks: list[Marked], end: bool,
     raise WindowError(f"{name} {text}: no such mark ({_listed(marks)})")
 
 
+def held(files: list[Described]) -> str:
+    """What node records the files hold, for a line: ``node 11: accel_angrate, euler;
+    node 12: ...``."""
+    nodes: dict[int, set[str]] = {}
+    for described in files:
+        for node, records in described.nodes.items():
+            nodes.setdefault(node, set()).update(records)
+    if not nodes:
+        return "they hold no node records"
+    return "they hold " + "; ".join(f"node {node}: {', '.join(sorted(records))}"
+                                    for node, records in sorted(nodes.items()))
+
+
+def check_held(asked: Asked, files: list[Described], known: bool = False) -> None:
+    """WindowError if no file holds a record of the nodes and records asked (told only
+    where every file's are known, or ``known``: the files were read)."""
+    if not (asked.nodes or asked.records):
+        return
+    if not known and not all(d.counted for d in files):
+        return
+    if any((not asked.nodes or node in asked.nodes)
+           and (not asked.records or record in asked.records)
+           for d in files for node, records in d.nodes.items() for record in records):
+        return
+    given = [f"--node {n}" for n in asked.nodes] + [f"--record {r}" for r in asked.records]
+    raise WindowError(f"{' '.join(given)}: not in the recordings ({held(files)})")
+
+
 def trials(start: str, stop: str, marks: list[Marked]) -> list[Span]:
     """Each trial: from a mark ``start`` to the next mark ``stop`` (both held); a
     ``start`` while a trial is open does not start another."""
@@ -155,6 +183,7 @@ def _label(number: int, span: Span) -> str:
 def windows(asked: Asked, files: list[Described]) -> list[Window]:
     """The windows asked of the recordings ``files`` (sorted as the catalogue sorts):
     one, or one per trial; WindowError for one that cannot be taken."""
+    check_held(asked, files)
     nodes, records = frozenset(asked.nodes), frozenset(asked.records)
     everything = span_of(files)
     marks = _marks(files)

@@ -48,3 +48,19 @@ def test_a_window_reads_past_broken_framing_and_says_partial(tmp_path: Path) -> 
     alone = gx2ctl("export", str(broken), "--out", str(tmp_path / "alone"), "--from", "10")
     assert alone.status == 1, alone.stderr
     assert len(column(tmp_path / "alone" / "11_accel_angrate.csv", "host_time")) == 5 * RATE
+
+
+def test_nodes_and_records_the_files_do_not_hold_are_one_line_and_exit_2(
+        tmp_path: Path) -> None:
+    finished = make_file(tmp_path / "gx2-a.mcap", 0, 3)
+    cut = make_file(tmp_path / "gx2-b.mcap", 3, 3, finish=False)
+    holds = "(they hold node 11: accel_angrate; node 12: accel_angrate; node 13: euler)"
+    for files, asked in (([finished], ["--node", "99"]),
+                         ([finished, cut], ["--node", "99"]),  # one told only once read
+                         ([finished], ["--node", "11", "--record", "euler"])):
+        out = tmp_path / "out"
+        ran = gx2ctl("export", *map(str, files), "--out", str(out), *asked)
+        assert ran.status == 2, ran.stderr
+        said = ran.stderr.splitlines()[-1]
+        assert said == f"gx2ctl: {' '.join(asked)}: not in the recordings {holds}"
+        assert not list(out.glob("*_*.csv"))
