@@ -51,6 +51,9 @@ class Described:
     """Its writer stopped without finishing it: it ends at its last whole chunk."""
     indexed: bool = False
     """Described from its summary, its messages unread (but for its marks)."""
+    topics: frozenset[str] | None = None
+    """The topics of its messages (None: not known, a file without summary whose span
+    only was asked)."""
     counted: bool = True
     """Its nodes and records are known (False: only its span was asked, and it has no
     summary to tell them without reading it through)."""
@@ -117,6 +120,7 @@ def describe(path: Path, whole: bool = True) -> Described:
         described.indexed = True
         described.start, described.end = index.start, index.end
         _counted(described, index.topic_counts())
+        described.topics = frozenset(index.channels.values())
         if not whole:
             return described
         described.marks = [_marked(entry) for entry in read(path, reading, [MARK])]
@@ -138,6 +142,7 @@ def describe(path: Path, whole: bool = True) -> Described:
             if entry.topic == MARK:
                 described.marks.append(_marked(entry))
         _counted(described, counts)
+        described.topics = frozenset(counts)
     report = reading.files[0]
     described.damaged = report.partial
     described.cut_short = not report.skipped and not report.whole

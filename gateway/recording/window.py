@@ -231,34 +231,61 @@ def touched(files: list[Described], window: Window) -> list[Described]:
             or (d.end >= span[0] and d.start < span[1])]
 
 
+def _shared(described: Described, later: list[Described]) -> frozenset[str] | None:
+    """The topics of ``described`` a later file that overlaps it may hold again (None:
+    any, a file's topics not being known): only their messages need be remembered."""
+    overlapping = [d for d in later if d.start is None or described.end is None
+                   or d.start <= described.end]
+    if described.topics is None or any(d.topics is None for d in overlapping):
+        return None
+    return described.topics & frozenset().union(*(d.topics for d in overlapping))
+
+
+def _key(entry: Entry) -> int:
+    """A message's log_time and a 64-bit hash of its topic and data, as one integer
+    (under 200 bytes remembered a message, with the set's own, where the message
+    itself took 500): two messages that differ, logged at the same nanosecond, whose
+    hashes are the same, are not met in practice."""
+    return entry.log_time << 64 | hash((entry.topic, entry.data)) & _HASH_BITS
+
+
+_HASH_BITS = (1 << 64) - 1
+
+
 class Reader:
     """Reads windows of the catalogued files ``files`` (sorted by start), dropping
-    each message met again (same topic, log_time and data), and counting them."""
+    each message met again (same topic, log_time and data), and counting them. Only
+    the messages a later file overlapping may hold again are remembered (those after
+    its start, on the topics it holds too), each as a compact key (:func:`_key`)."""
 
     def __init__(self, files: list[Described], reading: Reading) -> None:
         self._files = files
         self._reading = reading
         self.duplicates = 0
+        self.remembered = 0
+        """The most messages remembered at once (to tell duplicates)."""
 
     def entries(self, window: Window) -> Iterator[Entry]:
         chosen = touched(self._files, window)
-        seen: set[tuple[str, int, bytes]] = set()
+        seen: set[int] = set()
         seen_until = -1
         """The last log_time of the files read: a message after it is not met twice."""
         for i, described in enumerate(chosen):
             later = [d.start for d in chosen[i + 1:] if d.start is not None]
             keep_from = min(later) if later else None
+            shared = _shared(described, chosen[i + 1:])
             if described.start is not None:  # nothing before this start comes again
-                seen = {key for key in seen if key[1] >= described.start}
+                seen = {key for key in seen if key >> 64 >= described.start}
             for entry in read(described.path, self._reading, span=window.span):
                 if not window.keeps(entry.topic):
                     continue
-                key = (entry.topic, entry.log_time, entry.data)
-                if entry.log_time <= seen_until and key in seen:
+                if entry.log_time <= seen_until and _key(entry) in seen:
                     self.duplicates += 1
                     continue
-                if keep_from is not None and entry.log_time >= keep_from:
-                    seen.add(key)
+                if keep_from is not None and entry.log_time >= keep_from and (
+                        shared is None or entry.topic in shared):
+                    seen.add(_key(entry))
+                    self.remembered = max(self.remembered, len(seen))
                 yield entry
             if described.end is not None:
                 seen_until = max(seen_until, described.end)

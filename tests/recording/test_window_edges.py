@@ -7,7 +7,13 @@ from __future__ import annotations
 import struct
 from pathlib import Path
 
+from mcap.reader import make_reader
+
+from gateway.recording.catalogue import catalogue
 from gateway.recording.files import RECORD_HEAD
+from gateway.recording.reports import Reading
+from gateway.recording.window import Reader, Window
+from gateway.recording.writer import RecordingWriter
 from tests.helpers.processes import gx2ctl
 from tests.helpers.recorded import RATE, T0, make_file
 from tests.recording.test_windows import column, iso
@@ -64,3 +70,29 @@ def test_nodes_and_records_the_files_do_not_hold_are_one_line_and_exit_2(
         said = ran.stderr.splitlines()[-1]
         assert said == f"gx2ctl: {' '.join(asked)}: not in the recordings {holds}"
         assert not list(out.glob("*_*.csv"))
+
+
+def test_overlapping_files_of_other_nodes_remember_only_what_both_hold(
+        tmp_path: Path) -> None:
+    """Two gateways' files of one hour in one directory: only the topics both hold
+    (the status) are remembered to tell duplicates, not every message of the overlap."""
+    ours = make_file(tmp_path / "gx2-a.mcap", 0, 10)
+    theirs = tmp_path / "gx2-b.mcap"
+    with theirs.open("wb") as output:
+        writer = RecordingWriter(output)
+        for second in range(2, 12):
+            writer.message("gx2/gateway/status", {"gateway": {"time": T0 + second},
+                                                  "nodes": []})
+            for i in range(RATE):
+                writer.message("gx2/21/euler", {"node": 21, "record": "euler", "seq": i,
+                                                "host_time": T0 + second + i / RATE})
+            writer.flush()
+        writer.finish()
+    reader = Reader(catalogue([ours, theirs], whole=False), Reading())
+    read = list(reader.entries(Window()))
+    held = sum(1 for _ in make_reader(ours.open("rb")).iter_messages())
+    # their statuses of seconds 2 to 9 are ours again (the same status, at the same time)
+    assert reader.duplicates == 8 and len(read) == held + 10 * RATE + 2
+    assert reader.remembered == 8  # ours' statuses from 2 s on: the topic both hold
+    twice = Reader(catalogue([ours, ours], whole=False), Reading())
+    assert len(list(twice.entries(Window()))) == held and twice.duplicates == held
