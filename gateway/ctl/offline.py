@@ -114,15 +114,18 @@ def _windows(args: argparse.Namespace, paths: list[Path]
     """The catalogue of the recordings and the windows asked of them (exit 2 for one
     that cannot be taken)."""
     from gateway.recording.catalogue import catalogue
-    from gateway.recording.window import Asked, WindowError, windows
+    from gateway.recording.window import Asked, WindowError, unclosed, windows
     asked = Asked(args.start, args.stop, tuple(args.between) if args.between else None,
                   args.trial, tuple(getattr(args, "nodes", ())),
                   tuple(getattr(args, "records", ())))
     files = catalogue(paths, whole=asked.marked)  # (marks read only when they name it)
     try:
-        return files, windows(asked, files)
+        found = windows(asked, files)
     except WindowError as error:
         raise CtlError(str(error), Exit.USAGE) from None
+    if asked.between is not None and (line := unclosed(asked.between, files)):
+        print(f"{PROG}: {line}", file=sys.stderr, flush=True)
+    return files, found
 
 
 def _check_held(args: argparse.Namespace, files: list[Described]) -> None:
@@ -161,8 +164,10 @@ def run_export(args: argparse.Namespace) -> int:
                        + (" in that window" if args.start or args.stop or args.between
                           else ""), Exit.USAGE)
     if reader.duplicates:
-        print(f"dropped {reader.duplicates:,} duplicate messages (met twice: a file "
-              "given twice, or files that overlap)")
+        print(f"dropped {reader.duplicates:,} duplicate messages, "
+              f"{reader.duplicate_records:,} of them records (rows), the rest statuses, "
+              "marks and serial reads (met twice: a file given twice, or files that "
+              "overlap)")
     return status
 
 

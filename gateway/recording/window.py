@@ -175,6 +175,22 @@ def trials(start: str, stop: str, marks: list[Marked]) -> list[Span]:
     return found
 
 
+def unclosed(between: tuple[str, str], files: list[Described]) -> str:
+    """A line about a trial started and never stopped (the last mark ``start`` with no
+    mark ``stop`` after it: no trial, as trials has it); empty if there is none."""
+    start, stop = between
+    opened: Marked | None = None
+    for mark in _marks(files):
+        if mark.text == start and opened is None:
+            opened = mark
+        elif mark.text == stop:
+            opened = None
+    if opened is None:
+        return ""
+    return (f"the mark {start!r} at {when(opened.log_time)} has no mark {stop!r} after "
+            "it: not a trial")
+
+
 def _label(number: int, span: Span) -> str:
     stamp = time.strftime("%Y-%m-%dT%H-%M-%SZ", time.gmtime(span[0] // 1_000_000_000))
     return f"trial-{number}_{stamp}"
@@ -262,6 +278,9 @@ class Reader:
         self._files = files
         self._reading = reading
         self.duplicates = 0
+        self.duplicate_records = 0
+        """Of them, the nodes' records (a table's rows; the rest are statuses, marks and
+        serial reads)."""
         self.remembered = 0
         """The most messages remembered at once (to tell duplicates)."""
 
@@ -281,6 +300,7 @@ class Reader:
                     continue
                 if entry.log_time <= seen_until and _key(entry) in seen:
                     self.duplicates += 1
+                    self.duplicate_records += parse(entry.topic) is not None
                     continue
                 if keep_from is not None and entry.log_time >= keep_from and (
                         shared is None or entry.topic in shared):

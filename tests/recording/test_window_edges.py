@@ -96,3 +96,14 @@ def test_overlapping_files_of_other_nodes_remember_only_what_both_hold(
     assert reader.remembered == 8  # ours' statuses from 2 s on: the topic both hold
     twice = Reader(catalogue([ours, ours], whole=False), Reading())
     assert len(list(twice.entries(Window()))) == held and twice.duplicates == held
+
+
+def test_a_trial_started_and_never_stopped_is_said(tmp_path: Path) -> None:
+    path = make_file(tmp_path / "gx2-a.mcap", 0, 30)  # start 5, stop 12, start 25
+    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"), "--between-marks",
+                 "start", "stop")
+    assert ran.status == 0, ran.stderr
+    assert ran.stderr == ("gx2ctl: the mark 'start' at 2026-11-18T11:07:05.000Z has no "
+                          "mark 'stop' after it: not a trial\n")
+    assert [p.name for p in (tmp_path / "out").iterdir()] == [
+        "trial-1_2026-11-18T11-06-45Z"]
