@@ -81,7 +81,7 @@ def lines(d: Described) -> list[str]:
     out += [f"    mark {_when(m.log_time)}  {m.text}" for m in d.marks]
     notes = [d.problem] if d.problem else []
     if not d.indexed and not d.problem:
-        notes.append("no summary: read through")
+        notes.append(f"{d.read_through}: read through")
     notes += [f"same as {p}" for p in d.same_as]
     notes += [f"overlaps {p}" for p in d.overlaps]
     out += [f"    note: {note}" for note in notes]

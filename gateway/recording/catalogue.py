@@ -57,6 +57,8 @@ class Described:
     counted: bool = True
     """Its nodes and records are known (False: only its span was asked, and it has no
     summary to tell them without reading it through)."""
+    read_through: str = "no summary"
+    """Why it was read through, where it was (not ``indexed``)."""
     problem: str = ""
     """The reader's line about it (empty: it read whole)."""
     overlaps: list[Path] = field(default_factory=list)
@@ -109,45 +111,54 @@ def _marked(entry: Any) -> Marked:
 
 def describe(path: Path, whole: bool = True) -> Described:
     """One file: from its summary (and its mark chunks) if it has a whole one, else
-    read through. Not ``whole``: its span only, and no mark (what a window of times
-    and a read without a window need: the summary, else the chunks' headers; so a
-    file without summary is not read twice), but for a file whose framing breaks
-    (read through: its span past the break is only known so)."""
+    read through (so is a finished file without statistics, to count its messages).
+    Not ``whole``: its span only, and no mark (what a window of times and a read
+    without a window need: the summary, else the chunks' headers; so a file without
+    summary is not read twice), but for a file whose framing breaks (read through: its
+    span past the break is only known so)."""
     described = Described(path, path.stat().st_size if path.exists() else 0)
     index, report = index_of(path)
     reading = Reading()
-    if index is not None:
+    if index is not None and (index.messages is not None or not whole):
         described.indexed = True
-        described.start, described.end = index.start, index.end
+        described.start, described.end = index.start, index.end  # (or its chunks')
         _counted(described, index.topic_counts())
         described.topics = frozenset(index.channels.values())
+        described.counted = index.messages is not None
         if not whole:
             return described
         described.marks = [_marked(entry) for entry in read(path, reading, [MARK])]
-    elif not whole and (report.skipped or (walked := walked_span(path)).whole):
-        # (a file whose framing breaks is read through: past the break, the reader
-        # finds messages its chunks' headers could not tell of)
-        if not report.skipped and walked.span is not None:
-            described.start, described.end = walked.span
-        described.counted = bool(report.skipped)
-        return described
     else:
-        counts: dict[str, int] = {}
-        for entry in read(path, reading):
-            counts[entry.topic] = counts.get(entry.topic, 0) + 1
-            if described.start is None or entry.log_time < described.start:
-                described.start = entry.log_time
-            if described.end is None or entry.log_time > described.end:
-                described.end = entry.log_time
-            if entry.topic == MARK:
-                described.marks.append(_marked(entry))
-        _counted(described, counts)
-        described.topics = frozenset(counts)
+        if index is not None:
+            described.read_through = "its summary has no statistics (message counts)"
+        elif not whole and (report.skipped or (walked := walked_span(path)).whole):
+            # (a file whose framing breaks is read through: past the break, the
+            # reader finds messages its chunks' headers could not tell of)
+            if not report.skipped and walked.span is not None:
+                described.start, described.end = walked.span
+            described.counted = bool(report.skipped)
+            return described
+        _read_through(described, reading)
     report = reading.files[0]
     described.damaged = report.partial
     described.cut_short = not report.skipped and not report.whole
     described.problem = report.line()
     return described
+
+
+def _read_through(described: Described, reading: Reading) -> None:
+    """Its span, counts and marks, from every message of it."""
+    counts: dict[str, int] = {}
+    for entry in read(described.path, reading):
+        counts[entry.topic] = counts.get(entry.topic, 0) + 1
+        if described.start is None or entry.log_time < described.start:
+            described.start = entry.log_time
+        if described.end is None or entry.log_time > described.end:
+            described.end = entry.log_time
+        if entry.topic == MARK:
+            described.marks.append(_marked(entry))
+    _counted(described, counts)
+    described.topics = frozenset(counts)
 
 
 def catalogue(paths: Iterable[Path], whole: bool = True) -> list[Described]:

@@ -121,6 +121,10 @@ def parse(summary: bytes) -> FileIndex:
             index.chunks.append(ChunkSpan(start, end, offset, chunk_length, offsets))
         at += RECORD_HEAD.size + length
     index.chunks.sort(key=lambda chunk: chunk.offset)
+    if index.messages is None and index.chunks:
+        # no statistics record (another writer's choice): the span is the chunks'
+        index.start = min(chunk.start for chunk in index.chunks)
+        index.end = max(chunk.end for chunk in index.chunks)
     return index
 
 

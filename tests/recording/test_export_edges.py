@@ -4,33 +4,15 @@ typed column holds, and field names MATLAB maps onto each other."""
 from __future__ import annotations
 
 import csv
-import json
 import math
 from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
-from mcap.writer import Writer
 from scipy.io import loadmat
 
 from tests.helpers.processes import gx2ctl
-from tests.recording.test_offline import T0
-
-
-def write(path: Path, entries: list[tuple[str, dict]]) -> Path:
-    """A recording written by another program (the mcap package's writer), each message
-    logged at its ``host_time``: its other times as it gave them."""
-    with path.open("wb") as stream:
-        writer = Writer(stream)
-        writer.start(profile="", library="another")
-        channels: dict[str, int] = {}
-        for topic, payload in entries:
-            if topic not in channels:
-                channels[topic] = writer.register_channel(topic, "json", schema_id=0)
-            at = round(payload["host_time"] * 1e9)
-            writer.add_message(channels[topic], at, json.dumps(payload).encode(), at)
-        writer.finish()
-    return path
+from tests.helpers.recorded import T0, foreign_file
 
 EULER = {"node": 11, "record": "euler", "command": 0xCE, "seq": 0, "host_time": T0,
          "roll": 0.1, "pitch": 0.2, "yaw": 0.3}
@@ -40,7 +22,7 @@ EULER = {"node": 11, "record": "euler", "command": 0xCE, "seq": 0, "host_time": 
                          ids=["ms", "1e10 s", "10**400"])
 def test_a_time_no_typed_column_holds_is_missing_not_a_crash(tmp_path: Path,
                                                              time: float) -> None:
-    path = write(tmp_path / "odd.mcap", [("gx2/11/euler", {**EULER, "time": time}),
+    path = foreign_file(tmp_path / "odd.mcap", [("gx2/11/euler", {**EULER, "time": time}),
                                          ("gx2/11/euler", {**EULER, "seq": 1,
                                                            "time": T0 + 1})])
     for form in ("csv", "parquet", "mat"):
@@ -59,7 +41,7 @@ def test_a_time_no_typed_column_holds_is_missing_not_a_crash(tmp_path: Path,
 def test_mat_keeps_every_column_whose_names_collide(tmp_path: Path) -> None:
     custom = {"node": 11, "record": "custom", "seq": 0, "host_time": T0, "a-b": 1.0,
               "a_b": 2.0, "units": 3.0, "descriptions": "text"}
-    path = write(tmp_path / "names.mcap", [("gx2/11/custom", custom)])
+    path = foreign_file(tmp_path / "names.mcap", [("gx2/11/custom", custom)])
     ran = gx2ctl("export", str(path), "--out", str(tmp_path), "--format", "mat")
     assert ran.status == 0, ran.stderr
     struct = loadmat(tmp_path / "11_custom.mat", simplify_cells=True)["n11_custom"]

@@ -4,6 +4,7 @@ lines that say what was read."""
 
 from __future__ import annotations
 
+import json
 import struct
 from pathlib import Path
 
@@ -15,7 +16,7 @@ from gateway.recording.reports import Reading
 from gateway.recording.window import Reader, Window
 from gateway.recording.writer import RecordingWriter
 from tests.helpers.processes import gx2ctl
-from tests.helpers.recorded import RATE, T0, make_file
+from tests.helpers.recorded import RATE, T0, foreign_file, make_file
 from tests.recording.test_windows import column, iso
 
 CHUNK = 0x06
@@ -107,3 +108,20 @@ def test_a_trial_started_and_never_stopped_is_said(tmp_path: Path) -> None:
                           "mark 'stop' after it: not a trial\n")
     assert [p.name for p in (tmp_path / "out").iterdir()] == [
         "trial-1_2026-11-18T11-06-45Z"]
+
+
+def test_a_finished_file_without_statistics_is_spanned_by_its_chunks(tmp_path: Path) -> None:
+    euler = [("gx2/11/euler", {"node": 11, "record": "euler", "seq": i,
+                               "host_time": T0 + i / RATE}) for i in range(20 * RATE)]
+    path = foreign_file(tmp_path / "other.mcap", euler, use_statistics=False,
+                        chunk_size=4096)
+    listed = gx2ctl("recordings", "--json", str(path))
+    assert listed.status == 0, listed.stderr
+    (described,) = json.loads(listed.stdout)["files"]
+    assert (described["start"], described["end"]) == (T0, T0 + (20 * RATE - 1) / RATE)
+    assert described["nodes"] == {"11": {"euler": 20 * RATE}}
+    out = tmp_path / "out"
+    ran = gx2ctl("export", str(path), "--out", str(out), "--from", "5", "--to", "6")
+    assert ran.status == 0, ran.stderr
+    assert column(out / "11_euler.csv", "host_time") == [T0 + 5 + i / RATE
+                                                        for i in range(RATE)]
