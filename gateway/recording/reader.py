@@ -247,7 +247,11 @@ class _Walk:
         if len(head) < 16:
             return True  # (the walk finds out what is wrong with it)
         start, stop = struct.unpack("<QQ", head)
-        return stop >= self._span[0] and start < self._span[1]
+        if stop >= self._span[0] and start < self._span[1]:
+            return True
+        if start <= stop:  # (what the file holds past the window, for where it ends)
+            self._report.passed = max(stop, self._report.passed or 0)
+        return False
 
     def _indexed(self, end: int, wanted: frozenset[str] | None) -> Iterator[Entry]:
         """The messages of the chunks the index says can hold wanted ones, each

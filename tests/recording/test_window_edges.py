@@ -125,3 +125,12 @@ def test_a_finished_file_without_statistics_is_spanned_by_its_chunks(tmp_path: P
     assert ran.status == 0, ran.stderr
     assert column(out / "11_euler.csv", "host_time") == [T0 + 5 + i / RATE
                                                         for i in range(RATE)]
+
+
+def test_a_window_of_a_file_cut_short_says_where_the_file_ends(tmp_path: Path) -> None:
+    cut = make_file(tmp_path / "gx2-cut.mcap", 0, 10, finish=False)
+    ran = gx2ctl("export", str(cut), "--out", str(tmp_path / "out"), "--from", "0",
+                 "--to", "1")
+    assert ran.status == 0, ran.stderr
+    # its last message (second 9's last record), not the window's
+    assert "ends early after 2026-11-18 11:06:49.960 UTC" in ran.stderr, ran.stderr
