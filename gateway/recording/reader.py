@@ -170,6 +170,10 @@ class _Walk:
         """A chunk passed over unread (outside the span): (offset, length) of its body,
         decompressed after all if its message index names a channel not yet defined
         (a file without summary defines each channel in the chunk that first uses it)."""
+        self._unindexed: list[tuple[int, int]] = []
+        """The chunks passed over whose channels no message index told (another
+        writer's file may have none): decompressed for their channels when a message
+        on a channel not yet defined is met."""
 
     def _at(self, offset: int, size: int) -> bytes:
         self._stream.seek(offset)
@@ -213,6 +217,7 @@ class _Walk:
             if opcode == Opcode.CHUNK and not self._touches(at):
                 self._counting = None
                 self._passed = (at + RECORD_HEAD.size, length)
+                self._unindexed.append(self._passed)
                 at = after  # outside the span: passed over without reading it
                 continue
             if opcode == Opcode.CHUNK:
@@ -424,6 +429,8 @@ class _Walk:
             self._channels[channel] = topic
         elif opcode == Opcode.MESSAGE_INDEX:
             channel, width = struct.unpack_from("<HI", body)
+            if self._unindexed and self._unindexed[-1] == self._passed:
+                self._unindexed.pop()  # (its message indexes tell its channels)
             if self._passed is not None and channel not in self._channels:
                 self._chunk(self._at(*self._passed))  # for its channels only
                 self._passed = None
@@ -437,6 +444,11 @@ class _Walk:
     def _entry(self, channel: int, log_time: int, publish_time: int,
                data: bytes) -> Entry | None:
         topic = self._channels.get(channel)
+        if topic is None and self._unindexed:
+            for passed in self._unindexed:
+                self._chunk(self._at(*passed))  # for its channels only
+            self._unindexed.clear()
+            topic = self._channels.get(channel)
         if topic is None:
             self._report.orphans += 1
             return None

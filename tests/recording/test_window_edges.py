@@ -9,6 +9,7 @@ import struct
 from pathlib import Path
 
 from mcap.reader import make_reader
+from mcap.writer import IndexType, Writer
 
 from gateway.recording.catalogue import catalogue
 from gateway.recording.files import RECORD_HEAD
@@ -134,3 +135,29 @@ def test_a_window_of_a_file_cut_short_says_where_the_file_ends(tmp_path: Path) -
     assert ran.status == 0, ran.stderr
     # its last message (second 9's last record), not the window's
     assert "ends early after 2026-11-18 11:06:49.960 UTC" in ran.stderr, ran.stderr
+
+
+def test_a_window_of_a_file_without_message_indexes_keeps_its_channels(
+        tmp_path: Path) -> None:
+    """Another writer's file, killed (no summary), without message indexes: its only
+    channel defined in its first chunk, which a window from 10 s passes over."""
+    path = tmp_path / "other.mcap"
+    with path.open("wb") as stream:
+        writer = Writer(stream, chunk_size=2000, index_types=IndexType.NONE)
+        writer.start(profile="", library="another")
+        channel = writer.register_channel("gx2/11/euler", "json", schema_id=0)
+        for i in range(20 * RATE):
+            at = T0 + i / RATE
+            writer.add_message(channel, round(at * 1e9), json.dumps(
+                {"node": 11, "record": "euler", "seq": i, "host_time": at}).encode(),
+                round(at * 1e9))
+        stream.flush()  # (not finished: its writer killed)
+    whole = gx2ctl("export", str(path), "--out", str(tmp_path / "whole"))
+    assert whole.status == 0, whole.stderr
+    held = [t for t in column(tmp_path / "whole" / "11_euler.csv", "host_time")
+            if t >= T0 + 10]
+    out = tmp_path / "out"
+    ran = gx2ctl("export", str(path), "--out", str(out), "--from", "10")
+    assert ran.status == 0, ran.stderr
+    assert "channels defined in what was lost" not in ran.stderr
+    assert column(out / "11_euler.csv", "host_time") == held and len(held) > 5 * RATE
