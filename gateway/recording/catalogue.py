@@ -17,7 +17,7 @@ from typing import Any
 
 from gateway.common.topics import default_station_name, parse
 
-from .files import MARK, SERIAL_READS, WRITTEN, is_serial_reads
+from .files import MARK, SERIAL_READS, WRITTEN, being_written, is_serial_reads
 from .index import walked_span
 from .reader import Mark, index_of, read
 from .reports import Reading
@@ -49,6 +49,9 @@ class Described:
     """Something in it could not be read (the reader's report says what)."""
     cut_short: bool = False
     """Its writer stopped without finishing it: it ends at its last whole chunk."""
+    writing: bool = False
+    """A writer has it open (a running gateway's or gx2ctl record's file): it ends at
+    its last flush, and is not cut short."""
     indexed: bool = False
     """Described from its summary, its messages unread (but for its marks)."""
     topics: frozenset[str] | None = None
@@ -57,8 +60,8 @@ class Described:
     counted: bool = True
     """Its nodes and records are known (False: only its span was asked, and it has no
     summary to tell them without reading it through)."""
-    read_through: str = "no summary"
-    """Why it was read through, where it was (not ``indexed``)."""
+    how: str = "no summary: read through"
+    """How it was described, where not from its summary (not ``indexed``)."""
     problem: str = ""
     """The reader's line about it (empty: it read whole)."""
     overlaps: list[Path] = field(default_factory=list)
@@ -73,6 +76,7 @@ class Described:
                 "nodes": {str(node): records for node, records in sorted(self.nodes.items())},
                 "marks": [{"time": mark.time, "text": mark.text} for mark in self.marks],
                 "damaged": self.damaged, "cut_short": self.cut_short,
+                "writing": self.writing,
                 "indexed": self.indexed, "overlaps": [str(p) for p in self.overlaps],
                 "same_as": [str(p) for p in self.same_as]}
 
@@ -109,13 +113,15 @@ def _marked(entry: Any) -> Marked:
     return Marked(mark.time, mark.text, entry.log_time)
 
 
-def describe(path: Path, whole: bool = True) -> Described:
+def describe(path: Path, whole: bool = True, read_writing: bool = True) -> Described:
     """One file: from its summary (and its mark chunks) if it has a whole one, else
     read through (so is a finished file without statistics, to count its messages).
     Not ``whole``: its span only, and no mark (what a window of times and a read
     without a window need: the summary, else the chunks' headers; so a file without
     summary is not read twice), but for a file whose framing breaks (read through: its
-    span past the break is only known so)."""
+    span past the break is only known so). Not ``read_writing``: a file being
+    written is described by its span only too (it may be an hour's data: its counts
+    and marks are known when it is finished)."""
     described = Described(path, path.stat().st_size if path.exists() else 0)
     index, report = index_of(path)
     reading = Reading()
@@ -130,18 +136,24 @@ def describe(path: Path, whole: bool = True) -> Described:
         described.marks = [_marked(entry) for entry in read(path, reading, [MARK])]
     else:
         if index is not None:
-            described.read_through = "its summary has no statistics (message counts)"
-        elif not whole and (report.skipped or (walked := walked_span(path)).whole):
+            described.how = "its summary has no statistics (message counts): read through"
+        elif (not whole or (not read_writing and being_written(path))) and (
+                report.skipped or (walked := walked_span(path)).whole):
             # (a file whose framing breaks is read through: past the break, the
             # reader finds messages its chunks' headers could not tell of)
             if not report.skipped and walked.span is not None:
                 described.start, described.end = walked.span
             described.counted = bool(report.skipped)
+            described.writing = not report.skipped and being_written(path)
+            if described.writing:
+                described.how = ("being written: its span from its chunks' headers (its "
+                                 "counts and marks once it is finished)")
             return described
         _read_through(described, reading)
     report = reading.files[0]
     described.damaged = report.partial
-    described.cut_short = not report.skipped and not report.whole
+    described.writing = report.writing
+    described.cut_short = not report.skipped and not report.whole and not report.writing
     described.problem = report.line()
     return described
 
@@ -161,10 +173,11 @@ def _read_through(described: Described, reading: Reading) -> None:
     described.topics = frozenset(counts)
 
 
-def catalogue(paths: Iterable[Path], whole: bool = True) -> list[Described]:
-    """The files, described (``whole``: see describe), sorted by their start (those
-    holding nothing last), with overlapping and repeated files said."""
-    found = sorted((describe(path, whole) for path in paths),
+def catalogue(paths: Iterable[Path], whole: bool = True, read_writing: bool = True
+              ) -> list[Described]:
+    """The files, described (``whole``, ``read_writing``: see describe), sorted by
+    their start (those holding nothing last), with overlapping and repeated files said."""
+    found = sorted((describe(path, whole, read_writing) for path in paths),
                    key=lambda d: (d.start is None, d.start or 0, str(d.path)))
     for i, one in enumerate(found):
         for other in found[i + 1:]:

@@ -19,12 +19,14 @@ also works on a file whose writer was killed before it finished) gives them in o
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import math
 import struct
 import time
 from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from mcap.opcode import Opcode
 
@@ -154,6 +156,26 @@ def recording_files(paths: Iterable[str | Path]) -> list[Path]:
         else:
             raise RecordingError(f"{path}: no such file or directory")
     return found
+
+
+def claim(output: IO[bytes]) -> None:
+    """Say a file is being written: an advisory lock (flock) held while the writer has
+    it open, which the system releases however the writer ends (a killed writer's file
+    is not taken for one being written). Nothing for an output that is no file."""
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        fcntl.flock(output.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def being_written(path: Path) -> bool:
+    """Whether a writer holds ``path`` open (its claim, above)."""
+    try:
+        with path.open("rb") as stream:
+            fcntl.flock(stream.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+    return False
 
 
 def unreadable(path: Path) -> str:

@@ -26,6 +26,7 @@ from .files import (
     RECORD_HEAD,
     SCAN_BYTES,
     RecordingError,
+    being_written,
     known_opcode,
     unreadable,
 )
@@ -123,6 +124,7 @@ def read(path: Path, reading: Reading, topics: Iterable[str] | None = None,
         except OSError as error:  # the disk failing under the reader
             report.skipped = (f"reading failed after {report.read:,} messages: "
                               f"{error.strerror or error}")
+        report.writing = not report.whole and being_written(path)
     reading.done(report)
 
 

@@ -161,3 +161,29 @@ def test_a_window_of_a_file_without_message_indexes_keeps_its_channels(
     assert ran.status == 0, ran.stderr
     assert "channels defined in what was lost" not in ran.stderr
     assert column(out / "11_euler.csv", "host_time") == held and len(held) > 5 * RATE
+
+
+def test_the_file_a_writer_holds_open_is_being_written_not_cut_short(
+        tmp_path: Path) -> None:
+    path = tmp_path / "gx2-now.mcap"
+    with path.open("wb") as output:
+        writer = RecordingWriter(output)
+        for second in range(5):
+            for i in range(RATE):
+                writer.message("gx2/11/euler", {"node": 11, "record": "euler", "seq": i,
+                                                "host_time": T0 + second + i / RATE})
+            writer.flush()
+        listed = gx2ctl("recordings", "--json", str(path))
+        table = gx2ctl("recordings", str(path))
+        exported = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
+    assert listed.status == 0, listed.stderr
+    (described,) = json.loads(listed.stdout)["files"]
+    assert described["writing"] is True and described["cut_short"] is False
+    assert (described["start"], described["end"]) == (T0, T0 + 4 + (RATE - 1) / RATE)
+    assert "note: being written: its span from its chunks' headers" in table.stdout
+    assert exported.status == 0, exported.stderr
+    assert "being written: its last flush after 2026-11-18 11:06:44.960 UTC" in \
+        exported.stderr and "stopped without warning" not in exported.stderr
+    assert len(column(tmp_path / "out" / "11_euler.csv", "host_time")) == 5 * RATE
+    killed = json.loads(gx2ctl("recordings", "--json", str(path)).stdout)["files"][0]
+    assert killed["writing"] is False and killed["cut_short"] is True
