@@ -73,7 +73,10 @@ def add_commands(commands: Any) -> None:
         "labelled vertical lines. FILE may be a directory of recordings. Needs "
         "gx2-gateway[plot] (matplotlib).")
     plotter.add_argument("file", metavar="FILE.mcap")
-    plotter.add_argument("node", type=node_address, metavar="NODE")
+    plotter.add_argument("node", type=node_address, metavar="NODE", nargs="?",
+                         help="the node (or --node N)")
+    plotter.add_argument("--node", dest="node_option", type=node_address, metavar="N",
+                         help="the node, as export takes it (or NODE)")
     plotter.add_argument("--record", metavar="R",
                          help="the record to draw (default: the one the node has most of)")
     plotter.add_argument("--out", metavar="FILE.png",
@@ -205,6 +208,10 @@ def run_plot(args: argparse.Namespace) -> int:
     from gateway.recording.plot import draw, picture, records_of
     from gateway.recording.reports import Reading
     from gateway.recording.window import Reader
+    if args.node is None or args.node_option not in (None, args.node):
+        if args.node is not None or args.node_option is None:
+            raise CtlError("plot: give one node, as NODE or --node N", Exit.USAGE)
+        args.node = args.node_option
     paths = _files([args.file])
     files, chosen = _windows(args, paths)
     if len(chosen) > 1:

@@ -62,6 +62,7 @@ def check(tmp_path: Path, query: str) -> subprocess.CompletedProcess[str]:
     ("from=1e300", "from 1e300: seconds from the recordings' start beyond"),
     ("from=-1e300", "from -1e300: seconds from the recordings' start beyond"),
     ("from=2&to=1", "to (2026-11-18T11:06:41.000Z) is not after from"),
+    ("node=11", "a replay has no node/record keys: it plays the base station's serial"),
 ])
 def test_a_window_a_replay_cannot_take_is_one_line(tmp_path: Path, query: str,
                                                    said: str) -> None:

@@ -187,3 +187,15 @@ def test_the_file_a_writer_holds_open_is_being_written_not_cut_short(
     assert len(column(tmp_path / "out" / "11_euler.csv", "host_time")) == 5 * RATE
     killed = json.loads(gx2ctl("recordings", "--json", str(path)).stdout)["files"][0]
     assert killed["writing"] is False and killed["cut_short"] is True
+
+
+def test_plot_takes_its_node_as_export_does(tmp_path: Path) -> None:
+    path = make_file(tmp_path / "gx2-a.mcap", 0, 3)
+    out = tmp_path / "11.png"
+    ran = gx2ctl("plot", str(path), "--node", "11", "--out", str(out))
+    assert ran.status == 0, ran.stderr
+    assert out.stat().st_size > 0
+    for asked in ([], ["11", "--node", "12"]):
+        refused = gx2ctl("plot", str(path), *asked, "--out", str(out))
+        assert refused.status == 2
+        assert refused.stderr == "gx2ctl: plot: give one node, as NODE or --node N\n"

@@ -73,6 +73,9 @@ YIELD_EVERY = 200
 DELAY_S = 1.0
 OPTIONS = ("speed", "exit", "delay", "from", "to", "between", "trial")
 WINDOW_OPTIONS = ("from", "to", "between", "trial")
+NOT_FILTERED = ("node", "record")
+"""Export's other window options, which a replay does not take: the serial reads it
+plays are not one node's each but the line's bytes, parsed by the gateway as live."""
 """A window of the recording, as gx2ctl export's --from, --to, --between-marks (here
 ``between=START,STOP``) and --trial take it (:mod:`gateway.recording.window`)."""
 FILE_OF_READS = "serial"
@@ -104,6 +107,11 @@ class Replay:
         except ValueError:
             raise ValueError(f"{url!r}: the query is not name=value pairs") from None
         unknown = sorted(set(options) - set(OPTIONS))
+        if set(unknown) & set(NOT_FILTERED):
+            raise ValueError(f"{url!r}: a replay has no {'/'.join(NOT_FILTERED)} keys: it "
+                             "plays the base station's serial reads, of every node, and "
+                             "the gateway publishes the nodes its configuration lists "
+                             "(list only those under nodes:)")
         if unknown:
             raise ValueError(f"{url!r}: unknown option {unknown[0]!r} "
                              f"({', '.join(OPTIONS)})")
