@@ -258,6 +258,9 @@ class _Walk:
             return True
         if start <= stop:  # (what the file holds past the window, for where it ends)
             self._report.passed = max(stop, self._report.passed or 0)
+            for loss in self._waiting:  # a loss ends where a chunk passed over starts
+                loss.before = start
+            self._waiting.clear()
         return False
 
     def _indexed(self, end: int, wanted: frozenset[str] | None) -> Iterator[Entry]:
@@ -463,7 +466,9 @@ class _Walk:
         return Entry(topic, log_time, publish_time, data, damaged)
 
     def _lost(self, offset: int, size: int, chunk: bool) -> Loss:
-        loss = Loss(offset, size, chunk, after=self._report.last)
+        after = max((t for t in (self._report.last, self._report.passed) if t is not None),
+                    default=None)  # (the chunks passed over held messages up to there)
+        loss = Loss(offset, size, chunk, after=after)
         self._report.losses.append(loss)
         self._waiting.append(loss)
         return loss
