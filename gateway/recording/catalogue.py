@@ -4,8 +4,10 @@ marks (``gx2ctl recordings``; the spans also choose the files a window reads).
 
 A finished file is described from its summary (statistics and chunk indexes); its
 marks are read from the chunks that hold the mark channel only. A file without a whole
-summary (its writer killed, cut short, damaged) is read through, past any damage, as
-export reads it, and says so (``indexed`` false; ``cut_short``, ``damaged``)."""
+summary (its writer killed, cut short, damaged) or without statistics is read through,
+past any damage, as export reads it, and says so (``indexed`` false; ``cut_short``,
+``damaged``); but the file a writer holds open (``writing``) may be described by its
+chunks' headers only, as any file is when only its span is asked."""
 
 from __future__ import annotations
 
