@@ -155,8 +155,10 @@ def run_export(args: argparse.Namespace) -> int:
     for window in chosen:
         out = Path(args.out) / window.label if window.label else Path(args.out)
         total = sum(d.bytes for d in touched(files, window))
+        # (one window of nodes asked that holds none of them: no marks.csv alone either)
+        alone = len(chosen) == 1 and bool(args.nodes or args.records)
         written, marks = _export_window(args, paths, out, reading, reader.entries(window),
-                                        total)
+                                        total, alone)
         found += written + marks
         tables += written
     status = _report(reading)
@@ -175,15 +177,18 @@ def run_export(args: argparse.Namespace) -> int:
 
 
 def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
-                   reading: Reading, entries: Any, total: int) -> tuple[int, int]:
+                   reading: Reading, entries: Any, total: int, tables_only: bool = False
+                   ) -> tuple[int, int]:
     """One window's tables written to ``out``, a line each; how many, and how many
     marks."""
-    from gateway.recording.export import MARKS, MissingExtra, RecordingError, export
+    from gateway.recording.export import MARKS, MissingExtra, NoTables, RecordingError, export
     written: list[Path] = []
     try:
         with ProgressBar(total, sys.stderr.isatty()) as bar:
             tables, marks = export(paths, out, reading, args.form, bar.advance,
-                                   written, entries)
+                                   written, entries, tables_only)
+    except NoTables:
+        return 0, 0
     except MissingExtra as error:
         raise CtlError(str(error), Exit.USAGE) from None
     except RecordingError as error:
