@@ -73,7 +73,10 @@ def add_commands(commands: Any) -> None:
         "labelled vertical lines. FILE may be a directory of recordings. Needs "
         "gx2-gateway[plot] (matplotlib).")
     plotter.add_argument("file", metavar="FILE.mcap")
-    plotter.add_argument("node", type=node_address, metavar="NODE")
+    plotter.add_argument("node", type=node_address, metavar="NODE", nargs="?",
+                         help="the node (or --node N)")
+    plotter.add_argument("--node", dest="node_option", type=node_address, metavar="N",
+                         help="the node, as export takes it (or NODE)")
     plotter.add_argument("--record", metavar="R",
                          help="the record to draw (default: the one the node has most of)")
     plotter.add_argument("--out", metavar="FILE.png|FILE.pdf",
@@ -115,13 +118,29 @@ def _windows(args: argparse.Namespace, paths: list[Path]
     """The catalogue of the recordings and the windows asked of them (exit 2 for one
     that cannot be taken)."""
     from gateway.recording.catalogue import catalogue
-    from gateway.recording.window import Asked, WindowError, windows
+    from gateway.recording.window import Asked, WindowError, unclosed, windows
     asked = Asked(args.start, args.stop, tuple(args.between) if args.between else None,
                   args.trial, tuple(getattr(args, "nodes", ())),
                   tuple(getattr(args, "records", ())))
     files = catalogue(paths, whole=asked.marked)  # (marks read only when they name it)
     try:
-        return files, windows(asked, files)
+        found = windows(asked, files)
+    except WindowError as error:
+        raise CtlError(str(error), Exit.USAGE) from None
+    if asked.between is not None and (line := unclosed(asked.between, files)):
+        print(f"{PROG}: {line}", file=sys.stderr, flush=True)
+    return files, found
+
+
+def _check_held(args: argparse.Namespace, files: list[Described]) -> None:
+    """Exit 2 if the files hold none of the nodes and records asked (those the
+    catalogue had not counted, a file without summary, counted now)."""
+    from gateway.recording.catalogue import describe
+    from gateway.recording.window import Asked, WindowError, check_held
+    counted = [d if d.counted else describe(d.path) for d in files]
+    try:
+        check_held(Asked(nodes=tuple(args.nodes), records=tuple(args.records)), counted,
+                   known=True)
     except WindowError as error:
         raise CtlError(str(error), Exit.USAGE) from None
 
@@ -133,31 +152,44 @@ def run_export(args: argparse.Namespace) -> int:
     files, chosen = _windows(args, paths)
     reading = Reading()
     reader = Reader(files, reading)
-    found = 0
+    found = tables = 0
     for window in chosen:
         out = Path(args.out) / window.label if window.label else Path(args.out)
         total = sum(d.bytes for d in touched(files, window))
-        found += _export_window(args, paths, out, reading, reader.entries(window), total)
+        # (one window of nodes asked that holds none of them: no marks.csv alone either)
+        alone = len(chosen) == 1 and bool(args.nodes or args.records)
+        written, marks = _export_window(args, paths, out, reading, reader.entries(window),
+                                        total, alone)
+        found += written + marks
+        tables += written
     status = _report(reading)
+    if not tables and (args.nodes or args.records):
+        _check_held(args, files)
     if not found:
         raise CtlError(f"no node records in {', '.join(args.files)}"
                        + (" in that window" if args.start or args.stop or args.between
                           else ""), Exit.USAGE)
     if reader.duplicates:
-        print(f"dropped {reader.duplicates:,} duplicate messages (met twice: a file "
-              "given twice, or files that overlap)")
+        print(f"dropped {reader.duplicates:,} duplicate messages, "
+              f"{reader.duplicate_records:,} of them records (rows), the rest statuses, "
+              "marks and serial reads (met twice: a file given twice, or files that "
+              "overlap)")
     return status
 
 
 def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
-                   reading: Reading, entries: Any, total: int) -> int:
-    """One window's tables written to ``out``, a line each; how many (marks too)."""
-    from gateway.recording.export import MARKS, MissingExtra, RecordingError, export
+                   reading: Reading, entries: Any, total: int, tables_only: bool = False
+                   ) -> tuple[int, int]:
+    """One window's tables written to ``out``, a line each; how many, and how many
+    marks."""
+    from gateway.recording.export import MARKS, MissingExtra, NoTables, RecordingError, export
     written: list[Path] = []
     try:
         with ProgressBar(total, sys.stderr.isatty()) as bar:
             tables, marks = export(paths, out, reading, args.form, bar.advance,
-                                   written, entries)
+                                   written, entries, tables_only)
+    except NoTables:
+        return 0, 0
     except MissingExtra as error:
         raise CtlError(str(error), Exit.USAGE) from None
     except RecordingError as error:
@@ -173,7 +205,7 @@ def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
         print(f"{path}  {table.rows:,} rows" + (f" ({apart})" if apart else ""))
     if marks:
         print(f"{out / f'{MARKS}.{args.form}'}  {marks:,} marks")
-    return len(tables) + marks
+    return len(tables), marks
 
 
 def run_plot(args: argparse.Namespace) -> int:
@@ -183,6 +215,10 @@ def run_plot(args: argparse.Namespace) -> int:
     from gateway.recording.plot import picture, records_of
     from gateway.recording.reports import Reading
     from gateway.recording.window import Reader
+    if args.node is None or args.node_option not in (None, args.node):
+        if args.node is not None or args.node_option is None:
+            raise CtlError("plot: give one node, as NODE or --node N", Exit.USAGE)
+        args.node = args.node_option
     if args.out and unwritable(Path(args.out)):
         raise CtlError(f"--out {unwritable(Path(args.out))}", Exit.USAGE)
     paths = _files([args.file])

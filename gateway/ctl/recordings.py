@@ -43,7 +43,7 @@ def run_recordings(args: argparse.Namespace) -> int:
         paths = usable_files(given)
     except RecordingError as error:
         raise CtlError(str(error), Exit.USAGE) from None
-    files = catalogue(paths)
+    files = catalogue(paths, read_writing=False)  # (a file being written: its span)
     if args.json:
         print(json_line({"files": [d.json() for d in files]}), flush=True)
     else:
@@ -81,7 +81,7 @@ def lines(d: Described) -> list[str]:
     out += [f"    mark {_when(m.log_time)}  {m.text}" for m in d.marks]
     notes = [d.problem] if d.problem else []
     if not d.indexed and not d.problem:
-        notes.append("no summary: read through")
+        notes.append(d.how)
     notes += [f"same as {p}" for p in d.same_as]
     notes += [f"overlaps {p}" for p in d.overlaps]
     out += [f"    note: {note}" for note in notes]

@@ -4,8 +4,10 @@ marks (``gx2ctl recordings``; the spans also choose the files a window reads).
 
 A finished file is described from its summary (statistics and chunk indexes); its
 marks are read from the chunks that hold the mark channel only. A file without a whole
-summary (its writer killed, cut short, damaged) is read through, past any damage, as
-export reads it, and says so (``indexed`` false; ``cut_short``, ``damaged``)."""
+summary (its writer killed, cut short, damaged) or without statistics is read through,
+past any damage, as export reads it, and says so (``indexed`` false; ``cut_short``,
+``damaged``); but the file a writer holds open (``writing``) may be described by its
+chunks' headers only, as any file is when only its span is asked."""
 
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ from typing import Any
 
 from gateway.common.topics import default_station_name, parse
 
-from .files import MARK, SERIAL_READS, WRITTEN, is_serial_reads
+from .files import MARK, SERIAL_READS, WRITTEN, being_written, is_serial_reads
 from .index import walked_span
 from .reader import Mark, index_of, read
 from .reports import Reading
@@ -49,8 +51,19 @@ class Described:
     """Something in it could not be read (the reader's report says what)."""
     cut_short: bool = False
     """Its writer stopped without finishing it: it ends at its last whole chunk."""
+    writing: bool = False
+    """A writer has it open (a running gateway's or gx2ctl record's file): it ends at
+    its last flush, and is not cut short."""
     indexed: bool = False
     """Described from its summary, its messages unread (but for its marks)."""
+    topics: frozenset[str] | None = None
+    """The topics of its messages (None: not known, a file without summary whose span
+    only was asked)."""
+    counted: bool = True
+    """Its nodes and records are known (False: only its span was asked, and it has no
+    summary to tell them without reading it through)."""
+    how: str = "no summary: read through"
+    """How it was described, where not from its summary (not ``indexed``)."""
     problem: str = ""
     """The reader's line about it (empty: it read whole)."""
     overlaps: list[Path] = field(default_factory=list)
@@ -65,6 +78,7 @@ class Described:
                 "nodes": {str(node): records for node, records in sorted(self.nodes.items())},
                 "marks": [{"time": mark.time, "text": mark.text} for mark in self.marks],
                 "damaged": self.damaged, "cut_short": self.cut_short,
+                "writing": self.writing,
                 "indexed": self.indexed, "overlaps": [str(p) for p in self.overlaps],
                 "same_as": [str(p) for p in self.same_as]}
 
@@ -101,49 +115,71 @@ def _marked(entry: Any) -> Marked:
     return Marked(mark.time, mark.text, entry.log_time)
 
 
-def describe(path: Path, whole: bool = True) -> Described:
+def describe(path: Path, whole: bool = True, read_writing: bool = True) -> Described:
     """One file: from its summary (and its mark chunks) if it has a whole one, else
-    read through. Not ``whole``: its span only, and no mark (what a window of times
-    and a read without a window need: the summary, else the chunks' headers; so a
-    file without summary is not read twice)."""
+    read through (so is a finished file without statistics, to count its messages).
+    Not ``whole``: its span only, and no mark (what a window of times and a read
+    without a window need: the summary, else the chunks' headers; so a file without
+    summary is not read twice), but for a file whose framing breaks (read through: its
+    span past the break is only known so). Not ``read_writing``: a file being
+    written is described by its span only too (it may be an hour's data: its counts
+    and marks are known when it is finished)."""
     described = Described(path, path.stat().st_size if path.exists() else 0)
     index, report = index_of(path)
     reading = Reading()
-    if index is not None:
+    if index is not None and (index.messages is not None or not whole):
         described.indexed = True
-        described.start, described.end = index.start, index.end
+        described.start, described.end = index.start, index.end  # (or its chunks')
         _counted(described, index.topic_counts())
+        described.topics = frozenset(index.channels.values())
+        described.counted = index.messages is not None
         if not whole:
             return described
         described.marks = [_marked(entry) for entry in read(path, reading, [MARK])]
-    elif not whole:
-        if not report.skipped:
-            span = walked_span(path)
-            if span is not None:
-                described.start, described.end = span
-        return described
     else:
-        counts: dict[str, int] = {}
-        for entry in read(path, reading):
-            counts[entry.topic] = counts.get(entry.topic, 0) + 1
-            if described.start is None or entry.log_time < described.start:
-                described.start = entry.log_time
-            if described.end is None or entry.log_time > described.end:
-                described.end = entry.log_time
-            if entry.topic == MARK:
-                described.marks.append(_marked(entry))
-        _counted(described, counts)
+        if index is not None:
+            described.how = "its summary has no statistics (message counts): read through"
+        elif (not whole or (not read_writing and being_written(path))) and (
+                report.skipped or (walked := walked_span(path)).whole):
+            # (a file whose framing breaks is read through: past the break, the
+            # reader finds messages its chunks' headers could not tell of)
+            if not report.skipped and walked.span is not None:
+                described.start, described.end = walked.span
+            described.counted = bool(report.skipped)
+            described.writing = not report.skipped and being_written(path)
+            if described.writing:
+                described.how = ("being written: its span from its chunks' headers (its "
+                                 "counts and marks once it is finished)")
+            return described
+        _read_through(described, reading)
     report = reading.files[0]
     described.damaged = report.partial
-    described.cut_short = not report.skipped and not report.whole
+    described.writing = report.writing
+    described.cut_short = not report.skipped and not report.whole and not report.writing
     described.problem = report.line()
     return described
 
 
-def catalogue(paths: Iterable[Path], whole: bool = True) -> list[Described]:
-    """The files, described (``whole``: see describe), sorted by their start (those
-    holding nothing last), with overlapping and repeated files said."""
-    found = sorted((describe(path, whole) for path in paths),
+def _read_through(described: Described, reading: Reading) -> None:
+    """Its span, counts and marks, from every message of it."""
+    counts: dict[str, int] = {}
+    for entry in read(described.path, reading):
+        counts[entry.topic] = counts.get(entry.topic, 0) + 1
+        if described.start is None or entry.log_time < described.start:
+            described.start = entry.log_time
+        if described.end is None or entry.log_time > described.end:
+            described.end = entry.log_time
+        if entry.topic == MARK:
+            described.marks.append(_marked(entry))
+    _counted(described, counts)
+    described.topics = frozenset(counts)
+
+
+def catalogue(paths: Iterable[Path], whole: bool = True, read_writing: bool = True
+              ) -> list[Described]:
+    """The files, described (``whole``, ``read_writing``: see describe), sorted by
+    their start (those holding nothing last), with overlapping and repeated files said."""
+    found = sorted((describe(path, whole, read_writing) for path in paths),
                    key=lambda d: (d.start is None, d.start or 0, str(d.path)))
     for i, one in enumerate(found):
         for other in found[i + 1:]:

@@ -193,8 +193,8 @@ class Output:
 
 def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv",
            progress: Callable[[Entry], None] | None = None,
-           written: list[Path] | None = None, entries: Iterable[Entry] | None = None
-           ) -> tuple[list[tuple[Path, Table]], int]:
+           written: list[Path] | None = None, entries: Iterable[Entry] | None = None,
+           tables_only: bool = False) -> tuple[list[tuple[Path, Table]], int]:
     """Write the tables of the recordings ``paths`` into ``out``: (path, table) of each
     node's table, in the order first seen, and the number of marks (in ``marks.csv``).
     Each table written whole is added to ``written`` as it is. What reading skipped is
@@ -202,7 +202,8 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
     MissingExtra for a format whose extra is not installed (Parquet: pyarrow, .mat:
     scipy); on any error, or Ctrl-C, no table that was not whole is left. ``entries``: the
     messages to export (a window of the recordings, :mod:`.window`) in place of every
-    message of ``paths``."""
+    message of ``paths``. ``tables_only``: NoTables, and nothing written, if there is
+    no table (only marks: the nodes asked are not in the recordings)."""
     if form in EXTRAS:
         EXTRAS[form]()
     out.mkdir(parents=True, exist_ok=True)
@@ -241,6 +242,8 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
             table, output = open_table
             _write(losses.add(*where, payload, (table, output, table.row(payload))), losses)
         _write(losses.finish(), losses)
+        if tables_only and not tables:
+            raise NoTables(out)
         for output in outputs:
             output.finish()
             done.append(output.path)
@@ -250,6 +253,10 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
                 output.discard()
     return [(output.path, table) for table, output in tables.values()], (
         marks.rows if marks is not None else 0)
+
+
+class NoTables(Exception):
+    """An export that found marks but no table where tables were asked for."""
 
 
 def _write(counted: list[Counted[tuple[Table, Output, list[Any]]]],
@@ -266,4 +273,5 @@ def mark_row(mark: Mark) -> list[Any]:
     return [mark.time, mark.host_time, " ".join(map(str, mark.nodes)), mark.text]
 
 
-__all__ = ["FORMATS", "MissingExtra", "RecordingError", "export", "field_columns"]
+__all__ = ["FORMATS", "MissingExtra", "NoTables", "RecordingError", "export",
+           "field_columns"]

@@ -19,12 +19,14 @@ also works on a file whose writer was killed before it finished) gives them in o
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import math
 import struct
 import time
 from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from mcap.opcode import Opcode
 
@@ -124,6 +126,13 @@ CHUNK_HEAD = struct.Struct("<QQQII")
 FOOTER_BYTES = RECORD_HEAD.size + 20 + len(MAGIC)
 PRIVATE_OPCODES = 0x80
 """Opcodes from here on are for any writer's own records, skipped by their length."""
+_OPCODES = frozenset(int(opcode) for opcode in Opcode)
+
+
+def known_opcode(opcode: int) -> bool:
+    """An opcode a record can have: where another is found, the framing is broken."""
+    return opcode >= PRIVATE_OPCODES or opcode in _OPCODES
+
 SCAN_BYTES = 1 << 20
 LARGEST_CHUNK = 1 << 30
 """A chunk said to be larger is damaged (ours close at CHUNK_BYTES): not decompressed."""
@@ -147,6 +156,26 @@ def recording_files(paths: Iterable[str | Path]) -> list[Path]:
         else:
             raise RecordingError(f"{path}: no such file or directory")
     return found
+
+
+def claim(output: IO[bytes]) -> None:
+    """Say a file is being written: an advisory lock (flock) held while the writer has
+    it open, which the system releases however the writer ends (a killed writer's file
+    is not taken for one being written). Nothing for an output that is no file."""
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        fcntl.flock(output.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def being_written(path: Path) -> bool:
+    """Whether a writer holds ``path`` open (its claim, above)."""
+    try:
+        with path.open("rb") as stream:
+            fcntl.flock(stream.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+    return False
 
 
 def unreadable(path: Path) -> str:

@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 from mcap.opcode import Opcode
 
-from .files import MAGIC, MESSAGE_HEAD, RECORD_HEAD
+from .files import LARGEST_CHUNK, MAGIC, MESSAGE_HEAD, RECORD_HEAD, known_opcode
 
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
@@ -121,23 +121,47 @@ def parse(summary: bytes) -> FileIndex:
             index.chunks.append(ChunkSpan(start, end, offset, chunk_length, offsets))
         at += RECORD_HEAD.size + length
     index.chunks.sort(key=lambda chunk: chunk.offset)
+    if index.messages is None and index.chunks:
+        # no statistics record (another writer's choice): the span is the chunks'
+        index.start = min(chunk.start for chunk in index.chunks)
+        index.end = max(chunk.end for chunk in index.chunks)
     return index
 
 
-def walked_span(path: Path) -> tuple[int, int] | None:
-    """(first, last) log_time (ns) of a file without summary, from its chunks' headers
-    (and its unchunked messages' heads): nothing decompressed. The walk stops where
-    the framing breaks (the reader, scanning past it, may find later messages); None
-    if it met no message."""
+class Walked(NamedTuple):
+    """What the records' heads of a file without summary say of it."""
+
+    span: tuple[int, int] | None
+    """(first, last) log_time (ns); None if no message was met."""
+    whole: bool
+    """The records tile the file up to its end (or a data end): the span is all of
+    it. False where the framing breaks before: a reader scanning past it may find
+    later messages, so the span is only the part before."""
+
+
+def walked_span(path: Path) -> Walked:
+    """The span of a file without summary, from its chunks' headers (and its
+    unchunked messages' heads): nothing decompressed."""
     first = last = None
+    size = path.stat().st_size
+    whole = False
     with path.open("rb") as stream:
-        stream.seek(len(MAGIC))
+        at = stream.seek(len(MAGIC))
         while True:
             head = stream.read(RECORD_HEAD.size)
             if len(head) < RECORD_HEAD.size:
+                # the end of the file, or a record's head cut by it (a writer killed)
+                whole = True
                 break
             opcode, length = RECORD_HEAD.unpack(head)
             if opcode == Opcode.DATA_END:
+                whole = True
+                break
+            at += RECORD_HEAD.size + length
+            if not known_opcode(opcode) or at > size:
+                # framing broken, or a record cut by the file's end: whole only for
+                # a chunk of a plausible length (a killed writer's last, cut writing)
+                whole = opcode == Opcode.CHUNK and length <= LARGEST_CHUNK and at > size
                 break
             if opcode in (Opcode.CHUNK, Opcode.MESSAGE):
                 body = stream.read(min(length, MESSAGE_HEAD.size))
@@ -153,4 +177,4 @@ def walked_span(path: Path) -> tuple[int, int] | None:
                 stream.seek(length - len(body), 1)
             else:
                 stream.seek(length, 1)
-    return None if first is None or last is None else (first, last)
+    return Walked(None if first is None or last is None else (first, last), whole)

@@ -1,6 +1,8 @@
 """A table as a MATLAB ``.mat`` file (version 5, what scipy's ``savemat`` writes and
 MATLAB and GNU Octave ``load``): one struct named after the table, a column vector a
-field, and beside them ``units`` and ``descriptions``, structs with a text a column.
+field, and beside them ``units`` and ``descriptions``, structs with a text a column
+(a column whose name MATLAB cannot take, or that two columns would share, is renamed:
+:func:`field_names`).
 
 Numbers are doubles (NaN where a value is missing), times UNIX seconds as in the
 messages (MATLAB: ``datetime(t, 'ConvertFrom', 'posixtime')``), text columns cell
@@ -14,6 +16,8 @@ import re
 from array import array
 from pathlib import Path
 from typing import Any
+
+from gateway.common.reading import number
 
 from .columns import Column
 from .parquetfile import MissingExtra
@@ -43,6 +47,28 @@ def matlab_name(text: str, prefix: str = "n") -> str:
     return name[:MATLAB_NAME]
 
 
+RESERVED = ("units", "descriptions")
+"""The struct's fields beside the columns."""
+
+
+def field_names(columns: list[Column]) -> list[str]:
+    """Each column's field name: its MATLAB name, made unique with a suffix (``_2``,
+    ``_3`` ..) where two names become one (``a-b`` and ``a_b``) or a column would
+    take a name of RESERVED: every column is kept."""
+    taken = set(RESERVED)
+    names = []
+    for column in columns:
+        name = base = matlab_name(column.name, "f")
+        count = 1
+        while name in taken:
+            count += 1
+            suffix = f"_{count}"
+            name = base[:MATLAB_NAME - len(suffix)] + suffix
+        taken.add(name)
+        names.append(name)
+    return names
+
+
 class MatWriter:
     def __init__(self, path: Path, columns: list[Column]) -> None:
         self._numpy, self._io = mat_modules()
@@ -55,14 +81,13 @@ class MatWriter:
         for column, values, value in zip(self._columns, self._values, row, strict=True):
             if column.kind == "text":
                 values.append("" if value is None else str(value))
-            elif isinstance(value, (int, float)) and not isinstance(value, bool):
-                values.append(value)
-            else:
-                values.append(float("nan"))
+            else:  # (an integer beyond a double, 10**400, is missing as text is)
+                real = number(value)
+                values.append(float("nan") if real is None else real)
 
     def close(self) -> None:
         np = self._numpy
-        names = [matlab_name(column.name, "f") for column in self._columns]
+        names = field_names(self._columns)
         struct: dict[str, Any] = {}
         for name, column, values in zip(names, self._columns, self._values, strict=True):
             if column.kind == "text":

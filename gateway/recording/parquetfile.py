@@ -7,6 +7,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from gateway.common.reading import number
+
 from .columns import Column, nanoseconds
 
 INSTALL_PARQUET = "pip install 'gx2-gateway[parquet]'"
@@ -50,12 +52,16 @@ def _arrow_type(pa: Any, kind: str) -> Any:
 
 def converted(kind: str, values: tuple[Any, ...]) -> list[Any]:
     """A column's values as its Arrow type takes them; None for a value that is not of
-    its kind (null in the file, as an empty cell in CSV)."""
+    its kind or beyond what the type holds (null in the file, as an empty cell in CSV;
+    a float that is not finite is null too)."""
     if kind in ("time", "duration"):
-        return [nanoseconds(v) for v in values]
+        # (a timestamp[ns] is an int64: the years 1677 to 2262; a foreign recording's
+        # time in ms, or 1e10 s, is beyond it: null, as a value not of its kind)
+        low, high = INTEGER_RANGE["int64"]
+        return [t if t is not None and low <= t <= high else None
+                for t in map(nanoseconds, values)]
     if kind == "float":
-        return [float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
-                else None for v in values]
+        return [number(v) for v in values]
     if kind == "text":
         return [v if isinstance(v, str) else None for v in values]
     low, high = INTEGER_RANGE[kind]

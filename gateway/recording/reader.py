@@ -23,10 +23,11 @@ from .files import (
     LARGEST_CHUNK,
     MAGIC,
     MESSAGE_HEAD,
-    PRIVATE_OPCODES,
     RECORD_HEAD,
     SCAN_BYTES,
     RecordingError,
+    being_written,
+    known_opcode,
     unreadable,
 )
 from .index import ChunkSpan, FileIndex, channel_of, parse
@@ -123,6 +124,7 @@ def read(path: Path, reading: Reading, topics: Iterable[str] | None = None,
         except OSError as error:  # the disk failing under the reader
             report.skipped = (f"reading failed after {report.read:,} messages: "
                               f"{error.strerror or error}")
+        report.writing = not report.whole and being_written(path)
     reading.done(report)
 
 
@@ -170,6 +172,10 @@ class _Walk:
         """A chunk passed over unread (outside the span): (offset, length) of its body,
         decompressed after all if its message index names a channel not yet defined
         (a file without summary defines each channel in the chunk that first uses it)."""
+        self._unindexed: list[tuple[int, int]] = []
+        """The chunks passed over whose channels no message index told (another
+        writer's file may have none): decompressed for their channels when a message
+        on a channel not yet defined is met."""
 
     def _at(self, offset: int, size: int) -> bytes:
         self._stream.seek(offset)
@@ -204,7 +210,7 @@ class _Walk:
             opcode, length = RECORD_HEAD.unpack(head) if len(head) == RECORD_HEAD.size \
                 else (0, 0)
             after = at + RECORD_HEAD.size + length
-            if not _known(opcode) or after > end:
+            if not known_opcode(opcode) or after > end:
                 at = self._resync(at, end, chunk=opcode == Opcode.CHUNK)
                 continue
             if opcode == Opcode.DATA_END:
@@ -213,6 +219,7 @@ class _Walk:
             if opcode == Opcode.CHUNK and not self._touches(at):
                 self._counting = None
                 self._passed = (at + RECORD_HEAD.size, length)
+                self._unindexed.append(self._passed)
                 at = after  # outside the span: passed over without reading it
                 continue
             if opcode == Opcode.CHUNK:
@@ -247,7 +254,14 @@ class _Walk:
         if len(head) < 16:
             return True  # (the walk finds out what is wrong with it)
         start, stop = struct.unpack("<QQ", head)
-        return stop >= self._span[0] and start < self._span[1]
+        if stop >= self._span[0] and start < self._span[1]:
+            return True
+        if start <= stop:  # (what the file holds past the window, for where it ends)
+            self._report.passed = max(stop, self._report.passed or 0)
+            for loss in self._waiting:  # a loss ends where a chunk passed over starts
+                loss.before = start
+            self._waiting.clear()
+        return False
 
     def _indexed(self, end: int, wanted: frozenset[str] | None) -> Iterator[Entry]:
         """The messages of the chunks the index says can hold wanted ones, each
@@ -343,7 +357,7 @@ class _Walk:
         try:
             while at < len(summary):
                 opcode, length = RECORD_HEAD.unpack_from(summary, at)
-                if not _known(opcode):
+                if not known_opcode(opcode):
                     return False
                 at += RECORD_HEAD.size + length
             index = parse(summary)
@@ -361,7 +375,7 @@ class _Walk:
         while at + RECORD_HEAD.size <= footer:
             opcode, length = RECORD_HEAD.unpack(self._at(at, RECORD_HEAD.size))
             at += RECORD_HEAD.size + length
-            if not _known(opcode) or at > footer:
+            if not known_opcode(opcode) or at > footer:
                 return None
             if opcode == Opcode.DATA_END:
                 return at
@@ -420,6 +434,8 @@ class _Walk:
             self._channels[channel] = topic
         elif opcode == Opcode.MESSAGE_INDEX:
             channel, width = struct.unpack_from("<HI", body)
+            if self._unindexed and self._unindexed[-1] == self._passed:
+                self._unindexed.pop()  # (its message indexes tell its channels)
             if self._passed is not None and channel not in self._channels:
                 self._chunk(self._at(*self._passed))  # for its channels only
                 self._passed = None
@@ -433,6 +449,11 @@ class _Walk:
     def _entry(self, channel: int, log_time: int, publish_time: int,
                data: bytes) -> Entry | None:
         topic = self._channels.get(channel)
+        if topic is None and self._unindexed:
+            for passed in self._unindexed:
+                self._chunk(self._at(*passed))  # for its channels only
+            self._unindexed.clear()
+            topic = self._channels.get(channel)
         if topic is None:
             self._report.orphans += 1
             return None
@@ -445,7 +466,9 @@ class _Walk:
         return Entry(topic, log_time, publish_time, data, damaged)
 
     def _lost(self, offset: int, size: int, chunk: bool) -> Loss:
-        loss = Loss(offset, size, chunk, after=self._report.last)
+        after = max((t for t in (self._report.last, self._report.passed) if t is not None),
+                    default=None)  # (the chunks passed over held messages up to there)
+        loss = Loss(offset, size, chunk, after=after)
         self._report.losses.append(loss)
         self._waiting.append(loss)
         return loss
@@ -463,7 +486,7 @@ class _Walk:
         if len(head) < RECORD_HEAD.size:
             return False
         opcode, length = RECORD_HEAD.unpack(head)
-        return _known(opcode) and at + RECORD_HEAD.size + length <= end
+        return known_opcode(opcode) and at + RECORD_HEAD.size + length <= end
 
     def _resync(self, at: int, end: int, chunk: bool) -> int:
         """The next chunk after ``at`` that reads, the stretch before it lost; none in a
@@ -510,18 +533,12 @@ class _Walk:
         return self._chunk(self._at(body_at, length)) is not None
 
 
-_OPCODES = frozenset(int(opcode) for opcode in Opcode)
 _INDEX_OFFSET = struct.Struct("<HQ")
 """A chunk index's entry: a channel, and where that channel's message index is."""
 _INDEX_HEAD = struct.Struct("<BQHI")
 """A message index record's head: opcode, length, channel, its entries' byte length."""
 _DATA_END_BYTES = RECORD_HEAD.size + 4
 """A data end record: its head and a CRC."""
-
-
-def _known(opcode: int) -> bool:
-    """An opcode a record can have: where another is found, the framing is broken."""
-    return opcode >= PRIVATE_OPCODES or opcode in _OPCODES
 
 
 def _decompress(compression: str, data: bytes, size: int) -> bytes:

@@ -42,6 +42,12 @@ class FileReport:
     """Its data section ends where a finished file's does: it was not cut short."""
     last: int | None = None
     """log_time (ns) of the last message read."""
+    writing: bool = False
+    """Not whole because a writer has it open (:func:`.files.being_written`): it ends
+    at its writer's last flush, not cut short."""
+    passed: int | None = None
+    """The latest log_time (ns) of the chunks a window read passed over unread (their
+    headers'): a file cut short ends at the later of it and ``last``."""
     decompressed: int = 0
     """Chunks decompressed (a window read passes over the others unread)."""
     summary: str = ""
@@ -62,7 +68,9 @@ class FileReport:
         if self.losses or self.orphans:
             said.append(self._damage())
         if not self.whole:
-            said.append(f"ends early {_after(self.last)} (its writer was stopped without "
+            ends = max((t for t in (self.last, self.passed) if t is not None), default=None)
+            said.append(f"being written: its last flush {_after(ends)}" if self.writing
+                        else f"ends early {_after(ends)} (its writer was stopped without "
                         "warning)")
         if not said:
             return ""

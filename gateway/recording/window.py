@@ -17,6 +17,7 @@ from datetime import datetime
 from gateway.common.topics import parse
 
 from .catalogue import Described, Marked, span_of
+from .files import NS_LIMIT
 from .reader import Entry, Span, read
 from .reports import Reading
 
@@ -38,6 +39,9 @@ class Asked:
     trial: int | None = None
     nodes: tuple[int, ...] = ()
     records: tuple[str, ...] = ()
+    names: tuple[str, str, str, str] = ("--from", "--to", "--between-marks", "--trial")
+    """What the user wrote for start, stop, between and trial, as errors name them
+    (a replay URL's keys: from, to, between, trial)."""
 
     @property
     def marked(self) -> bool:
@@ -92,27 +96,32 @@ def _number(text: str) -> float | None:
         return None
 
 
-def _dated(text: str) -> bool:
+def dated(text: str) -> bool:
     """Whether a bound is written as a date (else it names a mark)."""
     return text[:4].isdigit() and text[4:5] == "-"
 
 
 def _named(text: str) -> bool:
-    return _number(text) is None and not _dated(text)
+    return _number(text) is None and not dated(text)
 
 
-def bound(text: str, origin: int | None, marks: list[Marked], end: bool) -> int:
-    """A ``--from``/``--to`` as a log_time (ns): ISO 8601 with a zone, seconds from
-    ``origin`` (the recordings' start), or the first mark with that text."""
-    name = "--to" if end else "--from"
+def bound(text: str, origin: int | None, marks: list[Marked], end: bool,
+          name: str = "") -> int:
+    """A ``--from``/``--to`` (``name``) as a log_time (ns): ISO 8601 with a zone,
+    seconds from ``origin`` (the recordings' start), or the first mark with that text."""
+    name = name or ("--to" if end else "--from")
     seconds = _number(text)
     if seconds is not None:
         if not math.isfinite(seconds) or origin is None:
             raise WindowError(f"{name} {text}: not a time in these recordings")
+        if abs(seconds) * 1e9 >= NS_LIMIT:
+            raise WindowError(f"{name} {text}: seconds from the recordings' start beyond "
+                              "what any recording holds (it ends by 1.8e10 s)")
         return origin + round(seconds * 1e9)
-    if _dated(text):
+    if dated(text):
         try:
-            moment = datetime.fromisoformat(text)
+            # (a lowercase z is UTC's too: 2026-11-25t10:00:00z)
+            moment = datetime.fromisoformat(text[:-1] + "Z" if text.endswith("z") else text)
         except ValueError:
             raise WindowError(f"{name} {text}: not an ISO 8601 time") from None
         if moment.tzinfo is None:
@@ -122,6 +131,34 @@ def bound(text: str, origin: int | None, marks: list[Marked], end: bool) -> int:
         if mark.text == text:
             return mark.log_time + (1 if end else 0)
     raise WindowError(f"{name} {text}: no such mark ({_listed(marks)})")
+
+
+def held(files: list[Described]) -> str:
+    """What node records the files hold, for a line: ``node 11: accel_angrate, euler;
+    node 12: ...``."""
+    nodes: dict[int, set[str]] = {}
+    for described in files:
+        for node, records in described.nodes.items():
+            nodes.setdefault(node, set()).update(records)
+    if not nodes:
+        return "they hold no node records"
+    return "they hold " + "; ".join(f"node {node}: {', '.join(sorted(records))}"
+                                    for node, records in sorted(nodes.items()))
+
+
+def check_held(asked: Asked, files: list[Described], known: bool = False) -> None:
+    """WindowError if no file holds a record of the nodes and records asked (told only
+    where every file's are known, or ``known``: the files were read)."""
+    if not (asked.nodes or asked.records):
+        return
+    if not known and not all(d.counted for d in files):
+        return
+    if any((not asked.nodes or node in asked.nodes)
+           and (not asked.records or record in asked.records)
+           for d in files for node, records in d.nodes.items() for record in records):
+        return
+    given = [f"--node {n}" for n in asked.nodes] + [f"--record {r}" for r in asked.records]
+    raise WindowError(f"{' '.join(given)}: not in the recordings ({held(files)})")
 
 
 def trials(start: str, stop: str, marks: list[Marked]) -> list[Span]:
@@ -138,6 +175,22 @@ def trials(start: str, stop: str, marks: list[Marked]) -> list[Span]:
     return found
 
 
+def unclosed(between: tuple[str, str], files: list[Described]) -> str:
+    """A line about a trial started and never stopped (the last mark ``start`` with no
+    mark ``stop`` after it: no trial, as trials has it); empty if there is none."""
+    start, stop = between
+    opened: Marked | None = None
+    for mark in _marks(files):
+        if mark.text == start and opened is None:
+            opened = mark
+        elif mark.text == stop:
+            opened = None
+    if opened is None:
+        return ""
+    return (f"the mark {start!r} at {when(opened.log_time)} has no mark {stop!r} after "
+            "it: not a trial")
+
+
 def _label(number: int, span: Span) -> str:
     stamp = time.strftime("%Y-%m-%dT%H-%M-%SZ", time.gmtime(span[0] // 1_000_000_000))
     return f"trial-{number}_{stamp}"
@@ -146,12 +199,14 @@ def _label(number: int, span: Span) -> str:
 def windows(asked: Asked, files: list[Described]) -> list[Window]:
     """The windows asked of the recordings ``files`` (sorted as the catalogue sorts):
     one, or one per trial; WindowError for one that cannot be taken."""
+    check_held(asked, files)
     nodes, records = frozenset(asked.nodes), frozenset(asked.records)
     everything = span_of(files)
     marks = _marks(files)
+    name_from, name_to, name_between, name_trial = asked.names
     if asked.between is not None:
         if asked.start or asked.stop:
-            raise WindowError("--between-marks takes the place of --from and --to")
+            raise WindowError(f"{name_between} takes the place of {name_from} and {name_to}")
         found = trials(*asked.between, marks)
         if not found:
             raise WindowError(f"no trial from a mark {asked.between[0]!r} to a mark "
@@ -159,19 +214,20 @@ def windows(asked: Asked, files: list[Described]) -> list[Window]:
         numbered = list(enumerate(found, 1))
         if asked.trial is not None:
             if not 1 <= asked.trial <= len(found):
-                raise WindowError(f"--trial {asked.trial}: there are {len(found)} "
+                raise WindowError(f"{name_trial} {asked.trial}: there are {len(found)} "
                                   f"trial{'s' * (len(found) != 1)} (1 is the first)")
             numbered = [numbered[asked.trial - 1]]
         return [Window(span, nodes, records, _label(n, span)) for n, span in numbered]
     if asked.trial is not None:
-        raise WindowError("--trial picks one of the trials of --between-marks")
+        raise WindowError(f"{name_trial} picks one of the trials of {name_between}")
     if not (asked.start or asked.stop):
         return [Window(None, nodes, records)]
     origin = everything[0] if everything else None
-    start = bound(asked.start, origin, marks, end=False) if asked.start else 0
-    stop = bound(asked.stop, origin, marks, end=True) if asked.stop else 2 ** 64
-    if stop <= start:
-        raise WindowError(f"--to ({when(stop)}) is not after --from ({when(start)})")
+    start = bound(asked.start, origin, marks, False, name_from) if asked.start else 0
+    stop = bound(asked.stop, origin, marks, True, name_to) if asked.stop else 2 ** 64
+    if asked.start and asked.stop and stop <= start:
+        raise WindowError(f"{name_to} ({when(stop)}) is not after {name_from} "
+                          f"({when(start)})")
     if everything is None or stop <= everything[0] or start > everything[1]:
         held = (f"the recordings span {when(everything[0])} to {when(everything[1])}"
                 if everything else "the recordings hold no messages")
@@ -191,34 +247,65 @@ def touched(files: list[Described], window: Window) -> list[Described]:
             or (d.end >= span[0] and d.start < span[1])]
 
 
+def _shared(described: Described, later: list[Described]) -> frozenset[str] | None:
+    """The topics of ``described`` a later file that overlaps it may hold again (None:
+    any, a file's topics not being known): only their messages need be remembered."""
+    overlapping = [d for d in later if d.start is None or described.end is None
+                   or d.start <= described.end]
+    if described.topics is None or any(d.topics is None for d in overlapping):
+        return None
+    return described.topics & frozenset().union(*(d.topics for d in overlapping))
+
+
+def _key(entry: Entry) -> int:
+    """A message's log_time and a 64-bit hash of its topic and data, as one integer
+    (under 200 bytes remembered a message, with the set's own, where the message
+    itself took 500): two messages that differ, logged at the same nanosecond, whose
+    hashes are the same, are not met in practice."""
+    return entry.log_time << 64 | hash((entry.topic, entry.data)) & _HASH_BITS
+
+
+_HASH_BITS = (1 << 64) - 1
+
+
 class Reader:
     """Reads windows of the catalogued files ``files`` (sorted by start), dropping
-    each message met again (same topic, log_time and data), and counting them."""
+    each message met again (same topic, log_time and data), and counting them. Only
+    the messages a later file overlapping may hold again are remembered (those after
+    its start, on the topics it holds too), each as a compact key (:func:`_key`)."""
 
     def __init__(self, files: list[Described], reading: Reading) -> None:
         self._files = files
         self._reading = reading
         self.duplicates = 0
+        self.duplicate_records = 0
+        """Of them, the nodes' records (a table's rows; the rest are statuses, marks and
+        serial reads)."""
+        self.remembered = 0
+        """The most messages remembered at once (to tell duplicates)."""
 
     def entries(self, window: Window) -> Iterator[Entry]:
         chosen = touched(self._files, window)
-        seen: set[tuple[str, int, bytes]] = set()
+        seen: set[int] = set()
         seen_until = -1
         """The last log_time of the files read: a message after it is not met twice."""
         for i, described in enumerate(chosen):
             later = [d.start for d in chosen[i + 1:] if d.start is not None]
             keep_from = min(later) if later else None
+            shared = _shared(described, chosen[i + 1:])
             if described.start is not None:  # nothing before this start comes again
-                seen = {key for key in seen if key[1] >= described.start}
+                seen = {key for key in seen if key >> 64 >= described.start}
             for entry in read(described.path, self._reading, span=window.span):
                 if not window.keeps(entry.topic):
                     continue
-                key = (entry.topic, entry.log_time, entry.data)
-                if entry.log_time <= seen_until and key in seen:
+                if entry.log_time <= seen_until and _key(entry) in seen:
                     self.duplicates += 1
+                    self.duplicate_records += parse(entry.topic) is not None
                     continue
-                if keep_from is not None and entry.log_time >= keep_from:
-                    seen.add(key)
+                if keep_from is not None and entry.log_time >= keep_from and (
+                        shared is None or entry.topic in shared):
+                    seen.add(_key(entry))
+                    self.remembered = max(self.remembered, len(seen))
                 yield entry
             if described.end is not None:
                 seen_until = max(seen_until, described.end)

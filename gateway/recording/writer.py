@@ -25,6 +25,7 @@ from .files import (
     PROFILE,
     RAW_ENCODING,
     SERIAL_READS,
+    claim,
     message_times,
     ns,
 )
@@ -35,6 +36,7 @@ class RecordingWriter:
 
     def __init__(self, output: IO[bytes], metadata: Mapping[str, str] | None = None) -> None:
         self._output = output
+        claim(output)  # (readers tell it from a file whose writer was killed)
         self._writer = Writer(output, chunk_size=CHUNK_BYTES,
                               compression=CompressionType.ZSTD)
         self._writer.start(profile=PROFILE, library=f"gx2-gateway {VERSION}")

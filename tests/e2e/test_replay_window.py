@@ -8,6 +8,7 @@ import json
 import subprocess
 from pathlib import Path
 
+import pytest
 from mcap.reader import make_reader
 
 from tests.helpers.processes import script
@@ -46,13 +47,33 @@ def test_a_replay_plays_the_trial_asked(gateway, tmp_path: Path) -> None:
     assert played == recorded(files[1:], T0 + 25, T0 + 45)
 
 
-def test_a_window_a_replay_cannot_take_is_one_line(tmp_path: Path) -> None:
+def check(tmp_path: Path, query: str) -> subprocess.CompletedProcess[str]:
+    """``gx2-gateway --check`` of a replay of a 3 s recording with ``query``."""
     path = make_file(tmp_path / "one.mcap", 0, 3)
     config = tmp_path / "nodes.yaml"
-    config.write_text(f"base_station: {{port: 'replay://{path}?from=nosuch'}}\n"
+    config.write_text(f"base_station: {{port: 'replay://{path}?{query}'}}\n"
                       "nodes: [{address: 11}]\n")
-    ran = subprocess.run([script("gx2-gateway"), "--config", str(config), "--check"],
-                         capture_output=True, text=True, timeout=30)
+    return subprocess.run([script("gx2-gateway"), "--config", str(config), "--check"],
+                          capture_output=True, text=True, timeout=30)
+
+
+@pytest.mark.parametrize("query, said", [
+    ("from=nosuch", "from nosuch: no such mark"),  # the URL's key, not export's option
+    ("from=1e300", "from 1e300: seconds from the recordings' start beyond"),
+    ("from=-1e300", "from -1e300: seconds from the recordings' start beyond"),
+    ("from=2&to=1", "to (2026-11-18T11:06:41.000Z) is not after from"),
+    ("node=11", "a replay has no node/record keys: it plays the base station's serial"),
+])
+def test_a_window_a_replay_cannot_take_is_one_line(tmp_path: Path, query: str,
+                                                   said: str) -> None:
+    ran = check(tmp_path, query)
     assert ran.returncode == 2, ran
     lines = ran.stderr.strip().splitlines()
-    assert len(lines) == 1 and "--from nosuch: no such mark" in lines[0], lines
+    assert len(lines) == 1 and said in lines[0], lines
+
+
+@pytest.mark.parametrize("start", ["2026-11-18T12:06:41+01:00", "2026-11-18T11:06:41z"])
+def test_a_replay_window_takes_a_zone_offset_and_lowercase_z(tmp_path: Path,
+                                                             start: str) -> None:
+    ran = check(tmp_path, f"from={start}")  # (+ unescaped, as a user writes it)
+    assert ran.returncode == 0, ran.stderr

@@ -4,7 +4,11 @@ euler at a fifth of it, the status each second, and the marks MARKS."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import Any
+
+from mcap.writer import Writer
 
 from gateway.recording.files import MARK
 from gateway.recording.writer import RecordingWriter
@@ -47,4 +51,21 @@ def make_file(path: Path, first: int, seconds: int, finish: bool = True) -> Path
             writer.flush()
         if finish:
             writer.finish()
+    return path
+
+
+def foreign_file(path: Path, entries: list[tuple[str, dict]], **options: Any) -> Path:
+    """A recording written by another program (the mcap package's writer), each message
+    logged at its ``host_time``: its other times as it gave them; ``options``, the
+    writer's (``use_statistics=False`` ...)."""
+    with path.open("wb") as stream:
+        writer = Writer(stream, **options)
+        writer.start(profile="", library="another")
+        channels: dict[str, int] = {}
+        for topic, payload in entries:
+            if topic not in channels:
+                channels[topic] = writer.register_channel(topic, "json", schema_id=0)
+            at = round(payload["host_time"] * 1e9)
+            writer.add_message(channels[topic], at, json.dumps(payload).encode(), at)
+        writer.finish()
     return path

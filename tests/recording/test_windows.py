@@ -199,7 +199,10 @@ def test_a_message_met_twice_is_exported_once(recordings: Path, tmp_path: Path) 
     once = messages(paths[:2])
     assert column(out / "11_accel_angrate.csv", "host_time") == host_times(
         once, "gx2/11/accel_angrate")
-    assert f"dropped {2 * len(messages([paths[1]])):,} duplicate messages" in ran.stdout
+    again = messages([paths[1]])
+    records = sum(topic.split("/")[1].isdecimal() for topic, _, _ in again)
+    assert f"dropped {2 * len(again):,} duplicate messages, {2 * records:,} of them " \
+        "records (rows)" in ran.stdout
 
 
 @pytest.mark.parametrize("window, said", [
@@ -211,6 +214,12 @@ def test_a_message_met_twice_is_exported_once(recordings: Path, tmp_path: Path) 
     (["--between-marks", "start", "nosuch"], "no trial from a mark 'start' to a mark "
      "'nosuch'"),
     (["--between-marks", "start", "stop", "--trial", "3"], "there are 2 trials"),
+    (["--from", "1e300"], "--from 1e300: seconds from the recordings' start beyond"),
+    (["--to=-1e300"], "--to -1e300: seconds from the recordings' start beyond"),
+    # one bound alone, past the files: no blame on the bound not given
+    (["--from", "1.7e10"], "the window 2565-08-03T17:20:00.000Z to (end) is outside every"),
+    (["--to", "0001-01-01T00:00:00Z"], "the window (start) to 1-01-01T00:00:00.000Z is "
+     "outside every file"),
 ])
 def test_a_window_that_cannot_be_taken_is_one_line_and_exit_2(
         recordings: Path, tmp_path: Path, window: list[str], said: str) -> None:

@@ -73,6 +73,9 @@ YIELD_EVERY = 200
 DELAY_S = 1.0
 OPTIONS = ("speed", "exit", "delay", "from", "to", "between", "trial")
 WINDOW_OPTIONS = ("from", "to", "between", "trial")
+NOT_FILTERED = ("node", "record")
+"""Export's other window options, which a replay does not take: the serial reads it
+plays are not one node's each but the line's bytes, parsed by the gateway as live."""
 """A window of the recording, as gx2ctl export's --from, --to, --between-marks (here
 ``between=START,STOP``) and --trial take it (:mod:`gateway.recording.window`)."""
 FILE_OF_READS = "serial"
@@ -104,6 +107,11 @@ class Replay:
         except ValueError:
             raise ValueError(f"{url!r}: the query is not name=value pairs") from None
         unknown = sorted(set(options) - set(OPTIONS))
+        if set(unknown) & set(NOT_FILTERED):
+            raise ValueError(f"{url!r}: a replay has no {'/'.join(NOT_FILTERED)} keys: it "
+                             "plays the base station's serial reads, of every node, and "
+                             "the gateway publishes the nodes its configuration lists "
+                             "(list only those under nodes:)")
         if unknown:
             raise ValueError(f"{url!r}: unknown option {unknown[0]!r} "
                              f"({', '.join(OPTIONS)})")
@@ -188,7 +196,8 @@ def _window(url: str, files: list[Path], options: dict[str, list[str]]
         if not text.isdecimal() or int(text) < 1:
             raise ValueError(f"{url!r}: trial must be a number from 1, not {text!r}")
         trial = int(text)
-    asked = Asked(last("from"), last("to"), between, trial)
+    asked = Asked(_time(last("from")), _time(last("to")), between, trial,
+                  names=WINDOW_OPTIONS)
     described = catalogue(files, whole=asked.marked)
     try:
         found = windows(asked, described)
@@ -198,6 +207,13 @@ def _window(url: str, files: list[Path], options: dict[str, list[str]]
         raise ValueError(f"{url!r}: {len(found)} trials between those marks: pick one "
                          "with trial=N")
     return [d.path for d in touched(described, found[0])], found[0].span
+
+
+def _time(text: str | None) -> str | None:
+    """A ``from``/``to`` as written: a URL's query reads ``+`` as a space, and in a date
+    a space before its zone's offset can only have been one (12:06:45+01:00)."""
+    from gateway.recording.window import dated
+    return text.replace(" ", "+") if text is not None and dated(text) else text
 
 
 def _playable(topic: str) -> bool:

@@ -1,0 +1,50 @@
+"""Exports of foreign recordings at the formats' edges, run as users run them: times no
+typed column holds, and field names MATLAB maps onto each other."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from scipy.io import loadmat
+
+from tests.helpers.processes import gx2ctl
+from tests.helpers.recorded import T0, foreign_file
+
+EULER = {"node": 11, "record": "euler", "command": 0xCE, "seq": 0, "host_time": T0,
+         "roll": 0.1, "pitch": 0.2, "yaw": 0.3}
+
+
+@pytest.mark.parametrize("time", [1_795_000_000_000, 1e10, 10**400],
+                         ids=["ms", "1e10 s", "10**400"])
+def test_a_time_no_typed_column_holds_is_missing_not_a_crash(tmp_path: Path,
+                                                             time: float) -> None:
+    path = foreign_file(tmp_path / "odd.mcap", [("gx2/11/euler", {**EULER, "time": time}),
+                                         ("gx2/11/euler", {**EULER, "seq": 1,
+                                                           "time": T0 + 1})])
+    for form in ("csv", "parquet", "mat"):
+        ran = gx2ctl("export", str(path), "--out", str(tmp_path / form), "--format", form)
+        assert ran.status == 0 and not ran.stderr, ran.stderr
+    with (tmp_path / "csv" / "11_euler.csv").open() as table:
+        assert [row["time"] for row in csv.DictReader(table)][1] == repr(T0 + 1)
+    times = pq.read_table(tmp_path / "parquet" / "11_euler.parquet").column("time")
+    assert times[0].as_py() is None and times[1].as_py().timestamp() == T0 + 1
+    struct = loadmat(tmp_path / "mat" / "11_euler.mat", simplify_cells=True)["n11_euler"]
+    assert struct["roll"].tolist() == [0.1, 0.1]
+    if time == 10**400:
+        assert math.isnan(struct["time"][0]) and struct["time"][1] == T0 + 1
+
+
+def test_mat_keeps_every_column_whose_names_collide(tmp_path: Path) -> None:
+    custom = {"node": 11, "record": "custom", "seq": 0, "host_time": T0, "a-b": 1.0,
+              "a_b": 2.0, "units": 3.0, "descriptions": "text"}
+    path = foreign_file(tmp_path / "names.mcap", [("gx2/11/custom", custom)])
+    ran = gx2ctl("export", str(path), "--out", str(tmp_path), "--format", "mat")
+    assert ran.status == 0, ran.stderr
+    struct = loadmat(tmp_path / "11_custom.mat", simplify_cells=True)["n11_custom"]
+    assert struct["a_b"] == 1.0 and struct["a_b_2"] == 2.0 and struct["units_2"] == 3.0
+    assert struct["descriptions_2"] == "text"
+    assert struct["units"]["rssi"] == "dBm" and "a_b_2" in struct["units"]
