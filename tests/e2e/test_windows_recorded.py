@@ -14,6 +14,7 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 
+from gateway.common.topics import parse
 from gateway.recording.columns import nanoseconds
 from gateway.sim.node import NodeSettings
 from tests.helpers.processes import gx2ctl
@@ -61,8 +62,8 @@ def test_trials_marked_on_the_gateway_are_catalogued_and_exported(simulator, gat
         assert described["end"] == max(t for _, t, _ in messages) / 1e9
         counts: dict[str, dict[str, int]] = {}
         for topic, _, _ in messages:
-            if topic.startswith("gx2/7"):
-                _, node, record = topic.split("/")
+            if (where := parse(topic)) is not None:  # a record (a frame is none)
+                node, record = str(where[0]), where[1]
                 counts.setdefault(node, {}).setdefault(record, 0)
                 counts[node][record] += 1
         assert described["nodes"] == counts
