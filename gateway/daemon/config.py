@@ -166,16 +166,12 @@ class MetricsConfig(Strict):
     127.0.0.1; [::1]:PORT for IPv6). Read-only: any address a scraper reaches will do."""
 
 
-class LiveConfig(Strict):
-    """Added: the live view, a Foxglove WebSocket server (docs/live.md)."""
+class TlsPair(Strict):
+    """A certificate and its key, both given or neither, each file read and checked as
+    the configuration is (the live view's server pair, an MQTT client's)."""
 
-    endpoint: Annotated[str, AfterValidator(check_host_port)] = DEFAULT_LIVE
-    """HOST:PORT it listens on (as metrics.endpoint). Read-only, and unauthenticated:
-    another host than the loopback is allowed, and logged once."""
-    backlog: Annotated[int, Field(ge=16, le=1_000_000)] = 1024
-    """Messages queued for each viewer; a viewer that reads slower loses the oldest."""
     tls_cert: Annotated[str, Field(min_length=1)] | None = None
-    """A PEM certificate: the server then takes wss:// only (with tls_key)."""
+    """A PEM certificate (with tls_key)."""
     tls_key: Annotated[str, Field(min_length=1)] | None = None
     """The PEM private key of tls_cert (PKCS#8, PKCS#1 or SEC1), not encrypted."""
 
@@ -197,6 +193,17 @@ class LiveConfig(Strict):
     @classmethod
     def _key(cls, path: str | None, info: ValidationInfo) -> str | None:
         return tls.check_key(path, info.data.get("tls_cert"))
+
+
+class LiveConfig(TlsPair):
+    """Added: the live view, a Foxglove WebSocket server (docs/live.md); with
+    tls_cert and tls_key it takes wss:// only."""
+
+    endpoint: Annotated[str, AfterValidator(check_host_port)] = DEFAULT_LIVE
+    """HOST:PORT it listens on (as metrics.endpoint). Read-only, and unauthenticated:
+    another host than the loopback is allowed, and logged once."""
+    backlog: Annotated[int, Field(ge=16, le=1_000_000)] = 1024
+    """Messages queued for each viewer; a viewer that reads slower loses the oldest."""
 
 
 LSL_NAME = r"[A-Za-z0-9][A-Za-z0-9_.-]{0,31}"
@@ -254,9 +261,10 @@ def check_prefix(prefix: str) -> str:
     return prefix
 
 
-class MqttConfig(Strict):
+class MqttConfig(TlsPair):
     """The MQTT output (docs/site.md): records as JSON, the status and availability,
-    to a broker the site runs."""
+    to a broker the site runs; tls_cert and tls_key: a client certificate, for a broker
+    that asks for one."""
 
     url: Annotated[str, AfterValidator(check_mqtt_url)]
     """``mqtt://HOST:PORT`` (1883 if no port) or ``mqtts://HOST:PORT`` (TLS, 8883)."""
@@ -269,9 +277,6 @@ class MqttConfig(Strict):
     tls_ca: Annotated[str, Field(min_length=1)] | None = None
     """PEM certificates the broker's is checked against (mqtts://); the system's if not
     given."""
-    tls_cert: Annotated[str, Field(min_length=1)] | None = None
-    """A PEM client certificate, for a broker that asks for one (with tls_key)."""
-    tls_key: Annotated[str, Field(min_length=1)] | None = None
     rate_hz: Annotated[float, Field(gt=0)] | dict[str, Annotated[float, Field(gt=0)]] \
         | None = None
     """Records sent at most this often, per node and record: a number for every record,
@@ -291,8 +296,6 @@ class MqttConfig(Strict):
     @classmethod
     def _pairs(cls, data: Any) -> Any:
         if isinstance(data, dict):
-            if (data.get("tls_cert") is None) != (data.get("tls_key") is None):
-                raise ValueError("tls_cert and tls_key: give both, or neither")
             if data.get("password") is not None and data.get("username") is None:
                 raise ValueError("password: given without username")
             url = data.get("url")
@@ -301,15 +304,10 @@ class MqttConfig(Strict):
                 raise ValueError("tls_ca and tls_cert need an mqtts:// url")
         return data
 
-    @field_validator("tls_ca", "tls_cert")
+    @field_validator("tls_ca")
     @classmethod
-    def _cert(cls, path: str | None) -> str | None:
+    def _ca(cls, path: str | None) -> str | None:
         return tls.check_cert(path)
-
-    @field_validator("tls_key")
-    @classmethod
-    def _key(cls, path: str | None, info: ValidationInfo) -> str | None:
-        return tls.check_key(path, info.data.get("tls_cert"))
 
     @field_validator("rate_hz")
     @classmethod

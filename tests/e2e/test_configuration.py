@@ -225,8 +225,10 @@ def test_only_true_and_false_are_booleans(tmp_path):
         {".".join(key) for key in keys}, keys
 
     def config() -> dict[str, Any]:
+        # (each section whose booleans are tried, with its required keys)
         return {**valid_config(), "curve": {"server_key": str(tmp_path / "server.key_secret"),
-                                             "clients": [str(tmp_path / "ops.key")]}}
+                                             "clients": [str(tmp_path / "ops.key")]},
+                "mqtt": {"url": "mqtt://127.0.0.1:1883"}}
     runs = {}
     with ThreadPoolExecutor(max_workers=8) as pool:
         for key in keys:
