@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 
 from gateway.client import Message, Recording, RecordingError, WindowError, to_pandas
 from gateway.recording.writer import RecordingWriter
-from tests.helpers.recorded import FILE_SECONDS, MARKS, T0, make_file
+from tests.helpers.recorded import MARKS, T0, hourly_files
 
 REPO = Path(__file__).resolve().parents[1]
 DOC = REPO / "docs" / "subscribing.md"
@@ -24,11 +24,7 @@ DOC = REPO / "docs" / "subscribing.md"
 
 @pytest.fixture
 def recordings(tmp_path: Path) -> Path:
-    folder = tmp_path / "recordings"
-    folder.mkdir()
-    for k in range(3):
-        make_file(folder / f"gx2-2026112{k}T000000.000Z.mcap", k * FILE_SECONDS, FILE_SECONDS)
-    return folder
+    return hourly_files(tmp_path)
 
 
 def recorded(folder: Path, start: float, end: float) -> list[tuple[str, dict]]:

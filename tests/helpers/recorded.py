@@ -69,3 +69,13 @@ def foreign_file(path: Path, entries: list[tuple[str, dict]], **options: Any) ->
             writer.add_message(channels[topic], at, json.dumps(payload).encode(), at)
         writer.finish()
     return path
+
+
+def hourly_files(tmp_path: Path) -> Path:
+    """Three finished hourly-like files of FILE_SECONDS each, in one folder, named as the
+    recorder names them."""
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    for k in range(3):
+        make_file(folder / f"gx2-2026112{k}T000000.000Z.mcap", k * FILE_SECONDS, FILE_SECONDS)
+    return folder

@@ -18,17 +18,12 @@ from gateway.recording.reader import read
 from gateway.recording.reports import Reading
 from gateway.recording.writer import RecordingWriter
 from tests.helpers.processes import gx2ctl
-from tests.helpers.recorded import FILE_SECONDS, RATE, T0, make_file
+from tests.helpers.recorded import RATE, T0, hourly_files, make_file
 
 
 @pytest.fixture
 def recordings(tmp_path: Path) -> Path:
-    """Three finished hourly-like files of 20 s each, named as the recorder names them."""
-    folder = tmp_path / "recordings"
-    folder.mkdir()
-    for k in range(3):
-        make_file(folder / f"gx2-2026112{k}T000000.000Z.mcap", k * FILE_SECONDS, FILE_SECONDS)
-    return folder
+    return hourly_files(tmp_path)
 
 
 def messages(paths: list[Path], start: float | None = None, end: float | None = None,
