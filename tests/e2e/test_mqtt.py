@@ -291,3 +291,16 @@ def test_check_says_a_bad_url_in_one_line(tmp_path: Path, url: str, said: str) -
     assert ran.returncode == 2
     assert ran.stderr.count("\n") == 1 and "mqtt.url" in ran.stderr and said in ran.stderr, \
         ran.stderr
+
+
+def test_plain_mqtt_to_a_tls_port_is_one_warning_naming_the_scheme(
+        simulator, gateway, broker, tmp_path: Path) -> None:
+    cert, key = certificate(tmp_path, "broker")
+    mosquitto = broker(tls=(cert, key))  # it accepts TCP, then drops the plain CONNECT
+    plain = mosquitto.url.replace("mqtts://", "mqtt://")
+    gw = mqtt_gateway(simulator, gateway, plain)
+    said = wait_for(lambda: (s := gw.status()["mqtt"])["error"] and s, 10,
+                    "the handshake's failure in status")
+    assert said["connected"] is False and "mqtts://" in said["error"], said
+    warnings = [line for line in gw.log().splitlines() if "WARNING gx2.mqtt" in line]
+    assert len(warnings) == 1 and "during the MQTT handshake" in warnings[0], warnings

@@ -48,7 +48,12 @@ them to paho at once: a wake of each thread a record cost 0.3 ms of CPU each, th
 times the gateway's own work a record (bench/ab.py --mqtt, docs/performance.md). A
 record waits this long at most on top of the network."""
 KEEPALIVE_S = 30
-"""The broker notices a gateway gone silent (and sends its will) in 1.5 times this."""
+"""The broker notices a gateway gone silent (and sends its will) in 1.5 times this; paho
+gives up on a broker that has not answered the CONNECT (no CONNACK) after as long."""
+HANDSHAKE_CLOSED = ("the connection closed during the MQTT handshake: is the url's scheme "
+                    "right (mqtts:// for TLS)?")
+"""Why a connection the broker accepted and closed before its CONNACK failed: most
+often plain MQTT sent to a TLS port (mosquitto logs "wrong version number")."""
 OFFLINE_STATES = frozenset({State.UNKNOWN, State.UNREACHABLE, State.SILENT,
                             State.LINK_DOWN})
 """A node in these states is ``offline``; in any other it answers: ``online``."""
@@ -268,8 +273,15 @@ class MqttOutput(Output):
                        properties: Any) -> None:
         was = self.connected
         self.connected = False
-        if was and not self._closing.is_set():
+        if self._closing.is_set():
+            return
+        if was:
             self._failed(f"disconnected: {reason}")
+        elif getattr(reason, "getName", lambda: "")() == "Keep alive timeout":
+            self._failed(f"no CONNACK within {self.client.keepalive} s: is it an MQTT "
+                         "broker?")
+        else:  # (accepted, then closed before the broker's answer)
+            self._failed(HANDSHAKE_CLOSED)
 
     def _failed(self, why: str) -> None:
         """Said once a WARN, each time the reason changes; retried by paho's backoff."""
