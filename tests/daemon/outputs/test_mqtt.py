@@ -85,3 +85,9 @@ def test_a_listener_that_never_answers_the_connect_is_said_once(monkeypatch, cap
     assert error.startswith("no CONNACK within 1 s"), error
     assert [r.getMessage() for r in caplog.records if "CONNACK" in r.getMessage()] \
         and len(caplog.records) == 1
+
+
+def test_the_urls_scheme_is_case_insensitive() -> None:
+    config = MqttConfig(url="MQTTS://Broker.example:8884", name="gw")
+    assert config.url == "mqtts://Broker.example:8884"
+    assert MqttOutput(config).client._ssl  # (TLS, as for mqtts://)
