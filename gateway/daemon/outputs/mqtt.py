@@ -112,6 +112,9 @@ class MqttOutput(Output):
         """Records not sent by ``rate_hz`` (by design: no loss)."""
         self.error: str | None = None
         """Why it is not connected (the last refusal or failure), None once it is."""
+        self._answered = False
+        """Whether the broker answered this attempt's CONNECT (a CONNACK, even a
+        refusal): a connection closed before that is a handshake that failed."""
         self.client = self._client()
         self._drainer = threading.Thread(target=self._drain, name="gx2-mqtt", daemon=True)
 
@@ -126,6 +129,7 @@ class MqttOutput(Output):
                            keyfile=config.tls_key, cert_reqs=ssl.CERT_REQUIRED)
         client.will_set(f"{self.base}/availability", "offline", qos=WILL_QOS, retain=True)
         client.reconnect_delay_set(*RECONNECT_S)
+        client.on_pre_connect = self._on_pre_connect
         client.on_connect = self._on_connect
         client.on_connect_fail = self._on_connect_fail
         client.on_disconnect = self._on_disconnect
@@ -238,8 +242,12 @@ class MqttOutput(Output):
                 else:
                     self.dropped["offline"] += 1
 
+    def _on_pre_connect(self, client: Client, userdata: Any) -> None:
+        self._answered = False
+
     def _on_connect(self, client: Client, userdata: Any, flags: Any, reason: Any,
                     properties: Any) -> None:
+        self._answered = True
         if reason.is_failure:
             self._failed(f"the broker refused the connection: {reason}")
             return
@@ -273,8 +281,8 @@ class MqttOutput(Output):
                        properties: Any) -> None:
         was = self.connected
         self.connected = False
-        if self._closing.is_set():
-            return
+        if self._closing.is_set() or (self._answered and not was):
+            return  # (a refusal: said by _on_connect)
         if was:
             self._failed(f"disconnected: {reason}")
         elif getattr(reason, "getName", lambda: "")() == "Keep alive timeout":
