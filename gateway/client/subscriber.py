@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from typing import Literal
 
 import msgpack
@@ -39,13 +39,15 @@ class Subscriber:
     ``nodes``/``records`` filter (empty: all); ``status=True`` also yields each
     gateway's heartbeat, and ``status="only"`` nothing else (a monitor: no record
     crosses the network to it). ``keys``: CURVE keys, when the gateway encrypts its stream
-    (:func:`gateway.common.curve.load_client_keys`). Malformed messages are
+    (:func:`gateway.common.curve.load_client_keys`): one set for every endpoint, or a
+    map endpoint -> keys (None, or an endpoint missing from it: plain), for gateways
+    with server keys of their own. Malformed messages are
     skipped, counted in ``malformed`` and given to ``on_malformed`` (default: logged).
     """
 
     def __init__(self, endpoints: str | Iterable[str], nodes: Iterable[int] = (),
                  records: Iterable[str] = (), *, status: bool | Literal["only"] = False,
-                 keys: curve.ClientKeys | None = None,
+                 keys: curve.ClientKeys | Mapping[str, curve.ClientKeys | None] | None = None,
                  on_malformed: Callable[[str, Malformed], None] | None = None,
                  context: zmq.Context | None = None) -> None:
         self.endpoints = [endpoints] if isinstance(endpoints, str) else list(endpoints)
@@ -76,7 +78,8 @@ class Subscriber:
         self.malformed = 0
         try:
             for endpoint in self.endpoints:
-                self._connect(endpoint, keys)
+                self._connect(endpoint, keys.get(endpoint) if isinstance(keys, Mapping)
+                              else keys)
         except BaseException:
             self.close()
             raise

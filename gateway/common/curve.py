@@ -45,7 +45,7 @@ class ClientKeys:
     server_public: bytes
 
 
-def _is_z85_key(text: str) -> bool:
+def is_z85_key(text: str) -> bool:
     if len(text) != KEY_LENGTH:
         return False
     try:
@@ -63,9 +63,9 @@ def _read(path: Path) -> tuple[bytes, bytes | None]:
     except (ValueError, KeyError, UnicodeDecodeError):
         raise CurveError(f"{path}: not a ZeroMQ key file (make one with gx2ctl "
                          "keygen)") from None
-    if public is None or not _is_z85_key(public.decode("ascii", "replace")):
+    if public is None or not is_z85_key(public.decode("ascii", "replace")):
         raise CurveError(f"{path}: no valid public-key in it")
-    if secret is not None and not _is_z85_key(secret.decode("ascii", "replace")):
+    if secret is not None and not is_z85_key(secret.decode("ascii", "replace")):
         raise CurveError(f"{path}: its secret-key is not a valid key")
     return public, secret
 
@@ -85,7 +85,7 @@ def load_key_pair(path: str | Path) -> KeyPair:
 
 def public_key(text: str) -> bytes:
     """A public key given as its 40 Z85 characters or as a key file holding it."""
-    if _is_z85_key(text):
+    if is_z85_key(text):
         return text.encode("ascii")
     path = Path(text)
     if not path.exists():

@@ -11,6 +11,12 @@ endpoint, and names them (a configuration path is read relative to the file)::
         config: hall-a.yaml
       - name: hall-b
         control: tcp://10.0.0.12:5556
+        server_key: hall-b.key
+
+``server_key:`` (a gateway's public key or its file, read relative to the gateways
+file) is that gateway's own; one given with ``--server-key`` or the environment
+applies to the others. Keys apply only to gateways that use CURVE: a gateway whose
+configuration has no ``curve:`` is connected to in plain.
 """
 
 from __future__ import annotations
@@ -30,7 +36,9 @@ from .where import Endpoints, Gateway
 
 CLIENT_KEY_ENV, SERVER_KEY_ENV = "GX2_CLIENT_KEY", "GX2_SERVER_KEY"
 LIST_KEY = "gateways"
-ENTRY_KEYS = frozenset(("name", "config", "control"))
+ENTRY_KEYS = frozenset(("name", "config", "control", "server_key"))
+Entry = tuple[str | None, str | None, str | None, str | None]
+"""A gateway as a gateways file lists it: (name, config, control, server_key)."""
 
 
 def gateways(args: argparse.Namespace) -> list[Gateway]:
@@ -39,18 +47,25 @@ def gateways(args: argparse.Namespace) -> list[Gateway]:
     configs, controls = args.config or [], args.control or []
     if not configs and not controls:
         return [Gateway(DEFAULT_CONTROL, endpoints(args, None, None))]
-    entries: list[tuple[str | None, str | None, str | None]] = []
+    entries: list[Entry] = []
     for path in configs:
         listed = site_entries(path)
-        entries += listed if listed is not None else [(None, path, None)]
-    entries += [(None, None, control) for control in controls]
-    named = [Gateway(name or "", endpoints(args, config, control), config)
-             for name, config, control in entries]
+        entries += listed if listed is not None else [(None, path, None, None)]
+    entries += [(None, None, control, None) for control in controls]
+    named = []
+    for name, config, control, server_key in entries:
+        try:
+            where = endpoints(args, config, control, server_key)
+        except CtlError as error:
+            if len(entries) == 1:
+                raise
+            raise CtlError(f"{name or config or control}: {error}", error.status) from None
+        named.append(Gateway(name or "", where, config))
     return _distinct(_named(named))
 
 
-def site_entries(path: str) -> list[tuple[str | None, str | None, str | None]] | None:
-    """The (name, config, control) entries of a gateways file, or None if ``path`` is
+def site_entries(path: str) -> list[Entry] | None:
+    """The (name, config, control, server_key) entries of a gateways file, or None if ``path`` is
     not one (a gateway's configuration: its own loader judges it)."""
     import yaml  # loaded only when a file is named, as the configuration's loader is
     try:
@@ -70,7 +85,7 @@ def site_entries(path: str) -> list[tuple[str | None, str | None, str | None]] |
     return [_entry(path, number, entry) for number, entry in enumerate(listed, 1)]
 
 
-def _entry(path: str, number: int, entry: Any) -> tuple[str | None, str | None, str | None]:
+def _entry(path: str, number: int, entry: Any) -> Entry:
     where = f"{path}: {LIST_KEY}[{number}]"
     if not isinstance(entry, Mapping):
         raise CtlError(f"{where}: a map with config: or control: (and name:), not "
@@ -78,7 +93,7 @@ def _entry(path: str, number: int, entry: Any) -> tuple[str | None, str | None, 
     unknown = sorted(str(key) for key in set(entry) - ENTRY_KEYS)
     if unknown:
         raise CtlError(f"{where}: unknown key {unknown[0]} (it takes name, config, "
-                       "control)", Exit.USAGE)
+                       "control, server_key)", Exit.USAGE)
     values = {}
     for key in ENTRY_KEYS & set(entry):
         if not isinstance(entry[key], str) or not entry[key].strip():
@@ -94,7 +109,10 @@ def _entry(path: str, number: int, entry: Any) -> tuple[str | None, str | None, 
             control = check_endpoint(control)
         except ValueError as error:
             raise CtlError(f"{where}.control: {error}", Exit.USAGE) from None
-    return values.get("name"), config, control
+    server_key = values.get("server_key")
+    if server_key is not None and not curve.is_z85_key(server_key):
+        server_key = str(Path(path).parent / Path(server_key).expanduser())
+    return values.get("name"), config, control, server_key
 
 
 def _named(found: list[Gateway]) -> list[Gateway]:
@@ -126,12 +144,13 @@ def _distinct(found: list[Gateway]) -> list[Gateway]:
 
 
 def endpoints(args: argparse.Namespace, config_path: str | None,
-              control: str | None) -> Endpoints:
+              control: str | None, own_key: str | None = None) -> Endpoints:
     """One gateway's endpoints: from its configuration (loaded here: its errors exit 2),
-    its control endpoint, or the default; CURVE keys from the options, the environment,
-    or the configuration."""
+    its control endpoint, or the default; CURVE keys from its gateways file entry
+    (``own_key``), the options, the environment, or its configuration (which alone
+    says whether it uses CURVE at all)."""
     client_key = args.client_key or os.environ.get(CLIENT_KEY_ENV)
-    server_key = args.server_key or os.environ.get(SERVER_KEY_ENV)
+    server_key = own_key or args.server_key or os.environ.get(SERVER_KEY_ENV)
     if config_path is None:
         keys = client_keys(client_key, server_key, None)
         return Endpoints(control or DEFAULT_CONTROL, None, keys)
@@ -142,10 +161,10 @@ def endpoints(args: argparse.Namespace, config_path: str | None,
     except ConfigError as error:
         raise CtlError(str(error), Exit.USAGE) from None
     secured = config.curve is not None
-    if secured and server_key is None:
+    if secured and server_key is None:  # (none given: the one its configuration names)
         sibling = curve.public_sibling(config.curve.server_key)
         server_key = str(sibling) if sibling.exists() else config.curve.server_key
-    keys = client_keys(client_key, server_key, config_path if secured else None)
+    keys = client_keys(client_key, server_key, config_path) if secured else None
     return Endpoints(config.control.endpoint, config.publish.endpoint, keys,
                      secured and config.curve.publish, config.publish.heartbeat_s,
                      tuple(n.address for n in config.all_nodes))

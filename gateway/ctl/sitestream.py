@@ -55,15 +55,11 @@ def sources(nodes: Sequence[int], named: Sequence[Gateway], timeout: float,
 @contextlib.contextmanager
 def subscribe_all(nodes: Sequence[int], found: Sequence[tuple[Gateway, Source]],
                   **options: Any) -> Iterator[Subscriber]:
-    """One subscriber to every gateway found. They must share their CURVE keys (one
-    --client-key and --server-key are given for all)."""
-    keys = {source.keys for _, source in found if source.keys is not None}
-    if len(keys) > 1:
-        raise CtlError("the gateways encrypt with different CURVE keys: gx2ctl takes one "
-                       "--server-key for all of them", Exit.USAGE)
+    """One subscriber to every gateway found, each with its own CURVE keys (or none)."""
     try:
         sub = Subscriber([source.address for _, source in found], nodes,
-                         keys=next(iter(keys), None), on_malformed=warn_malformed, **options)
+                         keys={source.address: source.keys for _, source in found},
+                         on_malformed=warn_malformed, **options)
     except GatewayError as error:
         raise CtlError(str(error), Exit.USAGE) from None
     with sub:

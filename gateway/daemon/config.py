@@ -6,6 +6,7 @@ Strict: an unknown key is an error, so a typo never passes silently.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import socket
@@ -237,7 +238,9 @@ MQTT_LEVEL = r"^[^/+#\x00]+$"
 
 
 def check_mqtt_url(url: str) -> str:
-    """``mqtt://HOST[:PORT]`` or ``mqtts://HOST[:PORT]``; ValueError (one line) if not."""
+    """``mqtt://HOST[:PORT]`` or ``mqtts://HOST[:PORT]``, its scheme in lower case
+    (schemes are case-insensitive: ``MQTTS://`` is TLS too); ValueError (one line) if
+    not."""
     parts = urlsplit(url)
     if parts.scheme not in MQTT_SCHEMES:
         raise ValueError(f"{url!r}: the scheme is {parts.scheme or 'missing'!r}; "
@@ -246,11 +249,11 @@ def check_mqtt_url(url: str) -> str:
         port = parts.port
     except ValueError:
         raise ValueError(f"{url!r}: the port is not a number in 1..65535") from None
-    if not parts.hostname or port == 0 or parts.path not in ("", "/") or parts.query \
-            or parts.username is not None:
-        raise ValueError(f"{url!r}: give mqtt://HOST:PORT (no path, query or user: the "
-                         "user is mqtt.username)")
-    return url
+    if not parts.hostname or port == 0 or parts.path not in ("", "/") or "?" in url \
+            or "#" in url or parts.username is not None:
+        raise ValueError(f"{url!r}: give mqtt://HOST:PORT (no path, query, fragment or "
+                         "user: the user is mqtt.username)")
+    return parts.scheme + url[len(parts.scheme):]
 
 
 def check_prefix(prefix: str) -> str:
@@ -277,8 +280,7 @@ class MqttConfig(TlsPair):
     tls_ca: Annotated[str, Field(min_length=1)] | None = None
     """PEM certificates the broker's is checked against (mqtts://); the system's if not
     given."""
-    rate_hz: Annotated[float, Field(gt=0)] | dict[str, Annotated[float, Field(gt=0)]] \
-        | None = None
+    rate_hz: float | dict[str, float] | None = None
     """Records sent at most this often, per node and record: a number for every record,
     or a map record name -> Hz (records not named go at their full rate). None: every
     sample."""
@@ -299,7 +301,7 @@ class MqttConfig(TlsPair):
             if data.get("password") is not None and data.get("username") is None:
                 raise ValueError("password: given without username")
             url = data.get("url")
-            if (isinstance(url, str) and url.startswith("mqtt://") and any(
+            if (isinstance(url, str) and urlsplit(url).scheme == "mqtt" and any(
                     data.get(key) is not None for key in ("tls_ca", "tls_cert"))):
                 raise ValueError("tls_ca and tls_cert need an mqtts:// url")
         return data
@@ -309,12 +311,19 @@ class MqttConfig(TlsPair):
     def _ca(cls, path: str | None) -> str | None:
         return tls.check_cert(path)
 
-    @field_validator("rate_hz")
+    @field_validator("rate_hz", mode="before")
     @classmethod
     def _records(cls, value: Any) -> Any:
-        if isinstance(value, dict):
-            for record in value:
+        """Each rate a finite number of Hz above 0 (``.inf`` would be every sample, as
+        leaving it out is), each record a known one: said in one line."""
+        for record, rate in value.items() if isinstance(value, dict) else [(None, value)]:
+            if record is not None:
                 checked(record)
+            if rate is not None and (isinstance(rate, bool) or not isinstance(
+                    rate, int | float) or not 0 < rate < math.inf):
+                where = f"{record}: " if record is not None else ""
+                raise ValueError(f"{where}{rate!r}: a number of Hz above 0 (leave it out "
+                                 "to send every sample)")
         return value
 
     def every_s(self, record: str) -> float | None:

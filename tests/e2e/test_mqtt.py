@@ -281,6 +281,8 @@ def test_mqtts_connects_to_a_broker_its_ca_vouches_for_and_no_other(
     ("http://127.0.0.1:1883", "the scheme is 'http'"),
     ("mqtt://127.0.0.1:port", "the port is not a number"),
     ("mqtt://", "give mqtt://HOST:PORT"),
+    ("mqtt://127.0.0.1:1883#frag", "no path, query, fragment"),
+    ("mqtt://127.0.0.1:1883?", "no path, query, fragment"),
 ])
 def test_check_says_a_bad_url_in_one_line(tmp_path: Path, url: str, said: str) -> None:
     config = tmp_path / "nodes.yaml"
@@ -291,3 +293,34 @@ def test_check_says_a_bad_url_in_one_line(tmp_path: Path, url: str, said: str) -
     assert ran.returncode == 2
     assert ran.stderr.count("\n") == 1 and "mqtt.url" in ran.stderr and said in ran.stderr, \
         ran.stderr
+
+
+def test_plain_mqtt_to_a_tls_port_is_one_warning_naming_the_scheme(
+        simulator, gateway, broker, tmp_path: Path) -> None:
+    cert, key = certificate(tmp_path, "broker")
+    mosquitto = broker(tls=(cert, key))  # it accepts TCP, then drops the plain CONNECT
+    plain = mosquitto.url.replace("mqtts://", "mqtt://")
+    gw = mqtt_gateway(simulator, gateway, plain)
+    said = wait_for(lambda: (s := gw.status()["mqtt"])["error"] and s, 10,
+                    "the handshake's failure in status")
+    assert said["connected"] is False and "mqtts://" in said["error"], said
+    warnings = [line for line in gw.log().splitlines() if "WARNING gx2.mqtt" in line]
+    assert len(warnings) == 1 and "during the MQTT handshake" in warnings[0], warnings
+
+
+@pytest.mark.parametrize(("mqtt", "said"), [
+    ("{url: 'mqtt://127.0.0.1', rate_hz: .inf}", "mqtt.rate_hz: inf: a number of Hz"),
+    ("{url: 'mqtt://127.0.0.1', rate_hz: {euler: .inf}}", "mqtt.rate_hz: euler: inf"),
+    ("{url: 'mqtt://127.0.0.1', rate_hz: .nan}", "mqtt.rate_hz: nan: a number of Hz"),
+    ("{url: 'MQTT://127.0.0.1', tls_ca: /etc/hostname}", "tls_ca and tls_cert need an "
+     "mqtts:// url"),
+])
+def test_check_refuses_an_mqtt_setting_in_one_line(tmp_path: Path, mqtt: str,
+                                                    said: str) -> None:
+    config = tmp_path / "nodes.yaml"
+    config.write_text(f"base_station: {{port: 'sim://'}}\nnodes: [{{address: 76}}]\n"
+                      f"mqtt: {mqtt}\n")
+    ran = subprocess.run([script("gx2-gateway"), "--config", str(config), "--check"],
+                         capture_output=True, text=True, timeout=30)
+    assert ran.returncode == 2
+    assert ran.stderr.count("\n") == 1 and said in ran.stderr, ran.stderr

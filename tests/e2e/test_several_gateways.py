@@ -15,9 +15,12 @@ from pathlib import Path
 import pytest
 import yaml
 
+from gateway.common import curve
+from gateway.common.curve import ClientKeys
 from gateway.sim.node import NodeSettings
 from tests.e2e.test_recording import messages, node_records
 from tests.e2e.test_top import Terminal, row
+from tests.helpers.gateway import Control
 from tests.helpers.processes import STARTUP, Running, gx2ctl, script
 from tests.helpers.waiting import wait_for
 
@@ -195,3 +198,46 @@ def test_top_json_prints_each_gateways_heartbeat_with_its_name(site) -> None:
     finally:
         top.proc.send_signal(signal.SIGINT)
     assert top.finish(10) == 0, top.stderr
+
+
+def test_record_takes_each_gateways_own_curve_key_and_a_plain_one_alongside(
+        simulator, gateway, zmq_context, tmp_path: Path) -> None:
+    """hall-a and hall-b encrypt with server keys of their own (hall-b's given by its
+    gateways file entry), hall-c not at all: one record takes all three."""
+    for name in ("srv-a", "srv-b", "ops"):
+        curve.generate(tmp_path / name)
+    ops = curve.load_key_pair(tmp_path / "ops.key_secret")
+    running = {}
+    for name, node, secured in (("hall-a", 76, "srv-a"), ("hall-b", 90, "srv-b"),
+                                ("hall-c", 91, None)):
+        sim = simulator(NodeSettings(node, divider=DIVIDER, stream="accel_angrate"),
+                        name=f"sim-{name}")
+        extra = {"curve": {"server_key": str(tmp_path / f"{secured}.key_secret"),
+                           "clients": [str(tmp_path / "ops.key")]}} if secured else {}
+        gw = running[name] = gateway(sim.path, [{"address": node}], wait=False,
+                                     directory=tmp_path / name, **extra)
+        if secured:
+            server = curve.load_key_pair(tmp_path / f"{secured}.key_secret").public
+            gw.control = Control(zmq_context, gw.control_endpoint, ClientKeys(ops, server))
+        wait_for(lambda gw=gw: gw.control.try_call("status", timeout=0.5), STARTUP,
+                 f"{name} answering")
+        gw.wait_streaming(node)
+    listed = tmp_path / "site.yaml"
+    listed.write_text(yaml.safe_dump({"gateways": [
+        {"name": "hall-a", "config": "hall-a/nodes.yaml"},
+        {"name": "hall-b", "control": running["hall-b"].control_endpoint,
+         "server_key": "srv-b.key"},
+        {"name": "hall-c", "config": "hall-c/nodes.yaml"}]}))
+    configs = [f"--config={tmp_path / name / 'nodes.yaml'}" for name in running]
+    client = ("--client-key", str(tmp_path / "ops.key_secret"))
+    for number, named in enumerate(([f"--config={listed}"], configs)):
+        target = tmp_path / f"three{number}.mcap"
+        done = gx2ctl(*named, *client, "record", "--seconds", "2", str(target))
+        assert done.status == 0, done.stderr
+        assert {topic for topic, _, _ in node_records(messages(target))} == {
+            "gx2/76/accel_angrate", "gx2/90/accel_angrate", "gx2/91/accel_angrate"}
+
+    refused = gx2ctl(*configs[1:], "status")  # (no client key: the error names hall-b)
+    assert refused.status == 2 and refused.stderr.count("\n") == 1, refused.stderr
+    assert refused.stderr.startswith(f"gx2ctl: {configs[1].removeprefix('--config=')}: "), \
+        refused.stderr

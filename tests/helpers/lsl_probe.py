@@ -67,7 +67,7 @@ def stream_meta(info: Any) -> dict[str, Any]:
             "nominal_srate": info.nominal_srate(), "source_id": info.source_id(),
             "channel_format": info.channel_format(), "channels": channels,
             "synchronization": {key: sync.child_value(key) for key in (
-                "can_drop_samples", "time_source", "clock_locked", "latency_ms")},
+                "can_drop_samples", "time_source", "clock_locked_at_start", "latency_ms")},
             "node": info.desc().child("gx2").child_value("node")}
 
 

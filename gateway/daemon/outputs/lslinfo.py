@@ -103,10 +103,14 @@ def describe(pylsl: ModuleType, prefix: str, payload: Mapping[str, Any],
         "time_source", "sample instants: the gateway's time of each record (the node's "
         "timer through its clock line to the host's monotonic clock), less "
         "base_station.latency_ms; not when the gateway pushed it")
+    # the node's clock when the stream was made (an XDF file keeps the header it was
+    # given, however long the recording): its drift only once locked, as a drift still
+    # settling (0.0 from the first points) was never measured; status has it now
     clock = (node_status or {}).get("clock") or {}
-    sync.append_child_value("clock_locked", str(bool(clock.get("locked"))).lower())
-    if clock.get("drift_ppm") is not None:
-        sync.append_child_value("clock_drift_ppm", str(clock["drift_ppm"]))
+    locked = clock.get("locked") is True
+    sync.append_child_value("clock_locked_at_start", str(locked).lower())
+    if locked and clock.get("drift_ppm") is not None:
+        sync.append_child_value("clock_drift_ppm_at_start", str(clock["drift_ppm"]))
     if latency_ms is not None:
         sync.append_child_value("latency_ms", str(latency_ms))
     gx2 = desc.append_child("gx2")

@@ -48,7 +48,12 @@ them to paho at once: a wake of each thread a record cost 0.3 ms of CPU each, th
 times the gateway's own work a record (bench/ab.py --mqtt, docs/performance.md). A
 record waits this long at most on top of the network."""
 KEEPALIVE_S = 30
-"""The broker notices a gateway gone silent (and sends its will) in 1.5 times this."""
+"""The broker notices a gateway gone silent (and sends its will) in 1.5 times this; paho
+gives up on a broker that has not answered the CONNECT (no CONNACK) after as long."""
+HANDSHAKE_CLOSED = ("the connection closed during the MQTT handshake: is the url's scheme "
+                    "right (mqtts:// for TLS)?")
+"""Why a connection the broker accepted and closed before its CONNACK failed: most
+often plain MQTT sent to a TLS port (mosquitto logs "wrong version number")."""
 OFFLINE_STATES = frozenset({State.UNKNOWN, State.UNREACHABLE, State.SILENT,
                             State.LINK_DOWN})
 """A node in these states is ``offline``; in any other it answers: ``online``."""
@@ -107,6 +112,9 @@ class MqttOutput(Output):
         """Records not sent by ``rate_hz`` (by design: no loss)."""
         self.error: str | None = None
         """Why it is not connected (the last refusal or failure), None once it is."""
+        self._answered = False
+        """Whether the broker answered this attempt's CONNECT (a CONNACK, even a
+        refusal): a connection closed before that is a handshake that failed."""
         self.client = self._client()
         self._drainer = threading.Thread(target=self._drain, name="gx2-mqtt", daemon=True)
 
@@ -121,6 +129,7 @@ class MqttOutput(Output):
                            keyfile=config.tls_key, cert_reqs=ssl.CERT_REQUIRED)
         client.will_set(f"{self.base}/availability", "offline", qos=WILL_QOS, retain=True)
         client.reconnect_delay_set(*RECONNECT_S)
+        client.on_pre_connect = self._on_pre_connect
         client.on_connect = self._on_connect
         client.on_connect_fail = self._on_connect_fail
         client.on_disconnect = self._on_disconnect
@@ -233,8 +242,12 @@ class MqttOutput(Output):
                 else:
                     self.dropped["offline"] += 1
 
+    def _on_pre_connect(self, client: Client, userdata: Any) -> None:
+        self._answered = False
+
     def _on_connect(self, client: Client, userdata: Any, flags: Any, reason: Any,
                     properties: Any) -> None:
+        self._answered = True
         if reason.is_failure:
             self._failed(f"the broker refused the connection: {reason}")
             return
@@ -268,8 +281,15 @@ class MqttOutput(Output):
                        properties: Any) -> None:
         was = self.connected
         self.connected = False
-        if was and not self._closing.is_set():
+        if self._closing.is_set() or (self._answered and not was):
+            return  # (a refusal: said by _on_connect)
+        if was:
             self._failed(f"disconnected: {reason}")
+        elif getattr(reason, "getName", lambda: "")() == "Keep alive timeout":
+            self._failed(f"no CONNACK within {self.client.keepalive} s: is it an MQTT "
+                         "broker?")
+        else:  # (accepted, then closed before the broker's answer)
+            self._failed(HANDSHAKE_CLOSED)
 
     def _failed(self, why: str) -> None:
         """Said once a WARN, each time the reason changes; retried by paho's backoff."""

@@ -181,3 +181,28 @@ def test_a_record_no_report_names_gets_an_irregular_stream(
     lsl.take(euler(1))
     lsl._push_queued()
     assert [o.info.rate for o in pylsl.outlets] == [0.0]
+
+
+def synchronization(outlet: Any) -> dict[str, str]:
+    """The desc/synchronization block of an outlet's stream, as written."""
+    block = next(child for name, child in outlet.info.desc().children
+                 if name == "synchronization")
+    return dict(block.children)
+
+
+@pytest.mark.parametrize(("clock", "said"), [
+    ({"locked": False, "drift_ppm": 0.0}, {"clock_locked_at_start": "false"}),
+    ({"locked": True, "drift_ppm": 12.5}, {"clock_locked_at_start": "true",
+                                           "clock_drift_ppm_at_start": "12.5"}),
+    (None, {"clock_locked_at_start": "false"}),
+])
+def test_the_desc_says_the_clock_at_stream_start_and_no_drift_before_it_locks(
+        clock: dict[str, Any] | None, said: dict[str, str]) -> None:
+    pylsl = FakePylsl()
+    lsl = LslOutput(LslConfig(), {"station1": 3.0}, pylsl)  # type: ignore[arg-type]
+    lsl.report({"nodes": [{"node": 76, "record": "euler", "divider": 512, "clock": clock}]})
+    lsl.take(euler(1))
+    lsl._push_queued()
+    (outlet,) = pylsl.outlets
+    sync = synchronization(outlet)
+    assert {key: value for key, value in sync.items() if key.startswith("clock")} == said

@@ -3,10 +3,14 @@ queue that stays bounded (dropped and counted) when nothing drains it."""
 
 from __future__ import annotations
 
+import logging
+import socket
+
 from gateway.common.topics import STATUS_TOPIC, topic
 from gateway.daemon.config import MqttConfig
-from gateway.daemon.outputs import Message
+from gateway.daemon.outputs import Message, mqtt
 from gateway.daemon.outputs.mqtt import MqttOutput, Sampler
+from tests.helpers.waiting import wait_for
 
 
 def test_rate_hz_takes_every_nth_sample_by_sample_time_whatever_the_arrival() -> None:
@@ -58,3 +62,32 @@ def test_availability_is_said_on_change_and_offline_for_a_node_removed() -> None
                     ("gx2/gw/77/availability", b"offline"),
                     ("gx2/gw/77/availability", b"online"),
                     ("gx2/gw/76/availability", b"offline")]
+
+
+def test_a_listener_that_never_answers_the_connect_is_said_once(monkeypatch, caplog) -> None:
+    """A port that accepts TCP and never sends CONNACK: paho gives up after the
+    keepalive (1 s here), and the output says so."""
+    monkeypatch.setattr(mqtt, "KEEPALIVE_S", 1)
+    monkeypatch.setattr(mqtt, "RECONNECT_S", (1, 1))
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen(8)
+        output = MqttOutput(MqttConfig(url=f"mqtt://127.0.0.1:{server.getsockname()[1]}",
+                                       name="gw"))
+        with caplog.at_level(logging.WARNING, "gx2.mqtt"):
+            output.start()
+            try:
+                error = wait_for(lambda: output.status()["error"], 10, "the reason")
+                wait_for(lambda: output.connects == 0 and len(caplog.records) >= 1, 5,
+                         "the warning")
+            finally:
+                output.close(2)
+    assert error.startswith("no CONNACK within 1 s"), error
+    assert [r.getMessage() for r in caplog.records if "CONNACK" in r.getMessage()] \
+        and len(caplog.records) == 1
+
+
+def test_the_urls_scheme_is_case_insensitive() -> None:
+    config = MqttConfig(url="MQTTS://Broker.example:8884", name="gw")
+    assert config.url == "mqtts://Broker.example:8884"
+    assert MqttOutput(config).client._ssl  # (TLS, as for mqtts://)
