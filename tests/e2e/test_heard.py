@@ -112,7 +112,7 @@ def test_status_lists_exactly_the_nodes_heard_that_are_not_configured(
     assert "heard, not configured: 83 powered up (a discovery packet), RSSI -4" in shown
 
     # 81 switched off: still remembered, no longer streaming, no longer a reason
-    done = sim_command("power", "81", "off")
+    done = sim_command("power", "81", "off", "--pid", str(running.proc.pid))
     assert done.returncode == 0 and done.stdout.strip() == "node 81 switched off", done
     wait_for(lambda: heard(gw.status())[81]["rate_hz"] is None, 5, "81 to stop streaming")
     status = gw.status()
