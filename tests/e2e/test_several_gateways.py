@@ -17,6 +17,8 @@ import yaml
 
 from gateway.common import curve
 from gateway.common.curve import ClientKeys
+from gateway.recording.reader import read
+from gateway.recording.reports import Reading
 from gateway.sim.node import NodeSettings
 from tests.e2e.test_recording import messages, node_records
 from tests.e2e.test_top import Terminal, row
@@ -129,6 +131,11 @@ def test_record_from_both_gateways_into_one_file(site, tmp_path: Path) -> None:
                      str(target))
     try:
         wait_for(target.exists, STARTUP, "record to hear the gateways")
+
+        def holds_hall_b() -> bool:  # (the file as flushed so far, read past its end)
+            return any(entry.topic == "gx2/90/accel_angrate"
+                       for entry in read(target, Reading()))
+        wait_for(holds_hall_b, STARTUP, "hall-b's records in the file")
         running["hall-b"].terminate()
         wait_for(lambda: any("hall-b at " in line and "published nothing" in line
                              for line in record.stderr), 15, "record to say hall-b is silent")
