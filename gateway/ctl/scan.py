@@ -76,7 +76,8 @@ def run_scan(station: str | None, addresses: Sequence[int], where: Endpoints,
                 result = client.call("scan", cancel=True, addresses=ranges_text(batch),
                                      **fields)
                 scanned = result.get("scanned")
-                if not isinstance(scanned, int) or not 1 <= scanned <= len(batch):
+                # (0: the gateway read part of the batch's first node, and goes on)
+                if not isinstance(scanned, int) or not 0 <= scanned <= len(batch):
                     raise CtlError(f"the gateway sent a malformed scan reply (scanned "
                                    f"{scanned!r} of {len(batch)})", Exit.NODE_FAILED)
                 done += scanned
@@ -153,5 +154,7 @@ def _stream(entry: Mapping[str, Any]) -> str:
     now = f"streaming {cell(streaming)}" if isinstance(streaming, str) else "not streaming"
     if entry.get("divider") is None:  # (not read: nothing is known of its power-up)
         return now
+    if auto_start is None and entry.get("unanswered"):  # (the last read: not answered)
+        return f"{now} (from power-up: unknown)"
     return f"{now} (from power-up: {cell(auto_start) if auto_start else 'none'})"
 

@@ -276,21 +276,39 @@ async def info(gw: Operations, request: Any) -> Result:
     return {"node": node.address, **await identify(node.address, ask)}
 
 
+IDENTITY = ("model_number", "serial_number", "model_name", "options")
+"""The four identifier strings (0xEA), by selector."""
+
+
 async def identify(address: int, ask: Callable[[commands.Command], Awaitable[Record]]
                    ) -> Result:
     """What a node is: its firmware version and four identifier strings, each read with
     ``ask`` (a command to the node, its reply's record)."""
-    version = (await ask(commands.firmware_version()))["version"]
-    texts = []
-    for selector in range(4):
-        record = await ask(commands.device_id(selector))
-        if record["selector"] != selector:  # a late answer to an earlier request
-            raise NodeError(f"node {address}: asked for identifier {selector}, "
-                            f"got {record['selector']}")
-        texts.append(record["text"])
-    return {"firmware": version, "firmware_version": commands.firmware_text(version),
-            "model_number": texts[0], "serial_number": texts[1], "model_name": texts[2],
-            "options": texts[3]}
+    result: Result = {}
+    for _, command, fields in identity_reads(address):
+        result.update(fields(await ask(command)))
+    return result
+
+
+def identity_reads(address: int) -> list[tuple[str, commands.Command,
+                                               Callable[[Record], Result]]]:
+    """The reads :func:`identify` makes, one at a time: the field each fills, its
+    command, and the fields its reply's record gives (a scan cut short goes on from
+    the first read it lacks)."""
+    def version(record: Record) -> Result:
+        return {"firmware": record["version"],
+                "firmware_version": commands.firmware_text(record["version"])}
+
+    def text(selector: int) -> Callable[[Record], Result]:
+        def field(record: Record) -> Result:
+            if record["selector"] != selector:  # a late answer to an earlier request
+                raise NodeError(f"node {address}: asked for identifier {selector}, "
+                                f"got {record['selector']}")
+            return {IDENTITY[selector]: record["text"]}
+        return field
+    return [("firmware", commands.firmware_version(), version),
+            *((key, commands.device_id(selector), text(selector))
+              for selector, key in enumerate(IDENTITY))]
 
 
 def _named(request: Any) -> list[int]:

@@ -247,3 +247,22 @@ def test_on_a_terminal_the_progress_is_shown_in_place_on_stderr(simulator, gatew
     assert done[0] == 0 and done[-1] == 40 and done == sorted(done) and len(done) >= 5, text
     assert "about" in text and text.endswith("\r\x1b[K"), text  # cleared at the end
     assert run.stdout.splitlines()[0].startswith("3  station1  LQI ")
+
+
+def test_on_a_full_line_each_node_found_is_read_whole_and_nothing_unread_is_guessed(
+        simulator, gateway):
+    # five nodes streaming at 100 Hz fill the line: a read takes many times as long
+    sim = simulator(*(NodeSettings(a, stream="accel_angrate", divider=512)
+                      for a in range(76, 81)))
+    gw = gateway(sim.path, [{"address": a, "stream": "accel_angrate"} for a in (76, 77, 78)])
+    gw.wait_streaming(76, 77, 78)
+    # (a node takes 6 to 7 s to read: more than one request's 4.5 s)
+    ran = gx2ctl("--config", str(gw.path), "--json", "scan", "--addresses", "75,78,80",
+                 timeout=90)
+    assert ran.status == 0, ran
+    found = json.loads(ran.stdout)["found"]
+    assert [f["address"] for f in found] == [78, 80]
+    for entry in found:  # a batch starts no node it cannot finish: the next one reads it
+        assert entry["unanswered"] is None, ran.stdout
+        assert entry["serial_number"] and entry["divider"] == 512, entry
+    assert [f["auto_start"] for f in found] == ["accel_angrate"] * 2
