@@ -266,3 +266,36 @@ def test_on_a_full_line_each_node_found_is_read_whole_and_nothing_unread_is_gues
         assert entry["unanswered"] is None, ran.stdout
         assert entry["serial_number"] and entry["divider"] == 512, entry
     assert [f["auto_start"] for f in found] == ["accel_angrate"] * 2
+
+
+def test_a_base_station_lost_mid_scan_keeps_what_was_found_and_says_how_far(
+        simulator, gateway, tmp_path):
+    for as_json in (True, False):
+        name = "json" if as_json else "text"
+        sim = simulator(NodeSettings(3), NodeSettings(76), name=name)
+        gw = gateway(sim.path, [{"address": 76, "stream": "accel_angrate"}],
+                     directory=tmp_path / f"gw-{name}")
+        ctl = Running("gx2ctl", "--config", str(gw.path), *(["--json"] if as_json else []),
+                      "scan", "--addresses", "1-1000")
+        try:
+            wait_for(lambda sim=sim: len(pings(sim)) >= 20, 10, "20 addresses pinged")
+            sim.unplug()
+            assert ctl.finish(15) == 1, ctl.stderr
+        finally:
+            ctl.kill()
+        [said] = ctl.stderr
+        assert said.startswith("gx2ctl: base station station1 "), said
+        if as_json:
+            [line] = ctl.stdout
+            result = json.loads(line)
+            assert [entry["address"] for entry in result["found"]] == [3]
+            assert 16 <= result["scanned"] < 1000 and result["of"] == 1000
+            assert result["exit"] == 1 and said.rstrip("\n") == f"gx2ctl: {result['error']}"
+        else:
+            found, last = ctl.stdout
+            assert found.startswith("3  station1  LQI ")
+            assert re.fullmatch(r"stopped after (\d+) addresses \(1-\1\) of 1000 on "
+                                r"station1, [\d.]+ s: 1 node found\n", last), last
+    # once down, a new scan has nothing to say but the error
+    text = gx2ctl("--config", str(gw.path), "scan", "--addresses", "1-1000")
+    assert text.status == 1 and text.stdout == "", text
