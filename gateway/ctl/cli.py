@@ -182,7 +182,7 @@ def run_op(op: Op, args: argparse.Namespace, where: Endpoints) -> int:
     shown = show(op.name, {**fields, **switches}, result, args.json)
     emit(shown.lines)
     if shown.failure:
-        raise CtlError(shown.failure, Exit.NODE_FAILED)
+        raise CtlError(shown.failure, shown.status)
     return Exit.OK
 
 

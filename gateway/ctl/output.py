@@ -14,6 +14,7 @@ from typing import Any
 
 from gateway.common.jsontext import json_line
 from gateway.common.ops import BY_NAME
+from gateway.common.protocol import Exit
 from gateway.common.reading import number
 
 from .cells import MISSING, cell
@@ -27,6 +28,8 @@ class Shown:
 
     lines: list[str]
     failure: str | None = None
+    status: Exit = Exit.NODE_FAILED
+    """The exit status a failure gives."""
 
 
 Printer = Callable[[Mapping[str, Any], Mapping[str, Any]], Shown]
@@ -50,7 +53,8 @@ def show(op: str, fields: Mapping[str, Any], result: Mapping[str, Any],
     printer = PRINTERS.get(op)
     shown = printer(fields, result) if printer is not None else None
     if as_json or shown is None:
-        return Shown([json_line(result)], shown.failure if shown else None)
+        return (Shown([json_line(result)]) if shown is None
+                else Shown([json_line(result)], shown.failure, shown.status))
     return shown
 
 
@@ -268,6 +272,11 @@ def _mark(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
 
 @prints("reload")
 def _reload(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
+    waiting = result.get("waiting_for")
+    if isinstance(waiting, list) and waiting:
+        return Shown([], f"the reload waits for the operation on node "
+                     f"{', '.join(cell(n) for n in waiting)} and is applied when it ends "
+                     "(the gateway's log says when)", Exit.NO_ANSWER)
     lines = [f"{what}: {', '.join(cell(n) for n in nodes)}"
              for what in ("added", "removed", "changed")
              if isinstance(nodes := result.get(what), list) and nodes]

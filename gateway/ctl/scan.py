@@ -68,6 +68,7 @@ def run_scan(station: str | None, addresses: Sequence[int], where: Endpoints,
     done = 0
     progress = Progress(len(addresses), sys.stderr.isatty())
     interrupted: str | None = None
+    failed: CtlError | None = None
     try:
         with Client(where.control, timeout, where.keys) as client:
             progress.show(done, len(found))
@@ -76,7 +77,8 @@ def run_scan(station: str | None, addresses: Sequence[int], where: Endpoints,
                 result = client.call("scan", cancel=True, addresses=ranges_text(batch),
                                      **fields)
                 scanned = result.get("scanned")
-                if not isinstance(scanned, int) or not 1 <= scanned <= len(batch):
+                # (0: the gateway read part of the batch's first node, and goes on)
+                if not isinstance(scanned, int) or not 0 <= scanned <= len(batch):
                     raise CtlError(f"the gateway sent a malformed scan reply (scanned "
                                    f"{scanned!r} of {len(batch)})", Exit.NODE_FAILED)
                 done += scanned
@@ -92,9 +94,12 @@ def run_scan(station: str | None, addresses: Sequence[int], where: Endpoints,
                 progress.show(done, len(found))
     except CtlError as error:
         progress.clear()
-        if error.status != INTERRUPTED:
-            raise
-        interrupted = str(error)
+        if error.status != INTERRUPTED and not done:
+            raise  # (nothing scanned: the error is all there is to say)
+        if error.status == INTERRUPTED:
+            interrupted = str(error)
+        else:  # (the base station dropped mid-scan, say): what was scanned stands
+            failed = error
     except KeyboardInterrupt:  # (between two requests: none to cancel)
         progress.clear()
         interrupted = "interrupted"
@@ -103,10 +108,17 @@ def run_scan(station: str | None, addresses: Sequence[int], where: Endpoints,
     if as_json:
         print(json_line({"found": list(found), "scanned": done, "of": len(addresses),
                          "stations": stations, "seconds": round(seconds, 3),
-                         "interrupted": interrupted is not None}), flush=True)
-    else:
-        print(summary(done, addresses, stations, found, seconds, interrupted is not None),
+                         "interrupted": interrupted is not None,
+                         **({} if failed is None else {"error": str(failed),
+                                                      "exit": int(failed.status)})}),
               flush=True)
+    else:
+        print(summary(done, addresses, stations, found, seconds,
+                      "interrupted" if interrupted is not None
+                      else "stopped" if failed is not None else None), flush=True)
+    if failed is not None:
+        print(f"{PROG}: {failed}", file=sys.stderr, flush=True)
+        return failed.status
     if interrupted is not None:
         print(f"{PROG}: {interrupted}", file=sys.stderr, flush=True)
         return INTERRUPTED
@@ -114,14 +126,15 @@ def run_scan(station: str | None, addresses: Sequence[int], where: Endpoints,
 
 
 def summary(done: int, addresses: Sequence[int], stations: Sequence[str],
-            found: Sequence[Mapping[str, Any]], seconds: float, interrupted: bool) -> str:
-    """``scanned 100 addresses (1-100) on station1 in 4.6 s: 3 nodes found``."""
+            found: Sequence[Mapping[str, Any]], seconds: float, cut: str | None) -> str:
+    """``scanned 100 addresses (1-100) on station1 in 4.6 s: 3 nodes found``; ``cut``:
+    how it ended early (``interrupted``, ``stopped``), if it did."""
     covered = f"{done} addresses ({ranges_text(addresses[:done])})" if done else "no address"
     where = f" on {', '.join(stations)}" if stations else ""
     what = (f"{len(found)} node{'' if len(found) == 1 else 's'} found" if found
             else "no node answered")
-    if interrupted:
-        return f"interrupted after {covered} of {len(addresses)}{where}, {seconds:.1f} s: {what}"
+    if cut:
+        return f"{cut} after {covered} of {len(addresses)}{where}, {seconds:.1f} s: {what}"
     return f"scanned {covered}{where} in {seconds:.1f} s: {what}"
 
 
@@ -153,5 +166,7 @@ def _stream(entry: Mapping[str, Any]) -> str:
     now = f"streaming {cell(streaming)}" if isinstance(streaming, str) else "not streaming"
     if entry.get("divider") is None:  # (not read: nothing is known of its power-up)
         return now
+    if auto_start is None and entry.get("unanswered"):  # (the last read: not answered)
+        return f"{now} (from power-up: unknown)"
     return f"{now} (from power-up: {cell(auto_start) if auto_start else 'none'})"
 

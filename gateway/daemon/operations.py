@@ -9,9 +9,10 @@ about a node's stream (``start`` and ``stop`` change what it pursues).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import time
 from collections import Counter
-from collections.abc import Awaitable, Callable, Coroutine, Sequence
+from collections.abc import Awaitable, Callable, Coroutine, Iterator, Sequence
 from typing import Any, Protocol
 
 from aspp import commands
@@ -22,7 +23,7 @@ from aspp.timing import data_rate, divider_for_rate
 from gateway.common import ops
 
 from .errors import Invalid, NodeError, OpError, Refused
-from .requests import RequestBase
+from .requests import RequestBase, answer_within
 from .station.nodes import Node
 from .station.reader import Reader
 from .station.scheduler import Scheduler
@@ -41,6 +42,9 @@ class StationParts(Protocol):
     replaying: bool
 
 Result = dict[str, Any]
+RELOAD_SHARE = 0.8
+"""Of the time a reload request is answered within: how long it waits for operations
+on the nodes it changes before answering that it waits (it goes on, and is logged)."""
 Handler = Callable[["Operations", Any], Awaitable[Result]]
 HANDLERS: dict[str, Handler] = {}
 
@@ -63,7 +67,8 @@ class Operations:
     def __init__(self, stations: Sequence[StationParts], status: Callable[[], Result], *,
                  allow_eeprom_write: bool, allow_any_eeprom_address: bool = False,
                  publish_mark: Callable[[Result], bool] | None = None,
-                 reload: Callable[[], Awaitable[Result]] | None = None) -> None:
+                 reload: Callable[[float | None], Awaitable[Result]] | None = None
+                 ) -> None:
         self.stations = stations if isinstance(stations, Stations) else Stations(stations)
         """The one node -> station map is the gateway's (:mod:`.stations`), shared."""
         self.nodes = self.stations.nodes
@@ -76,11 +81,15 @@ class Operations:
         self.publish_mark = publish_mark
         """Publishes a mark (and so records it); False if it could not be published."""
         self.reload = reload
-        """Reloads the configuration file (:class:`~.reload.Reloader`); None: cannot."""
+        """Reloads the configuration file (:class:`~.reload.Reloader`), answering
+        within the seconds given; None: cannot."""
         self._tasks: set[asyncio.Task[None]] = set()
         self._running: Counter[int] = Counter()
         """Node address -> the requests naming it that are running."""
         self._waiting: list[asyncio.Event] = []
+        self._reserved: dict[int, str] = {}
+        """Node address -> what a pending reload does to it (``removing``): new
+        requests naming it are refused, so the reload waits only for those running."""
 
     async def run(self, request: RequestBase) -> Result:
         op = request.op  # type: ignore[attr-defined]
@@ -88,6 +97,11 @@ class Operations:
             raise Refused(f"{op}: this gateway is replaying a recording and sends "
                           "nothing to any node")
         named = _named(request)
+        for address in named:
+            if address in self._reserved:
+                raise Refused(f"{op}: a reload is {self._reserved[address]} node "
+                              f"{address}; it waits for the operation already running "
+                              "on it (the gateway's log says when it is applied)")
         self._running.update(named)
         try:
             return await HANDLERS[op](self, request)
@@ -98,6 +112,21 @@ class Operations:
                     del self._running[address]
             for event in self._waiting:
                 event.set()
+
+    def busy(self, addresses: set[int]) -> set[int]:
+        """Those of ``addresses`` a running request names."""
+        return {address for address in addresses if self._running[address] > 0}
+
+    @contextlib.contextmanager
+    def reserved(self, doing: dict[int, str]) -> Iterator[None]:
+        """While a reload is pending: a new request naming one of ``doing``'s nodes
+        is refused, saying what the reload does to it."""
+        self._reserved.update(doing)
+        try:
+            yield
+        finally:
+            for address in doing:
+                self._reserved.pop(address, None)
 
     async def idle(self, addresses: set[int]) -> None:
         """Until no request naming one of ``addresses`` runs (a reload waits so for the
@@ -247,21 +276,39 @@ async def info(gw: Operations, request: Any) -> Result:
     return {"node": node.address, **await identify(node.address, ask)}
 
 
+IDENTITY = ("model_number", "serial_number", "model_name", "options")
+"""The four identifier strings (0xEA), by selector."""
+
+
 async def identify(address: int, ask: Callable[[commands.Command], Awaitable[Record]]
                    ) -> Result:
     """What a node is: its firmware version and four identifier strings, each read with
     ``ask`` (a command to the node, its reply's record)."""
-    version = (await ask(commands.firmware_version()))["version"]
-    texts = []
-    for selector in range(4):
-        record = await ask(commands.device_id(selector))
-        if record["selector"] != selector:  # a late answer to an earlier request
-            raise NodeError(f"node {address}: asked for identifier {selector}, "
-                            f"got {record['selector']}")
-        texts.append(record["text"])
-    return {"firmware": version, "firmware_version": commands.firmware_text(version),
-            "model_number": texts[0], "serial_number": texts[1], "model_name": texts[2],
-            "options": texts[3]}
+    result: Result = {}
+    for _, command, fields in identity_reads(address):
+        result.update(fields(await ask(command)))
+    return result
+
+
+def identity_reads(address: int) -> list[tuple[str, commands.Command,
+                                               Callable[[Record], Result]]]:
+    """The reads :func:`identify` makes, one at a time: the field each fills, its
+    command, and the fields its reply's record gives (a scan cut short goes on from
+    the first read it lacks)."""
+    def version(record: Record) -> Result:
+        return {"firmware": record["version"],
+                "firmware_version": commands.firmware_text(record["version"])}
+
+    def text(selector: int) -> Callable[[Record], Result]:
+        def field(record: Record) -> Result:
+            if record["selector"] != selector:  # a late answer to an earlier request
+                raise NodeError(f"node {address}: asked for identifier {selector}, "
+                                f"got {record['selector']}")
+            return {IDENTITY[selector]: record["text"]}
+        return field
+    return [("firmware", commands.firmware_version(), version),
+            *((key, commands.device_id(selector), text(selector))
+              for selector, key in enumerate(IDENTITY))]
 
 
 def _named(request: Any) -> list[int]:
@@ -276,7 +323,8 @@ async def reload(gw: Operations, request: Any) -> Result:
     whole (Invalid: the file does not check; Refused: it needs a restart)."""
     if gw.reload is None:
         raise Refused("reload: this gateway was not started from a configuration file")
-    return await gw.reload()
+    return await gw.reload(None if request.timeout is None
+                           else RELOAD_SHARE * answer_within(request.timeout))
 
 
 @handles("mark")

@@ -16,7 +16,9 @@ added and removed)").
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
+import threading
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +42,11 @@ NODE_KEYS = ("base_station", "base_stations", "nodes")
 """The keys whose nodes may change live (the stations under them may not)."""
 
 
+READ_SECONDS = 5.0
+"""How long reading the file may take (a FIFO, a stalled network file system) before
+the reload is refused; the gateway goes on meanwhile."""
+
+
 class NeedsRestart(Exception):
     """The file changes what cannot change while the gateway runs (one line)."""
 
@@ -58,7 +65,13 @@ class Plan:
     @property
     def touched(self) -> set[int]:
         """The running nodes it changes (an operation on one is waited for)."""
-        return {a for _, a in self.removed} | {e.address for _, e in self.changed}
+        return set(self.doing)
+
+    @property
+    def doing(self) -> dict[int, str]:
+        """Each running node it changes, and how (``removing``, ``changing``)."""
+        return {**{e.address: "changing" for _, e in self.changed},
+                **{a: "removing" for _, a in self.removed}}
 
     def said(self) -> str:
         """The plan in words, for the log."""
@@ -149,16 +162,26 @@ class Reloader:
         self._ops = ops
         self._lock = asyncio.Lock()
         self._tasks: set[asyncio.Task[dict[str, Any]]] = set()
+        self._waiting_for: set[int] = set()
+        """The nodes whose running operations the reload under way waits for."""
 
     def soon(self) -> None:
         """SIGHUP: reload in the background (its outcome is logged)."""
         self._start()
 
-    async def reload(self) -> dict[str, Any]:
+    async def reload(self, patience: float | None = None) -> dict[str, Any]:
         """Reload, to the end even if the caller gives up: a reload half applied
         would leave a configuration the file never held. What changed, or Invalid (the
-        file does not check) or Refused (it needs a restart), logged in one line."""
-        return await asyncio.shield(self._start())
+        file does not check) or Refused (it needs a restart), logged in one line.
+
+        Still waiting for an operation on a node it changes after ``patience``
+        seconds: ``{"waiting_for": [NODE, ...]}`` at once, and it goes on (logged)."""
+        task = self._start()
+        if patience is not None:
+            await asyncio.wait([task], timeout=patience)
+            if not task.done() and self._waiting_for:
+                return {"waiting_for": sorted(self._waiting_for)}
+        return await asyncio.shield(task)
 
     def _start(self) -> asyncio.Task[dict[str, Any]]:
         task = asyncio.get_running_loop().create_task(self._reload())
@@ -180,7 +203,7 @@ class Reloader:
     async def _reload(self) -> dict[str, Any]:
         async with self._lock:
             try:
-                new = load_config(self.path)
+                new = await read_config(self.path)
                 todo = plan(self._running(), new)
             except ConfigError as error:
                 log.error("reload refused: %s; %s", error, KEPT)
@@ -188,12 +211,7 @@ class Reloader:
             except NeedsRestart as error:
                 log.error("reload refused: %s; %s", error, KEPT)
                 raise Refused(f"reload refused: {error}; {KEPT}") from None
-            if todo:
-                log.info("reload of %s: %s", self.path, todo.said())
-                # an operation on a node it changes ends first (a bias capture, a
-                # self-test); any other node's goes on untouched
-                await self._ops.idle(todo.touched)
-            unconfirmed = await self._apply(todo) if todo else []
+            unconfirmed = await self._wait_and_apply(todo) if todo else []
             self._applied(new)
             log.info("reloaded %s: %s", self.path, todo.said() + "".join(
                 f"; node {a} not confirmed stopped: {why}" for a, why in unconfirmed))
@@ -201,6 +219,22 @@ class Reloader:
                     "removed": [a for _, a in todo.removed],
                     "changed": [e.address for _, e in todo.changed],
                     "not_stopped": [{"node": a, "error": why} for a, why in unconfirmed]}
+
+    async def _wait_and_apply(self, todo: Plan) -> list[tuple[int, str]]:
+        """An operation on a node it changes ends first (a bias capture, a self-test);
+        a new one on such a node is refused meanwhile, so only those running when the
+        reload came are waited for. Any other node's goes on untouched."""
+        log.info("reload of %s: %s", self.path, todo.said())
+        with self._ops.reserved(todo.doing):
+            self._waiting_for = self._ops.busy(todo.touched)
+            if self._waiting_for:
+                log.info("reload of %s waits for the operation on node %s", self.path,
+                         ", ".join(map(str, sorted(self._waiting_for))))
+            try:
+                await self._ops.idle(todo.touched)
+            finally:
+                self._waiting_for = set()
+            return await self._apply(todo)
 
     async def _apply(self, todo: Plan) -> list[tuple[int, str]]:
         """Gone from the one map first (no op, status or metric sees them any more),
@@ -227,3 +261,34 @@ class Reloader:
         results = await asyncio.gather(*(station.retire(node) for station, node in leaving))
         return [(node.address, why) for (_, node), why in zip(leaving, results, strict=True)
                 if why is not None]
+
+
+async def read_config(path: str | Path) -> GatewayConfig:
+    """:func:`load_config` in a thread of its own, READ_SECONDS at most: the event loop
+    (every stream, every request) never waits for a file. A daemon thread, so a read
+    that never returns cannot hold up the gateway's exit."""
+    loop = asyncio.get_running_loop()
+    future: asyncio.Future[GatewayConfig] = loop.create_future()
+
+    def settle(result: GatewayConfig | None, error: BaseException | None) -> None:
+        if future.done():
+            return  # (too late: the reload was refused)
+        if error is not None:
+            future.set_exception(error)
+        else:
+            future.set_result(result)  # type: ignore[arg-type]
+
+    def read() -> None:
+        try:
+            outcome: tuple[Any, BaseException | None] = (load_config(path), None)
+        except BaseException as error:  # (handed to the loop)
+            outcome = (None, error)
+        with contextlib.suppress(RuntimeError):  # (the loop has closed)
+            loop.call_soon_threadsafe(settle, *outcome)
+
+    threading.Thread(target=read, name="reload-read", daemon=True).start()
+    try:
+        return await asyncio.wait_for(future, READ_SECONDS)
+    except TimeoutError:
+        raise ConfigError(f"{path}: not read within {READ_SECONDS:g} s (a FIFO, or a "
+                          "file system that does not answer?)") from None

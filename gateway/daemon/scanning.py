@@ -30,6 +30,7 @@ from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
+from weakref import WeakKeyDictionary
 
 from aspp import Reply, commands
 from aspp.commands import EEPROM_AUTO_START, EEPROM_DIVIDER
@@ -38,7 +39,7 @@ from aspp.records import STREAMABLE, Record
 from aspp.timing import DEFAULT_DIVIDER, data_rate, sample_period, valid_divider
 
 from .errors import Invalid, LinkDown, NodeError
-from .operations import Operations, Result, StationParts, handles, identify
+from .operations import Operations, Result, StationParts, handles, identity_reads
 from .requests import answer_within
 from .station.nodes import Delivery, State
 from .station.scheduler import Scheduler
@@ -46,7 +47,9 @@ from .station.scheduler import Scheduler
 READ_SECONDS = 1.0
 """A request starts on another address only with this long left before it must be
 answered: the time to read a node found at 100 Hz (7 reads, about 0.1 s on gx2-sim)
-with room to spare. What is left over goes to the next request."""
+with room to spare. What is left over goes to the next request; so does a node whose
+reads the time cut short (on a full line reading a node takes 3 to 4 s): the next
+request goes on with the reads it lacks."""
 
 
 @dataclass
@@ -80,7 +83,8 @@ class Heard:
 async def scan(gw: Operations, request: Any) -> Result:
     """Scan ``request.addresses`` on the named base station, or on every one at once
     (each its own channel); ``scanned``: how many of them (in ascending order) were
-    scanned on every one, ``found``: the nodes that answered among those."""
+    scanned on every one (0: the first node's reads go on in the next request),
+    ``found``: the nodes that answered among those."""
     stations = _stations(gw, request.station)
     for station in stations:
         if not station.scheduler.link_up:
@@ -101,7 +105,8 @@ async def scan(gw: Operations, request: Any) -> Result:
         for task in tasks:
             task.cancel()
     scanned = min(count for _, count in done)
-    if scanned == 0:
+    if scanned == 0 and not any(addresses[0] in _begun.get(s.scheduler, {})
+                                for s in stations):  # (else: reads to go on with)
         raise NodeError(f"no answer to a ping of {addresses[0]} within the request's "
                         f"{request.timeout:g} s (gx2ctl status shows the base station)")
     covered = set(addresses[:scanned])
@@ -123,7 +128,10 @@ def _stations(gw: Operations, name: str | None) -> list[StationParts]:
 async def _scan_station(station: StationParts, addresses: tuple[int, ...],
                         until: float | None) -> tuple[list[Result], int]:
     """Ping each address in turn, reading each node that answers, until the addresses
-    or the time run out: (the nodes found, how many addresses were scanned)."""
+    or the time run out: (the nodes found, how many addresses were scanned). A node
+    whose reads the time cut short is left for the next request, which goes on with
+    the reads it lacks, unless this request got none of them answered (a node that
+    answers pings only: it is reported as far as it answered)."""
     loop = asyncio.get_running_loop()
     found: list[Result] = []
     for index, address in enumerate(addresses):
@@ -135,37 +143,81 @@ async def _scan_station(station: StationParts, addresses: tuple[int, ...],
         except TimeoutError:
             return found, index
         if answered:
-            found.append(await _read(station, address, until))
+            entry, resumable = await _read(station, address, until)
+            if entry["unanswered"] == OUT_OF_TIME and (index or resumable):
+                return found, index  # (the next request goes on reading it)
+            _begun.get(station.scheduler, {}).pop(address, None)
+            found.append(entry)
     return found, len(addresses)
 
 
-async def _read(station: StationParts, address: int, until: float | None) -> Result:
-    """What the node at ``address`` is, from the reads it answers before ``until``."""
+OUT_OF_TIME = "out of time before every read was answered"
+RESUME_SECONDS = 60.0
+"""How long what was read of a node waits for the next request to go on with it."""
+FRUITLESS = 3
+"""Requests in a row that got none of a node's reads answered before it is reported
+as far as it answered (it answers pings only, say)."""
+
+
+@dataclass
+class Begun:
+    """A node whose reads a request's time cut short."""
+
+    when: float
+    entry: Result
+    heard: Heard
+    fruitless: int = 0
+    """Requests in a row that got none of its reads answered."""
+
+
+_begun: WeakKeyDictionary[Scheduler, dict[int, Begun]] = WeakKeyDictionary()
+"""Per base station (its scheduler), the nodes whose reads go on in the next request."""
+
+
+async def _read(station: StationParts, address: int, until: float | None
+                ) -> tuple[Result, bool]:
+    """What the node at ``address`` is, from the reads it answers before ``until``
+    (going on from where the last request's time cut them short), and whether the
+    next request should go on with them (cut short, and not FRUITLESS)."""
     node = station.nodes.get(address)
-    entry: Result = {"address": address, "station": station.name,
-                     "configured": node is not None,
-                     "name": node.name if node is not None else None,
-                     "lqi": None, "rssi": None, "firmware": None, "firmware_version": None,
-                     "model_number": None, "serial_number": None, "model_name": None,
-                     "options": None, "divider": None, "rate_hz": None, "auto_start": None,
-                     "streaming": None, "unanswered": None}
-    heard = Heard()
+    loop = asyncio.get_running_loop()
+    begun = _begun.setdefault(station.scheduler, {})
+    for stale in [a for a, b in begun.items() if loop.time() - b.when > RESUME_SECONDS]:
+        del begun[stale]
+    earlier = begun.pop(address, None)
+    entry, heard = (earlier.entry, earlier.heard) if earlier is not None else ({
+        "address": address, "station": station.name, "lqi": None, "rssi": None,
+        "firmware": None, "firmware_version": None, "model_number": None,
+        "serial_number": None, "model_name": None, "options": None, "divider": None,
+        "rate_hz": None, "auto_start": None, "streaming": None, "unanswered": None},
+        Heard())
+    entry.update(configured=node is not None, name=node.name if node is not None else None,
+                 unanswered=None)
     addressee = node if node is not None else Stranger(address)
     reads = _Reads(station.scheduler, addressee, heard)
+    progressed = False
     try:
         with _listening(station, address, heard):
             async with asyncio.timeout_at(until):
-                divider = (await reads.ask(commands.read_eeprom(EEPROM_DIVIDER)))["value"]
-                entry["divider"] = divider
-                if valid_divider(divider):
-                    entry["rate_hz"] = round(data_rate(divider), 3)
-                    if isinstance(addressee, Stranger):
-                        addressee.divider = divider
-                entry.update(await identify(address, reads.ask))
+                if entry["divider"] is None:
+                    divider = (await reads.ask(commands.read_eeprom(EEPROM_DIVIDER))
+                               )["value"]
+                    entry["divider"] = divider
+                    if valid_divider(divider):
+                        entry["rate_hz"] = round(data_rate(divider), 3)
+                    progressed = True
+                if isinstance(addressee, Stranger) and valid_divider(entry["divider"]):
+                    addressee.divider = entry["divider"]
+                for key, command, fields in identity_reads(address):
+                    if entry[key] is None:
+                        entry.update(fields(await reads.ask(command)))
+                        progressed = True
                 word = (await reads.ask(commands.read_eeprom(EEPROM_AUTO_START)))["value"]
                 entry["auto_start"] = commands.auto_start_record(word)
     except TimeoutError:
-        entry["unanswered"] = "out of time before every read was answered"
+        entry["unanswered"] = OUT_OF_TIME
+        fruitless = 0 if progressed else 1 + (earlier.fruitless if earlier else 0)
+        begun[address] = Begun(loop.time(), entry, heard, fruitless)
     except NodeError as error:  # (a base station gone, LinkDown, ends the scan)
         entry["unanswered"] = str(error)
     entry.update(heard.link())
@@ -175,7 +227,8 @@ async def _read(station: StationParts, address: int, until: float | None) -> Res
             entry.update(lqi=node.lqi, rssi=node.rssi)
     elif heard.streamed:
         entry["streaming"] = heard.streamed.most_common(1)[0][0]
-    return entry
+    later = begun.get(address)
+    return dict(entry), later is not None and later.fruitless < FRUITLESS
 
 
 class _Reads:

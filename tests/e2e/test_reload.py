@@ -6,6 +6,7 @@ recording read back with the ``mcap`` package's own reader."""
 from __future__ import annotations
 
 import json
+import os
 import signal
 import time
 from itertools import pairwise
@@ -170,3 +171,51 @@ def test_a_reload_waits_for_a_capture_on_a_node_it_removes_and_never_for_another
     assert addresses(gw) == {76}
     assert continuous(sim, 77) == 0 and continuous(sim, 76) == 0xC2
     assert [c.arguments["sampling_time"] for c in received(sim, 76, 0xCD)] == [8000]
+
+
+def test_a_reload_waiting_for_a_capture_says_so_and_refuses_new_operations_on_the_node(
+        simulator, gateway):
+    sim = simulator(*(NodeSettings(a, divider=DIVIDER, motion=Motion(yaw_rate=0.0))
+                      for a in (76, 77)))
+    gw = gateway(sim.path, [KEPT, {"address": 77, "stream": "euler"}])
+    gw.wait_streaming(76, 77)
+    config = str(gw.path)
+    capture = Running("gx2ctl", "--config", config, "bias", "capture", "77", "--ms", "6000")
+    try:
+        wait_for(lambda: {n["node"]: n["state"] for n in gw.status()["nodes"]}[77] == "busy",
+                 10, "the capture under way")
+        rewrite(gw, nodes=[KEPT])
+        # the gateway answers in time that the reload waits (exit 3), not a node failure
+        ran = gx2ctl("--config", config, "--timeout", "2", "reload")
+        assert ran.status == 3 and ran.stdout == "", ran
+        assert len(ran.stderr.splitlines()) == 1, ran
+        assert "waits for the operation on node 77" in ran.stderr and "log" in ran.stderr
+        # a new operation on 77 cannot starve it: refused in one line
+        late = gx2ctl("--config", config, "info", "77")
+        assert late.status == 1 and len(late.stderr.splitlines()) == 1, late
+        assert "a reload is removing node 77" in late.stderr, late
+        assert gx2ctl("--config", config, "ping", "76").status == 0
+        assert capture.finish(15) == 0, capture.stderr
+    finally:
+        capture.kill()
+    wait_for(lambda: addresses(gw) == {76}, 10, "77 removed once its capture ended")
+    assert "waits for the operation on node 77" in gw.log()
+    assert [c.arguments["sampling_time"] for c in received(sim, 77, 0xCD)] == [6000]
+
+
+def test_a_reload_of_a_file_that_cannot_be_read_never_freezes_the_gateway(
+        simulator, gateway):
+    sim = three_nodes(simulator)
+    gw = gateway(sim.path, [KEPT])
+    gw.wait_streaming(76)
+    gw.path.unlink()
+    os.mkfifo(gw.path)  # opening it blocks until someone writes: no one does
+    gw.proc.send_signal(signal.SIGHUP)
+    started = time.monotonic()
+    ran = gx2ctl("--control", gw.config["control"]["endpoint"], "--timeout", "2", "status")
+    assert ran.status == 0, ran
+    assert time.monotonic() - started < 2
+    wait_for(lambda: refusals(gw), 10, "the refusal in the log")
+    assert "not read within" in refusals(gw)[-1] and "kept" in refusals(gw)[-1]
+    assert addresses(gw) == {76}
+    assert gw.terminate()[0] == 0, gw.log()

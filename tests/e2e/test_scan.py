@@ -247,3 +247,55 @@ def test_on_a_terminal_the_progress_is_shown_in_place_on_stderr(simulator, gatew
     assert done[0] == 0 and done[-1] == 40 and done == sorted(done) and len(done) >= 5, text
     assert "about" in text and text.endswith("\r\x1b[K"), text  # cleared at the end
     assert run.stdout.splitlines()[0].startswith("3  station1  LQI ")
+
+
+def test_on_a_full_line_each_node_found_is_read_whole_and_nothing_unread_is_guessed(
+        simulator, gateway):
+    # five nodes streaming at 100 Hz fill the line: a read takes many times as long
+    sim = simulator(*(NodeSettings(a, stream="accel_angrate", divider=512)
+                      for a in range(76, 81)))
+    gw = gateway(sim.path, [{"address": a, "stream": "accel_angrate"} for a in (76, 77, 78)])
+    gw.wait_streaming(76, 77, 78)
+    # (a node takes 6 to 7 s to read: more than one request's 4.5 s)
+    ran = gx2ctl("--config", str(gw.path), "--json", "scan", "--addresses", "75,78,80",
+                 timeout=90)
+    assert ran.status == 0, ran
+    found = json.loads(ran.stdout)["found"]
+    assert [f["address"] for f in found] == [78, 80]
+    for entry in found:  # a batch starts no node it cannot finish: the next one reads it
+        assert entry["unanswered"] is None, ran.stdout
+        assert entry["serial_number"] and entry["divider"] == 512, entry
+    assert [f["auto_start"] for f in found] == ["accel_angrate"] * 2
+
+
+def test_a_base_station_lost_mid_scan_keeps_what_was_found_and_says_how_far(
+        simulator, gateway, tmp_path):
+    for as_json in (True, False):
+        name = "json" if as_json else "text"
+        sim = simulator(NodeSettings(3), NodeSettings(76), name=name)
+        gw = gateway(sim.path, [{"address": 76, "stream": "accel_angrate"}],
+                     directory=tmp_path / f"gw-{name}")
+        ctl = Running("gx2ctl", "--config", str(gw.path), *(["--json"] if as_json else []),
+                      "scan", "--addresses", "1-1000")
+        try:
+            wait_for(lambda sim=sim: len(pings(sim)) >= 20, 10, "20 addresses pinged")
+            sim.unplug()
+            assert ctl.finish(15) == 1, ctl.stderr
+        finally:
+            ctl.kill()
+        [said] = ctl.stderr
+        assert said.startswith("gx2ctl: base station station1 "), said
+        if as_json:
+            [line] = ctl.stdout
+            result = json.loads(line)
+            assert [entry["address"] for entry in result["found"]] == [3]
+            assert 16 <= result["scanned"] < 1000 and result["of"] == 1000
+            assert result["exit"] == 1 and said.rstrip("\n") == f"gx2ctl: {result['error']}"
+        else:
+            found, last = ctl.stdout
+            assert found.startswith("3  station1  LQI ")
+            assert re.fullmatch(r"stopped after (\d+) addresses \(1-\1\) of 1000 on "
+                                r"station1, [\d.]+ s: 1 node found\n", last), last
+    # once down, a new scan has nothing to say but the error
+    text = gx2ctl("--config", str(gw.path), "scan", "--addresses", "1-1000")
+    assert text.status == 1 and text.stdout == "", text

@@ -48,6 +48,11 @@ themselves, while a status listing them all stays some tens of kB."""
 LINK_SAMPLES = 9
 """Packets whose LQI and RSSI give the median shown: a few, so one packet caught in a
 fade does not move it, and a node carried away shows it within seconds."""
+LOG_BURST = 10
+"""Addresses logged (each once, its first news) per LOG_WINDOW; past it, a count."""
+LOG_WINDOW = 60.0
+"""Seconds over which LOG_BURST counts; the next news after it logs the count of those
+not logged."""
 STREAM_RECORDS = 3
 """Records of one streamable kind in a row from an address before it is taken to
 stream (two commands answered with the same record are not a stream)."""
@@ -179,6 +184,11 @@ class Heard:
         self.forgotten = 0
         """Addresses forgotten to keep within the limit."""
         self._nodes: OrderedDict[int, HeardNode] = OrderedDict()
+        self._logged: set[int] = set()
+        """Addresses whose news was logged (or counted) while they are remembered."""
+        self._window = -LOG_WINDOW
+        self._said = 0
+        self._unsaid = 0
 
     def __len__(self) -> int:
         return len(self._nodes)
@@ -195,7 +205,8 @@ class Heard:
         if node is None:
             node = nodes[address] = HeardNode(address, host_time)
             if len(nodes) > self.limit:
-                nodes.popitem(last=False)
+                gone, _ = nodes.popitem(last=False)
+                self._logged.discard(gone)
                 self.forgotten += 1
         else:
             nodes.move_to_end(address)
@@ -207,20 +218,40 @@ class Heard:
         ``host_time`` (UNIX seconds)."""
         node = self._node(raw, host_time)
         if node.reply(raw):
-            log.info("base station %s: node %d, not configured, streams %s on its channel",
-                     self.station, node.address, node.record)
+            self._say(node.address, "streams %s on its channel", node.record)
 
     def discovery(self, raw: bytes, host_time: float) -> None:
         """A discovery packet (a power-up) from an address not configured."""
         node = self._node(raw, host_time)
         node.discovery(host_time)
-        log.info("base station %s: node %d, not configured, powered up", self.station,
-                 node.address)
+        self._say(node.address, "powered up")
+
+    def _say(self, address: int, what: str, *args: object) -> None:
+        """Log an address's first news once while it is remembered, and at most
+        LOG_BURST addresses a LOG_WINDOW: a channel full of strangers (or a scan
+        reading one that streams) cannot flood the log; gx2ctl status lists them all."""
+        if address in self._logged:
+            return
+        self._logged.add(address)
+        now = time.monotonic()
+        if now - self._window >= LOG_WINDOW:
+            if self._unsaid:
+                log.info("base station %s: %d more addresses not configured heard in "
+                         "%.0f s, not logged one by one (gx2ctl status lists them)",
+                         self.station, self._unsaid, LOG_WINDOW)
+            self._window, self._said, self._unsaid = now, 0, 0
+        if self._said >= LOG_BURST:
+            self._unsaid += 1
+            return
+        self._said += 1
+        log.info("base station %s: node %d, not configured, " + what, self.station,
+                 address, *args)
 
     def forget(self, address: int) -> None:
         """``address`` is configured now (a reload added it): it is no longer one heard
         that is not."""
         self._nodes.pop(address, None)
+        self._logged.discard(address)
 
     def streaming(self, monotonic: float) -> list[tuple[HeardNode, float]]:
         """The addresses that stream now, with their rates, by address."""

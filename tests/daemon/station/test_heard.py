@@ -5,12 +5,14 @@ sent, its stream's rate from its timer, its signal, and the bound."""
 from __future__ import annotations
 
 import time
+from types import SimpleNamespace
 
 from aspp.frame import FLAGS_DISCOVERY, encode_reply_packet
 from aspp.records import encode
 from aspp.timing import TICKS_PER_CLOCK
 from gateway.daemon.config import NodeEntry
-from gateway.daemon.station.heard import HEARD_MAX, Heard
+from gateway.daemon.station import heard as heard_module
+from gateway.daemon.station.heard import HEARD_MAX, LOG_BURST, LOG_WINDOW, Heard
 from gateway.daemon.station.nodes import Node
 from gateway.daemon.station.reader import Reader
 from gateway.daemon.station.scheduler import Scheduler
@@ -131,3 +133,34 @@ def test_records_a_silence_apart_are_no_stream(monkeypatch) -> None:
         got.on_data(record(81, sample), T0, at)
     assert got.heard.streaming(1009.0) == []
     assert got.heard.status(1009.0)[0]["record"] == "accel_angrate"
+
+
+def test_each_address_is_logged_once_and_a_flood_of_them_as_a_count(caplog,
+                                                                     monkeypatch) -> None:
+    got, _ = reader()
+    caplog.set_level("INFO", logger="gx2.heard")
+    # a stream, read by a scan (a reply breaks the run), streaming again; then powered up
+    temperatures = encode_reply_packet(81, encode("temperatures", temperature=(1, 2, 3, 4),
+                                                  timer=100), lqi=1, rssi=-1)
+    feed(got, *(record(81, i) for i in range(3)), temperatures,
+         *(record(81, i) for i in range(3, 6)), discovery(81))
+    assert [r.getMessage() for r in caplog.records] == [
+        "base station north: node 81, not configured, streams accel_angrate on its channel"]
+    # forgotten (configured, then not again): news of it is logged again
+    got.heard.forget(81)
+    feed(got, discovery(81))
+    assert caplog.records[-1].getMessage().endswith("node 81, not configured, powered up")
+    caplog.clear()
+    # 2000 addresses powering up at once: a few lines, not 2000
+    feed(got, *(discovery(a) for a in range(1000, 3000)))
+    assert len(caplog.records) == LOG_BURST - 2  # (81 had two)
+    assert len(got.heard) == HEARD_MAX
+    # the next news after the window says how many were not logged
+    caplog.clear()
+    later = time.monotonic() + LOG_WINDOW + 1
+    monkeypatch.setattr(heard_module, "time", SimpleNamespace(monotonic=lambda: later))
+    feed(got, discovery(5000))
+    assert [r.getMessage() for r in caplog.records] == [
+        "base station north: 1992 more addresses not configured heard in 60 s, not "
+        "logged one by one (gx2ctl status lists them)",
+        "base station north: node 5000, not configured, powered up"]
