@@ -147,12 +147,18 @@ def test_a_bad_reload_keeps_the_running_configuration_and_says_so_in_one_line(
     assert continuous(sim, 76) == 0xC2
 
 
-def test_a_reload_waits_for_a_capture_on_a_node_it_removes_and_never_for_another(
-        simulator, gateway):
+def still_pair(simulator, gateway):
+    """76 kept and 77 streaming euler, both still (a bias capture needs no motion)."""
     sim = simulator(*(NodeSettings(a, divider=DIVIDER, motion=Motion(yaw_rate=0.0))
                       for a in (76, 77)))
     gw = gateway(sim.path, [KEPT, {"address": 77, "stream": "euler"}])
     gw.wait_streaming(76, 77)
+    return sim, gw
+
+
+def test_a_reload_waits_for_a_capture_on_a_node_it_removes_and_never_for_another(
+        simulator, gateway):
+    sim, gw = still_pair(simulator, gateway)
     config = str(gw.path)
     long = Running("gx2ctl", "--config", config, "bias", "capture", "76", "--ms", "8000")
     short = Running("gx2ctl", "--config", config, "bias", "capture", "77", "--ms", "2000")
@@ -175,10 +181,7 @@ def test_a_reload_waits_for_a_capture_on_a_node_it_removes_and_never_for_another
 
 def test_a_reload_waiting_for_a_capture_says_so_and_refuses_new_operations_on_the_node(
         simulator, gateway):
-    sim = simulator(*(NodeSettings(a, divider=DIVIDER, motion=Motion(yaw_rate=0.0))
-                      for a in (76, 77)))
-    gw = gateway(sim.path, [KEPT, {"address": 77, "stream": "euler"}])
-    gw.wait_streaming(76, 77)
+    sim, gw = still_pair(simulator, gateway)
     config = str(gw.path)
     capture = Running("gx2ctl", "--config", config, "bias", "capture", "77", "--ms", "6000")
     try:
