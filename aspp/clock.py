@@ -112,13 +112,23 @@ never steps against the device's time by more than half the time between two
 records."""
 
 # How long since the line last saw its floor, and what that may cost (issue 32). A
-# packet is near the floor when its delay above the line is within the floor's noise
-# (FLOOR_NOISE) and so is its height above the line as it stood when the floor was
-# last seen (extrapolated at the drift it had then): a line that rose since (its old
-# floor points left the window, and it now rests on packets that all waited) is no
-# floor seen. The age is counted in device seconds, from that packet to the newest:
-# the line is extrapolated along the device's time, a replay ages it as live did, and
-# a node that sends nothing ages nothing (it is silent, which health says).
+# packet shows the floor when it did not wait (:func:`waited`: it began on the serial
+# line later than the floor's noise after the packet before it ended) and its delay
+# above the line is within the floor's noise (FLOOR_NOISE). A packet that began as
+# another ended reached the base station at some instant while that one was on the
+# line, which the host cannot see: its arrival bounds its sample from above only, and
+# a line resting on such packets (a node whose samples fall just behind another's)
+# shows nothing of its floor however close they lie to it. (An earlier rule, a packet
+# near the line as it stood at the last sighting too, missed exactly that node, its
+# line never having seen a floor to rise from, and aged the floor of a good node for
+# ever once an early, wrong drift had carried that reference below every packet:
+# FIFO seed 9, node 100, ``time`` within 0.06 ms and its floor 76 s unseen.) The
+# margin is FLOOR_NOISE, not a byte's time, because the host's reads add their own
+# latency: a packet judged free by a read later than the one before by more than the
+# margin lies at least that far above a line resting on its waiting stationmates.
+# The age is counted in device seconds, from that packet to the newest: the line is
+# extrapolated along the device's time, a replay ages it as live did, and a node that
+# sends nothing ages nothing (it is silent, which health says).
 #
 # What is true while no packet comes near the floor. Write F for the true floor (the
 # least delay a packet can have, on the node's true drift D*), L for the line (drift
@@ -158,6 +168,13 @@ DRIFT_ERROR = FLOOR_NOISE / (WINDOW / 4)
 """How far from the crystal's true drift a line that saw its floor may be (above)."""
 
 Point = tuple[float, float]
+
+
+def waited(arrival: float, line_free: float) -> bool:
+    """Whether a packet that began on the serial line at ``arrival`` waited there
+    behind the packet whose last byte the host read at ``line_free`` (host seconds): it
+    began within the floor's noise of that one's end (see DRIFT_ERROR)."""
+    return arrival - line_free < FLOOR_NOISE
 
 
 @dataclass(frozen=True)
@@ -286,12 +303,13 @@ class NodeClock:
 
     # -- packets ---------------------------------------------------------------------------
 
-    def update(self, device: float, host: float) -> float:
+    def update(self, device: float, host: float, waited: bool = False) -> float:
         """Add one packet: its device time and when it reached the host (seconds on a
-        clock that never steps). Returns the host time at which a packet sent at
-        ``device`` arrives with the least delay seen (the line evaluated there), or,
-        if the line has just dropped below the last time given, a time advancing from
-        that one at SLEW of the device's rate."""
+        clock that never steps), and whether it :func:`waited` behind another on the
+        serial line (it then shows no floor: see DRIFT_ERROR). Returns the host time at
+        which a packet sent at ``device`` arrives with the least delay seen (the line
+        evaluated there), or, if the line has just dropped below the last time given, a
+        time advancing from that one at SLEW of the device's rate."""
         if self._state is not FITTED:
             return self._unfitted(device, host)
         if device < self._last or device - self._last > WINDOW:
@@ -314,9 +332,8 @@ class NodeClock:
         line = offset + drift * device
         residual = y - line
         self._residuals.append(residual)
-        # near the floor, and the line not risen from it since (see DRIFT_ERROR)
-        if residual <= FLOOR_NOISE and \
-                y - self._floor_offset - self._floor_drift * device <= FLOOR_NOISE:
+        # the floor seen (see DRIFT_ERROR)
+        if not waited and residual <= FLOOR_NOISE:
             self._floor_at, self._floor_offset, self._floor_drift = device, offset, drift
         if self._locked_since is None and self._points >= LOCK_POINTS \
                 and device - self._first >= LOCK_SPAN:

@@ -29,9 +29,10 @@ def feed(clock: NodeClock, start: float, seconds: float, delay, rng: random.Rand
     above the floor; each estimate's error (time - truth) appended to ``truth``. Returns
     the device time after the last."""
     count = round(seconds / PERIOD)
+    behind = delay is queued  # (each began on the line as another ended: the reader says so)
     for i in range(count):
         device = start + i * PERIOD
-        found = clock.update(device, host(device, delay(rng)))
+        found = clock.update(device, host(device, delay(rng)), behind)
         if truth is not None:
             truth.append(found - host(device, 0.0))
     return start + count * PERIOD
@@ -103,12 +104,51 @@ def test_held_before_the_lock_and_after_a_reset_or_release_there_is_no_age() -> 
     clock.hold()  # the line learns nothing: the hold's own reason says why
     device = feed(clock, device, 5.0, queued, rng)
     assert clock.floor_age is None and clock.late_bound() is None
-    clock.release()  # starts over from fresh packets: counted again once locked
-    device = feed(clock, device, 0.5, queued, rng)
+    clock.release()  # starts over from fresh packets: counted again once locked, from
+    device = feed(clock, device, 0.5, queued, rng)  # the first packet on
     assert clock.floor_age is None
     device = feed(clock, device, 2.0, queued, rng)
+    assert clock.floor_age == pytest.approx(2.5, abs=0.02)
+    device = feed(clock, device, 1.0, free, rng)
     assert clock.floor_age is not None and clock.floor_age < 0.1
     clock.reset()  # a reboot: a new power-up, the same
     assert clock.floor_age is None
     feed(clock, 0.0, 2.0, free, rng)
+    assert clock.floor_age is not None and clock.floor_age < 0.1
+
+
+def test_packets_that_all_waited_from_the_first_show_no_floor_however_close_to_the_line() -> None:
+    """A node whose samples fall just behind another's from its power-up: every packet
+    began on the line as the other's ended, so the line rests on them (their residuals
+    within the floor's noise) and never rose from a floor it saw. The reader says each
+    waited; the floor is unseen from the first packet on. (Judged by the residuals and
+    the line alone, the floor counted as seen at every packet: age 0.)"""
+    clock, rng = NodeClock(), random.Random(5)
+    errors: list[float] = []
+
+    def just_behind(r: random.Random) -> float:
+        return PACKET - 0.0005 + r.uniform(0.0, 0.0001)  # (the other's rest, nearly fixed)
+    count = round(40.0 / PERIOD)
+    for i in range(count):
+        device = i * PERIOD
+        found = clock.update(device, host(device, just_behind(rng)), True)
+        errors.append(found - host(device, 0.0))
+    assert min(errors[500:]) > 2 * FLOOR_NOISE  # late by the wait, all along
+    assert clock.floor_age == pytest.approx(device, abs=0.05)
+    assert clock.late_bound() is not None
+
+
+def test_a_packet_near_the_line_shows_the_floor_whatever_drift_the_line_had_early() -> None:
+    """A line whose first seconds drew a wrong drift (late packets early on) and then
+    found its floor: ``time`` is right, and so is the age (FIFO seed 9's node 100 under
+    the earlier rule: within 0.06 ms of the truth, its floor 76 s unseen and growing)."""
+    clock, rng = NodeClock(), random.Random(6)
+
+    def ramp(r: random.Random, at: list[float] = [0.0]) -> float:  # noqa: B006
+        at[0] += PERIOD
+        return 0.002 * max(0.0, 1.0 - at[0] / 3.0) + free(r)  # (late, falling to free)
+    device = feed(clock, 0.0, 3.0, ramp, rng)
+    errors: list[float] = []
+    device = feed(clock, device, 60.0, free, rng, errors)
+    assert max(abs(e) for e in errors[-1000:]) < FLOOR_NOISE
     assert clock.floor_age is not None and clock.floor_age < 0.1

@@ -74,3 +74,28 @@ def test_a_node_queued_behind_another_says_its_clock_floor_is_unseen(simulator, 
     assert re.search(r"ppm, <=\d+\.\d ms late +WARN$", rows["77"]), shown.stdout
     assert "ms late" not in rows["76"], shown.stdout
     assert re.search(r"^77 WARN: clock floor unseen for", shown.stdout, re.M), shown.stdout
+
+
+def test_a_node_queued_behind_another_from_its_first_packet_says_so(simulator, gateway):
+    # node 77's samples are taken 1 ms after 76's, on crystals alike, from power-up: each
+    # of its packets reaches the base station while one of 76's is on the line and
+    # begins as that one ends, so its clock's line rests on packets that all waited, as
+    # close to it as a floor would be. Only the line's timing shows they waited. (Judged
+    # by the line alone, its floor counted as seen at every packet, and status said
+    # nothing: issue 32.)
+    sim = simulator(NodeSettings(76, stream="accel_angrate"),
+                    NodeSettings(77, stream="accel_angrate", phase=0.001),
+                    radio={76: RadioLink(jitter=0.0), 77: RadioLink(jitter=0.0)})
+    gw = gateway(sim.path, [{"address": 76, "stream": "accel_angrate"},
+                            {"address": 77, "stream": "accel_angrate"}],
+                 health={"settle_s": 2.0, "floor_unseen_s": UNSEEN_S})
+    gw.wait_streaming(76, 77)
+
+    def unseen() -> bool:
+        return any(REASON.fullmatch(r) for r in gw.node_status(77)["reasons"])
+    wait_for(unseen, 20, "node 77's floor unseen past the threshold")
+    status = {n["node"]: n for n in gw.status()["nodes"]}
+    assert status[77]["health"] == "WARN"
+    assert status[77]["clock"]["floor_age_s"] >= UNSEEN_S
+    assert status[76]["clock"]["floor_age_s"] < 1.0, status[76]["clock"]
+    assert status[76]["health"] == "OK", status[76]["reasons"]

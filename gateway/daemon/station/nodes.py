@@ -192,10 +192,11 @@ class Node:
     # -- the per-record path -------------------------------------------------------------
 
     def tally(self, raw: bytes, record: Record, host_time: float,
-              monotonic: float) -> dict[str, Any]:
+              monotonic: float, waited: bool = False) -> dict[str, Any]:
         """Count one record of this node (seq, packets, link quality, rate, device time,
         sample time, samples lost over the air) and return its published payload. ``raw``
-        is the packet it came in, read at ``host_time`` (UNIX) and ``monotonic``."""
+        is the packet it came in, read at ``host_time`` (UNIX) and ``monotonic``;
+        ``waited``: it began on the line as another ended (:func:`aspp.clock.waited`)."""
         self.seq = seq = self.seq + 1
         self.packets += 1
         self.lqi, self.rssi = lqi, rssi = LINK_QUALITY.unpack_from(raw, len(raw) - 4)
@@ -227,7 +228,7 @@ class Node:
             payload["device_time"] = device = unwrapper.update(timer, arrival)
             if unwrapper.last_was_reset:
                 self._timer_restarted()
-            sampled = (self.clock.update(device, arrival) - self._latency + host_time
+            sampled = (self.clock.update(device, arrival, waited) - self._latency + host_time
                        - monotonic)
             if sampled <= self._last_time:
                 sampled = self._after_last_time(sampled)

@@ -18,6 +18,7 @@ import logging
 from collections.abc import Callable
 
 from aspp import Ack, Decoder, Event, Frame, Nack, PingOk, Reply, decode
+from aspp.clock import waited
 from aspp.errors import RecordError
 from aspp.frame import HEADER_SIZE
 from aspp.records import Record
@@ -56,6 +57,10 @@ class Reader:
         one is handed to its listener (:func:`gateway.daemon.scanning`)."""
         self.bad_records = 0
         self._idle: asyncio.TimerHandle | None = None
+        self._line_free = -float("inf")
+        """When (monotonic) the read was made that held the last packet's last byte: a
+        packet that began on the line as that one ended waited behind it, and shows its
+        node's clock no floor (:func:`aspp.clock.waited`)."""
 
     def on_data(self, data: bytes, host_time: float, monotonic: float) -> None:
         """One read from the port, and when it was made: UNIX seconds, and seconds on
@@ -116,6 +121,9 @@ class Reader:
                     self.heard.discovery(event.raw, host_time)  # type: ignore[union-attr]
 
     def _on_reply(self, event: Reply, host_time: float, monotonic: float) -> None:
+        raw = event.raw
+        queued = waited(monotonic - len(raw) * self.byte_time, self._line_free)
+        self._line_free = monotonic
         node = self.nodes.get(event.node)
         if node is None:
             self.unknown_node_packets += 1
@@ -123,14 +131,13 @@ class Reader:
             if self.listeners:
                 self._to_listener(event)
             return
-        raw = event.raw
         try:
             record = decode(raw, HEADER_SIZE, len(raw) - 4)  # (event.payload, in place)
         except RecordError as error:
             self.bad_records += 1
             log.debug("node %d: %s", event.node, error)
             return
-        payload = node.tally(raw, record, host_time, monotonic)
+        payload = node.tally(raw, record, host_time, monotonic, queued)
         if not self.publisher.publish(node.address, record.spec.name, payload):
             node.publish_failed()
         if node.unusual:  # (the next record of a known stream needs no supervision)
