@@ -97,13 +97,29 @@ class Model:
 # -- the gateway's clock path ---------------------------------------------------------------
 
 
+VISIBLE_BIN = 30.0
+"""Seconds of a stream in each of which its floor must show for the host to see it."""
+VISIBLE_WITHIN = 0.1e-3
+"""A packet shows its floor to the host when it did not wait behind another on the line
+and began there within this of its sample's instant plus the radio's floor."""
+try:
+    from gateway.daemon.config import FLOOR_UNSEEN_S
+except ImportError:  # (a tree from before the floor's age)
+    FLOOR_UNSEEN_S = 30.0
+
+
 @dataclass
 class Streams:
-    """Per (node, segment): (true instant, error of ``time``) after WARM_UP; and each
-    stream's share of packets that began on the line as the one before ended."""
+    """Per (node, segment): (true instant, error of ``time``) after WARM_UP; each
+    stream's share of packets that began on the line as the one before ended; the share
+    of its VISIBLE_BINs in which a packet showed the host its floor (a stream under 1
+    gives the host stretches of 30 s with nothing that places its samples: no estimate
+    can); and its clock's floor age at each packet after WARM_UP (None: not locked)."""
 
     errors: dict[tuple[int, int], list[tuple[float, float]]] = field(default_factory=dict)
     queued: dict[tuple[int, int], float] = field(default_factory=dict)
+    visible: dict[tuple[int, int], float] = field(default_factory=dict)
+    ages: dict[tuple[int, int], list[float | None]] = field(default_factory=dict)
 
 
 def feed(model: Model, clock: type[NodeClock] = NodeClock) -> Streams:
@@ -117,6 +133,7 @@ def feed(model: Model, clock: type[NodeClock] = NodeClock) -> Streams:
     out = Streams()
     starts: dict[tuple[int, int], float] = {}
     counts: dict[tuple[int, int], list[int]] = {}
+    shown: dict[tuple[int, int], dict[int, bool]] = {}
     line_free = -math.inf
     for packet in model.packets:
         node = packet.node
@@ -139,9 +156,15 @@ def feed(model: Model, clock: type[NodeClock] = NodeClock) -> Streams:
         tally = counts.setdefault(key, [0, 0])
         tally[0] += 1
         tally[1] += queued
+        bins = shown.setdefault(key, {})
+        at = int((packet.truth - start) // VISIBLE_BIN)
+        bins[at] = bins.get(at, False) or (not queued
+                                           and arrival - packet.truth < VISIBLE_WITHIN)
         if packet.truth - start >= WARM_UP:
             out.errors.setdefault(key, []).append((packet.truth, time - packet.truth))
+            out.ages.setdefault(key, []).append(getattr(clocks[node], "floor_age", None))
     out.queued = {key: q / n for key, (n, q) in counts.items()}
+    out.visible = {key: sum(bins.values()) / len(bins) for key, bins in shown.items()}
     return out
 
 
@@ -159,6 +182,20 @@ class Figures:
     apart: float
     drift: float
     free: float
+    visible: float
+    """The least share, over the streams, of VISIBLE_BINs in which its floor showed."""
+    off: int
+    """Samples more than OFF from the run's median error, after FLOOR_UNSEEN_S of
+    each stream (before it, no age can have reached the threshold) ..."""
+    off_said: int
+    """... of which the clock's floor age was past FLOOR_UNSEEN_S (status said so)."""
+    good: int
+    """Samples within GOOD of the run's median error, after FLOOR_UNSEEN_S ..."""
+    good_said: int
+    """... of which the floor age was past FLOOR_UNSEEN_S all the same."""
+
+
+OFF, GOOD = 0.5e-3, 0.2e-3
 
 
 def _moved(errors: list[tuple[float, float]]) -> float:
@@ -178,10 +215,24 @@ def measure(streams: Streams) -> Figures:
     middle = statistics.median(pooled)
     spread = sorted(abs(e - middle) for e in pooled)
     medians = [statistics.median(e for _, e in errors) for errors in streams.errors.values()]
+    said = [0, 0, 0, 0]  # off, off and said, good, good and said
+    for key, errors in streams.errors.items():
+        first = errors[0][0] - WARM_UP
+        for (truth, error), age in zip(errors, streams.ages[key], strict=True):
+            if truth - first < FLOOR_UNSEEN_S:
+                continue
+            unseen = age is not None and age >= FLOOR_UNSEEN_S
+            if abs(error - middle) > OFF:
+                said[0] += 1
+                said[1] += unseen
+            elif abs(error - middle) <= GOOD:
+                said[2] += 1
+                said[3] += unseen
     return Figures(spread[int(0.99 * (len(spread) - 1))] * 1e3, spread[-1] * 1e3,
                    (max(medians) - min(medians)) * 1e3,
                    max(_moved(errors) for errors in streams.errors.values()) * 1e3,
-                   1 - max(streams.queued[key] for key in streams.errors))
+                   1 - max(streams.queued[key] for key in streams.errors),
+                   min(streams.visible[key] for key in streams.errors), *said)
 
 
 # -- gx2-sim's line ---------------------------------------------------------------------------
