@@ -398,6 +398,36 @@ def fifo_packets(seed: int, seconds: float) -> Model:
     return Model(packets, periods, load, about)
 
 
+# -- what no host can tell apart ----------------------------------------------------------------
+
+
+def behind(shift: float, seconds: float = 90.0, divider: int = 512) -> Model:
+    """Two nodes at one rate on exact crystals, with no radio noise: node 101's samples
+    taken ``shift`` seconds after node 100's. While ``shift`` is under 100's packet's
+    time on the line, each of 101's packets reaches the base station while one of 100's
+    is on the line and begins as it ends: the host reads the same bytes at the same
+    instants whatever ``shift`` is, and only the truth differs. Whatever an estimate
+    makes of those reads, it gives both runs the same ``time`` s, so node 101's error
+    differs by the shifts' difference between them (issue 32: why no estimate can hold
+    a target on a run where a node's floor never shows)."""
+    period = sample_period(divider)
+    floor = 3e-3  # the radio's, the same for both nodes
+    size = BY_NAME["accel_angrate"].reply_size + REPLY_OVERHEAD
+    step = divider * TICKS_PER_CLOCK
+    packets: list[Packet] = []
+    free = 0.0
+    for k in range(round(seconds / period)):
+        taken = 1.0 + k * period
+        for node, at in ((100, taken), (101, taken + shift)):
+            end = max(at + floor, free) + size * BYTE_TIME
+            free = end
+            packets.append(Packet(end, node, (7 * node + k * step) % TIMER_MODULUS, size,
+                                  at + floor, 0))
+    load = 2 * size * BYTE_TIME / period
+    return Model(packets, {100: period, 101: period}, load,
+                 f"node 101 {shift * 1e3:g} ms behind node 100, {load:.0%} of the line")
+
+
 MODELS = {"gx2sim": gx2sim_run, "fifo": fifo_packets}
 
 

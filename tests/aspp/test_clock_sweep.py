@@ -60,3 +60,23 @@ def test_the_fifo_model_is_what_it_says() -> None:
     assert 0.6 <= model.load <= 0.95
     timed = [p for p in model.packets if p.ticks is not None]
     assert all(p.read - p.truth >= p.size * linemodels.BYTE_TIME for p in timed)
+
+
+def test_no_estimate_places_a_node_whose_packets_all_wait_so_status_says_so() -> None:
+    """Why the targets cannot hold on every run: node 101's samples 0.5 ms or 2.5 ms
+    after node 100's, each of its packets waiting for the end of one of 100's. The host
+    reads the same bytes at the same instants in both runs, so any estimate gives the
+    same ``time`` s, and node 101's error differs by 2 ms between them: in one run at
+    least it is 1 ms or more from node 100's. What the gateway can do is say it cannot
+    see: node 101's floor is unseen, node 100's is not."""
+    near, far = linemodels.behind(0.5e-3), linemodels.behind(2.5e-3)
+    assert [p[:4] for p in near.packets] == [p[:4] for p in far.packets]  # what is read
+    runs = [linemodels.feed(model) for model in (near, far)]
+    given = [[(truth + error) for truth, error in run.errors[(101, 0)]] for run in runs]
+    assert given[0] == given[1]
+    apart = [linemodels.measure(run).apart for run in runs]
+    assert max(apart) >= 1.0 and abs(apart[1] - apart[0]) == pytest.approx(2.0, abs=0.01)
+    for run in runs:
+        assert min(age or 0.0 for age in run.ages[(101, 0)][-100:]) > 80.0  # unseen
+        assert max(age or 0.0 for age in run.ages[(100, 0)][-100:]) < 0.1
+        assert run.visible[(101, 0)] == 0.0 and run.visible[(100, 0)] == 1.0
