@@ -160,8 +160,10 @@ records."""
 # packet that waited says only that the floor is below it, so packets bound the line
 # from the other side only (at each packet's device time, ``time`` is early by at most
 # that packet's delay above the line), and a line that never saw its floor (a node
-# whose samples fall just behind another's from the start) is late by the wait with
-# nothing to show.
+# whose samples fall just behind another's from the start) is late by the wait: its
+# age runs from its first packet, but no bound on the wait comes with it (two runs
+# whose node sits 0.5 or 2.5 ms behind another give the host the same reads:
+# bench/linemodels.py, ``behind``).
 # Not counted while held (the line learns nothing: the hold's own reason says why) nor
 # before the estimate locks; a reset, a release or an outage starts it over.
 DRIFT_ERROR = FLOOR_NOISE / (WINDOW / 4)
@@ -223,6 +225,7 @@ class NodeClock:
         "_floor_at",
         "_floor_drift",
         "_floor_offset",
+        "_floor_seen",
         "_given",
         "_last",
         "_locked_since",
@@ -300,6 +303,8 @@ class NodeClock:
         line as it stood then."""
         self._floor_offset = 0.0
         self._floor_drift = 0.0
+        self._floor_seen = False
+        """Whether a packet has shown the floor since the line started (see floor_seen)."""
 
     # -- packets ---------------------------------------------------------------------------
 
@@ -311,12 +316,12 @@ class NodeClock:
         evaluated there), or, if the line has just dropped below the last time given, a
         time advancing from that one at SLEW of the device's rate."""
         if self._state is not FITTED:
-            return self._unfitted(device, host)
+            return self._unfitted(device, host, waited)
         if device < self._last or device - self._last > WINDOW:
             if device < self._last:  # not in order (a reset missed): it says nothing
                 return self._give(device, device + self._offset + self._drift * device)
             self._event(OUTAGE)  # after a long outage: the old points no longer bound
-            return self._unfitted(device, host)
+            return self._unfitted(device, host, waited)
         y = host - device
         _push(self._current, device, y)
         self._points += 1
@@ -335,12 +340,13 @@ class NodeClock:
         # the floor seen (see DRIFT_ERROR)
         if not waited and residual <= FLOOR_NOISE:
             self._floor_at, self._floor_offset, self._floor_drift = device, offset, drift
+            self._floor_seen = True
         if self._locked_since is None and self._points >= LOCK_POINTS \
                 and device - self._first >= LOCK_SPAN:
             self._locked_since = host
         return self._give(device, device + line)
 
-    def _unfitted(self, device: float, host: float) -> float:
+    def _unfitted(self, device: float, host: float, waited: bool) -> float:
         """A packet with no line learning from it: the first of one (FRESH, RELEASED:
         it anchors the line at its arrival), or one while held (HELD: the line kept
         says; HELD_FRESH: the arrivals' floor, lowered to this one if it came faster)."""
@@ -360,6 +366,7 @@ class NodeClock:
         self._offset = y
         self._residuals.append(0.0)
         self._floor_at, self._floor_offset, self._floor_drift = device, y, self._drift
+        self._floor_seen = not waited  # (the line's anchor: a floor only if it did not wait)
         return self._give(device, host)
 
     def _give(self, device: float, time: float) -> float:
@@ -448,6 +455,13 @@ class NodeClock:
         """Device seconds from the last packet near the floor to the newest packet
         (see DRIFT_ERROR); None unless locked (before the lock, or held)."""
         return self._last - self._floor_at if self.locked else None
+
+    @property
+    def floor_seen(self) -> bool:
+        """Whether a packet has shown the floor since the line started (a reset, release
+        or outage): a line that never saw it is late by a wait that no packet shows, and
+        :meth:`late_bound` counts only from its first packet."""
+        return self._floor_seen
 
     def late_bound(self) -> float | None:
         """How much later than where the floor was last seen ``time`` may be, at the

@@ -31,7 +31,7 @@ def node_fed(free_s: float, queued_s: float, threshold: float = FLOOR_UNSEEN_S) 
     for i in range(count):
         device = i / 100
         wait = rng.uniform(0.001, 0.0034) if device >= free_s else rng.expovariate(3000)
-        node.clock.update(device, start + device + 0.003 + wait)
+        node.clock.update(device, start + device + 0.003 + wait, device >= free_s)
     return node
 
 
@@ -50,6 +50,15 @@ def test_a_floor_unseen_past_the_threshold_warns_with_how_late_time_may_be() -> 
     clock = node.status(time.time())["clock"]
     assert clock["floor_age_s"] == pytest.approx(35.0, abs=0.05)
     assert clock["late_ms"] == pytest.approx(late * 1e3, rel=0.02)
+
+
+def test_a_floor_never_seen_warns_that_time_is_late_by_a_wait_it_cannot_bound() -> None:
+    """Every packet waited from the first: the age runs from it, and the bound, counted
+    from a first packet that waited too, would claim what no packet shows."""
+    node = node_fed(0.0, 35.0)
+    verdict = judge(node, minute(), time.monotonic(), LIMITS)
+    assert verdict == (Level.WARN, ("clock floor never seen in 35 s: its packets wait "
+                                    "behind another node's, and time is late by that wait",))
 
 
 def test_under_the_threshold_the_age_shows_and_nothing_warns() -> None:

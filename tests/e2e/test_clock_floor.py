@@ -91,9 +91,12 @@ def test_a_node_queued_behind_another_from_its_first_packet_says_so(simulator, g
                  health={"settle_s": 2.0, "floor_unseen_s": UNSEEN_S})
     gw.wait_streaming(76, 77)
 
+    never = re.compile(r"clock floor never seen in (\d+) s: its packets wait behind "
+                       r"another node's, and time is late by that wait")
+
     def unseen() -> bool:
-        return any(REASON.fullmatch(r) for r in gw.node_status(77)["reasons"])
-    wait_for(unseen, 20, "node 77's floor unseen past the threshold")
+        return any(never.fullmatch(r) for r in gw.node_status(77)["reasons"])
+    wait_for(unseen, 20, "node 77's floor never seen, past the threshold")
     status = {n["node"]: n for n in gw.status()["nodes"]}
     assert status[77]["health"] == "WARN"
     assert status[77]["clock"]["floor_age_s"] >= UNSEEN_S

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 from collections.abc import Callable
 
 from aspp import Ack, Decoder, Event, Frame, Nack, PingOk, Reply, decode
@@ -57,10 +58,13 @@ class Reader:
         one is handed to its listener (:func:`gateway.daemon.scanning`)."""
         self.bad_records = 0
         self._idle: asyncio.TimerHandle | None = None
-        self._line_free = -float("inf")
+        self._line_free = math.inf
         """When (monotonic) the read was made that held the last packet's last byte: a
         packet that began on the line as that one ended waited behind it, and shows its
-        node's clock no floor (:func:`aspp.clock.waited`)."""
+        node's clock no floor (:func:`aspp.clock.waited`). Infinite until a packet is
+        read after the port opened: the first may have waited behind bytes read before
+        it opened (a node whose every packet queues behind another's then showed its
+        floor at its first packet, and its age never said it was unseen)."""
 
     def on_data(self, data: bytes, host_time: float, monotonic: float) -> None:
         """One read from the port, and when it was made: UNIX seconds, and seconds on
@@ -89,6 +93,11 @@ class Reader:
             if self.idle_timer:
                 self._idle = asyncio.get_running_loop().call_later(self.idle_seconds,
                                                                    self._line_idle)
+
+    def line_opened(self) -> None:
+        """The port (re)opened: what the line carried before the first packet read is
+        unknown (see _line_free)."""
+        self._line_free = math.inf
 
     def end_of_input(self) -> None:
         """Nothing more will be read (a replay has played its recording)."""

@@ -191,7 +191,9 @@ class Station:
             self._opened = True
             log.info("base station %s open on %s", self.name, self.config.port)
         self.scheduler.link_up = up
-        if not up:
+        if up:
+            self.reader.line_opened()
+        else:
             self.scheduler.on_link_down()
         self.supervisor.link_changed(up)
         self._on_link_state(self, up)

@@ -4,6 +4,8 @@ resolves what waited (as a replay judges it: no timer, the reads and their times
 
 from __future__ import annotations
 
+import pytest
+
 from aspp.events import DiscardReason
 from aspp.frame import encode_reply_packet
 from aspp.records import encode
@@ -61,3 +63,34 @@ def test_a_line_that_went_quiet_resolves_the_packet_it_cut_short() -> None:
     got.on_data(after, 1000.1, 50.1)
     assert timers(publisher) == [2, 3]
     assert got.decoder.stats.discarded_bytes[DiscardReason.TRUNCATED] == 30
+
+
+def packet(sample: int) -> bytes:
+    return stream(1, first=sample)
+
+
+def test_which_packets_waited_behind_another_is_judged_from_the_reads() -> None:
+    """A packet that began on the line within 0.5 ms of the last packet's read waited
+    behind it and shows its clock no floor; one later did not. The first packet after
+    the port opened may have waited behind bytes no read held: it shows none either."""
+    got, _ = reader()
+    clock = got.nodes[76].clock
+    size = len(packet(1)) * BYTE  # (3.5 ms)
+    got.on_data(packet(1), 1000.0, 50.0)  # the first read: what came before is unknown
+    assert not clock.floor_seen
+    at = 50.0
+    for sample in range(2, 150):  # each read 10 ms after the last: the line was free
+        at += 0.01
+        got.on_data(packet(sample), 1000.0 + at - 50.0, at)
+    assert clock.floor_seen and clock.floor_age == 0.0
+    # two packets in one read: the second began as the first ended
+    at += 0.01
+    got.on_data(packet(150) + packet(151), 1000.0 + at - 50.0, at)
+    assert clock.floor_age == pytest.approx(0.01)  # (the read's first did not wait; its second did)
+    at += 0.0001 + size  # one that began 0.1 ms after the last read: it waited
+    got.on_data(packet(152), 1000.0 + at - 50.0, at)
+    assert clock.floor_age == pytest.approx(0.02)
+    got.line_opened()  # the port reopened
+    at += 0.01
+    got.on_data(packet(153), 1000.0 + at - 50.0, at)
+    assert clock.floor_age == pytest.approx(0.03)
