@@ -19,7 +19,6 @@ import math
 from collections.abc import Callable
 
 from aspp import Ack, Decoder, Event, Frame, Nack, PingOk, Reply, decode
-from aspp.clock import waited
 from aspp.errors import RecordError
 from aspp.frame import HEADER_SIZE
 from aspp.records import Record
@@ -131,8 +130,7 @@ class Reader:
 
     def _on_reply(self, event: Reply, host_time: float, monotonic: float) -> None:
         raw = event.raw
-        queued = waited(monotonic - len(raw) * self.byte_time, self._line_free)
-        self._line_free = monotonic
+        line_free, self._line_free = self._line_free, monotonic
         node = self.nodes.get(event.node)
         if node is None:
             self.unknown_node_packets += 1
@@ -146,7 +144,7 @@ class Reader:
             self.bad_records += 1
             log.debug("node %d: %s", event.node, error)
             return
-        payload = node.tally(raw, record, host_time, monotonic, queued)
+        payload = node.tally(raw, record, host_time, monotonic, line_free)
         if not self.publisher.publish(node.address, record.spec.name, payload):
             node.publish_failed()
         if node.unusual:  # (the next record of a known stream needs no supervision)
