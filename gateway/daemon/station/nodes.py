@@ -229,10 +229,10 @@ class Node:
             payload["device_time"] = device = unwrapper.update(timer, arrival)
             if unwrapper.last_was_reset:
                 self._timer_restarted()
-            # aspp.clock.waited, inlined here where the arrival is known: instructions a
-            # record (bench/instructions.py) 91,574 without the judgement, 92,900 with
-            # the call in the reader, 92,532 inlined there, 92,001 here
-            # whether it waited behind the packet before it on the line (its floor unseen)
+            # whether it waited behind the packet before it on the line (then it shows no
+            # floor): aspp.clock.waited, inlined here where the arrival is known.
+            # Instructions a record (bench/instructions.py): 91,574 without the judgement,
+            # 92,900 with the call in the reader, 92,532 inlined there, 92,001 here
             sampled = (self.clock.update(device, arrival, arrival - line_free < FLOOR_NOISE)
                        - self._latency + host_time - monotonic)
             if sampled <= self._last_time:
