@@ -2,7 +2,10 @@
 """Sample time over many line models in simulated time (issue 32): the distribution,
 over the runs, of each run's figures (bench/linemodels.py's Figures: ``time``'s p99
 spread, the worst, how far apart the nodes' median errors are, how far a node's error
-moves in a minute), against the targets. Run by hand:
+moves in a minute), against the targets: over every run, and split by whether every
+stream showed the host its floor in each 30 s (where one did not, no estimate can place
+it: linemodels.behind); then how many of the samples that were off the floor's WARN
+covered. Run by hand:
 
     .venv/bin/python bench/sweep.py                       # both models, 200 runs each
     .venv/bin/python bench/sweep.py --model fifo --runs 50 --seconds 90
