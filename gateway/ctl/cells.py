@@ -63,7 +63,8 @@ def clock_cell(clock: Any, unit: str = " ppm") -> str:
     """A node's clock estimate in a few characters: its drift and whether it is locked
     ("+40.1 ppm" locked, "~+40.1 ppm" still settling, "-" before a timed record), and,
     while its floor has gone unseen past the gateway's threshold, how late ``time`` may
-    be ("+40.1 ppm, <=1.4 ms late": status's ``late_ms``)."""
+    be ("+40.1 ppm, <=1.4 ms late": status's ``late_ms``), or that it has never seen
+    its floor ("+40.1 ppm, floor unseen")."""
     if not isinstance(clock, Mapping):
         return "-"
     drift = number(clock.get("drift_ppm"))
@@ -71,6 +72,8 @@ def clock_cell(clock: Any, unit: str = " ppm") -> str:
     late = number(clock.get("late_ms"))
     if late is not None:
         shown += f", <={late:.1f} ms late"
+    elif clock.get("floor_seen") is False and clock.get("locked") is True:
+        shown += ", floor unseen"  # (late by a wait no packet shows: no bound to give)
     return shown if clock.get("locked") is True else f"~{shown}"
 
 

@@ -169,14 +169,14 @@ def judge(node: Node, recent: Recent, now: float, limits: HealthConfig) -> Verdi
             reasons.append(LINE_OVER_CAPACITY)
         elif node.clock.points and not node.clock.locked:
             reasons.append("clock not locked")
-        elif (late := node.floor_unseen()) is not None:
-            if node.clock.floor_seen:
-                reasons.append(f"clock floor unseen for {node.clock.floor_age:.0f} s: time "
-                               f"may be late by up to {late * 1e3:.1f} ms")
+        elif (age := node.clock.floor_age) is not None and age >= node.floor_unseen_s:
+            if (late := node.floor_unseen()) is not None:
+                reasons.append(f"clock floor unseen for {age:.0f} s: time may be late by up "
+                               f"to {late * 1e3:.1f} ms")
             else:  # (aspp.clock.NodeClock.floor_seen: no bound comes with the wait)
-                reasons.append(f"clock floor never seen in {node.clock.floor_age:.0f} s: "
-                               "its packets wait behind another node's, and time is late "
-                               "by that wait")
+                reasons.append(f"clock floor never seen in {age:.0f} s: its packets may "
+                               "wait behind another node's, and time may be late by that "
+                               "wait")
     window = f"in {recent.seconds:.0f} s"
     if recent.seconds >= min(limits.window_s, limits.settle_s):  # enough to go by
         loss = recent.loss_percent

@@ -739,6 +739,9 @@ def test_status_and_top_show_how_late_time_may_be_while_a_clock_floor_is_unseen(
     unseen = {**seen, "floor_age_s": 41.0, "late_ms": 1.366}
     assert clock_cell(unseen) == "+40.1 ppm, <=1.4 ms late"
     assert clock_cell(unseen, unit="") == "+40.1, <=1.4 ms late"  # (top's narrower column)
+    never = {**seen, "floor_age_s": 41.0, "floor_seen": False}  # (no bound comes with it)
+    assert clock_cell(never) == "+40.1 ppm, floor unseen"
+    assert clock_cell({**never, "locked": False}) == "~+40.1 ppm"  # (not judged unlocked)
 
 
 def test_status_shows_recording_replay_and_lsl_only_when_there_are_any():

@@ -57,8 +57,12 @@ def test_a_floor_never_seen_warns_that_time_is_late_by_a_wait_it_cannot_bound() 
     from a first packet that waited too, would claim what no packet shows."""
     node = node_fed(0.0, 35.0)
     verdict = judge(node, minute(), time.monotonic(), LIMITS)
-    assert verdict == (Level.WARN, ("clock floor never seen in 35 s: its packets wait "
-                                    "behind another node's, and time is late by that wait",))
+    assert verdict == (Level.WARN, ("clock floor never seen in 35 s: its packets may wait "
+                                    "behind another node's, and time may be late by that "
+                                    "wait",))
+    clock = node.status(time.time())["clock"]  # (and status claims no bound either)
+    assert clock["floor_seen"] is False and clock["late_ms"] is None
+    assert clock["floor_age_s"] == pytest.approx(35.0, abs=0.05)
 
 
 def test_under_the_threshold_the_age_shows_and_nothing_warns() -> None:

@@ -467,6 +467,7 @@ class Node:
                 "since": None if estimate.locked_since is None
                 else estimate.locked_since + shift,
                 "floor_age_s": None if age is None else round(age, 2),
+                "floor_seen": self.clock.floor_seen,
                 "late_ms": None if late is None else round(late * 1e3, 3)}
 
     def floor_unseen(self) -> float | None:
@@ -474,8 +475,8 @@ class Node:
         while its clock has gone floor_unseen_s or longer without seeing its floor;
         None otherwise (seen since, or no lock to judge)."""
         age = self.clock.floor_age
-        if age is None or age < self.floor_unseen_s:
-            return None
+        if age is None or age < self.floor_unseen_s or not self.clock.floor_seen:
+            return None  # (never seen: no bound comes with the wait, aspp.clock.floor_seen)
         return self.clock.late_bound()
 
     def status(self, now: float) -> dict[str, Any]:

@@ -121,12 +121,16 @@ class Reader:
                 scheduler.on_nack()
             elif kind is PingOk:
                 scheduler.on_ping_ok()
-            elif kind is Frame and event.is_discovery:  # type: ignore[union-attr]
-                node = self.nodes.get(event.node)  # type: ignore[union-attr]
-                if node is not None:
-                    self.supervisor.discovery(node)
-                else:
-                    self.heard.discovery(event.raw, host_time)  # type: ignore[union-attr]
+            else:  # a frame that is no reply, or bytes that framed nothing: either took
+                # the line, and a packet after it waited behind it as behind a reply (a
+                # bad checksum ahead of each wait let a node's floor count as seen)
+                self._line_free = monotonic
+                if kind is Frame and event.is_discovery:  # type: ignore[union-attr]
+                    node = self.nodes.get(event.node)  # type: ignore[union-attr]
+                    if node is not None:
+                        self.supervisor.discovery(node)
+                    else:
+                        self.heard.discovery(event.raw, host_time)  # type: ignore[union-attr]
 
     def _on_reply(self, event: Reply, host_time: float, monotonic: float) -> None:
         raw = event.raw

@@ -94,3 +94,25 @@ def test_which_packets_waited_behind_another_is_judged_from_the_reads() -> None:
     at += 0.01
     got.on_data(packet(153), 1000.0 + at - 50.0, at)
     assert clock.floor_age == pytest.approx(0.03)
+
+
+def test_bytes_that_framed_nothing_took_the_line_and_a_packet_after_them_waited() -> None:
+    """A packet whose checksum failed (or a discovery frame) was on the line as much as
+    a reply: a packet that began as it ended waited behind it. (Judged against the last
+    good reply, it counted as free, and one bad checksum ahead of a waiting node let its
+    floor count as seen.)"""
+    got, _ = reader()
+    clock = got.nodes[76].clock
+    at = 50.0
+    for sample in range(1, 150):  # free packets: the floor seen
+        at += 0.01
+        got.on_data(packet(sample), 1000.0 + at - 50.0, at)
+    assert clock.floor_age == 0.0
+    corrupt = bytearray(packet(150))
+    corrupt[-1] ^= 0xFF  # (its checksum)
+    at += 0.01
+    got.on_data(bytes(corrupt), 1000.0 + at - 50.0, at)
+    at += len(corrupt) * BYTE  # the next began as the bad one ended
+    got.on_data(packet(151), 1000.0 + at - 50.0, at)
+    assert got.decoder.stats.discarded_bytes[DiscardReason.BAD_CHECKSUM] == len(corrupt)
+    assert clock.floor_age == pytest.approx(0.02)  # (it waited: no floor seen)
