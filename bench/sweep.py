@@ -3,9 +3,9 @@
 over the runs, of each run's figures (bench/linemodels.py's Figures: ``time``'s p99
 spread, the worst, how far apart the nodes' median errors are, how far a node's error
 moves in a minute), against the targets: over every run, and split by whether every
-stream showed the host its floor in each 30 s (where one did not, no estimate can place
-it: linemodels.behind); then how many of the samples that were off the floor's WARN
-covered. Run by hand:
+stream showed the host its floor in each 10 s (where one did not, the stretch is one
+no estimate can place in general: linemodels.behind); then how many of the samples
+that were off the floor's WARN covered. Run by hand:
 
     .venv/bin/python bench/sweep.py                       # both models, 200 runs each
     .venv/bin/python bench/sweep.py --model fifo --runs 50 --seconds 90
