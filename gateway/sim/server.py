@@ -16,6 +16,7 @@ nothing. A host that flushes its input (opening the port does) discards that too
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import logging
 import os
@@ -275,7 +276,19 @@ class Simulator:
                         due = min(due, self._replug_at)
                     if last_host_byte is not None:
                         due = min(due, last_host_byte + HOST_IDLE)
-                ready = selector.select(max(0.0, due - time.monotonic()))
+                try:
+                    ready = selector.select(max(0.0, due - time.monotonic()))
+                except OSError as error:
+                    # unplugged between the registration above and the select: the
+                    # port's descriptor was closed under it (the loop died with EBADF,
+                    # and a replug then found nothing serving it); register afresh
+                    if error.errno != errno.EBADF:
+                        raise
+                    with self._lock:
+                        if registered is not None and registered[0] is not None:
+                            selector.unregister(registered[0])
+                        registered = None
+                    continue
                 with self._lock:
                     now = time.monotonic()
                     data = b""
