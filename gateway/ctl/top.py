@@ -296,15 +296,19 @@ def keyboard() -> Iterator[Callable[[], bool]]:
         termios.tcsetattr(fd, termios.TCSADRAIN, saved)
 
 
-def run_top(nodes: list[int], where: Endpoints, timeout: float, as_json: bool) -> int:
-    """Draw the gateway's status until ``q``, Ctrl-C or SIGTERM."""
-    stop = Stop()
-    # a terminal that cannot show a character gets a "?" for it, never a crash
+def terminal() -> tuple[Console, str]:
+    """The console to draw on, and the ellipsis it can show: a terminal that cannot
+    show a character gets a "?" for it, never a crash."""
     utf = "utf" in (getattr(sys.stdout, "encoding", "") or "").lower()
     with contextlib.suppress(AttributeError, ValueError):
         sys.stdout.reconfigure(errors="replace")  # type: ignore[union-attr]
-    ellipsis = "…" if utf else "~"
-    console = Console(highlight=False)
+    return Console(highlight=False), "…" if utf else "~"
+
+
+def run_top(nodes: list[int], where: Endpoints, timeout: float, as_json: bool) -> int:
+    """Draw the gateway's status until ``q``, Ctrl-C or SIGTERM."""
+    stop = Stop()
+    console, ellipsis = terminal()
     with subscribe(nodes, where, timeout, status="only") as (sub, silence):
         watch = Watch(sub.endpoints[0], tuple(nodes), silence)
         if as_json or not console.is_terminal:

@@ -6,14 +6,12 @@ falls silent is greyed and said to be, and the others go on."""
 
 from __future__ import annotations
 
-import contextlib
-import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from rich.console import Console, Group
+from rich.console import Group
 from rich.live import Live
 from rich.text import Text
 
@@ -25,7 +23,7 @@ from gateway.common.reading import as_map
 from .cells import cell, reasons
 from .sitestream import names, sources, subscribe_all
 from .tail import Stop
-from .top import QUIT, REDRAW, TICK, Watch, clock_text, grouped, header, keyboard, within
+from .top import QUIT, REDRAW, TICK, Watch, clock_text, grouped, header, keyboard, terminal, within
 from .toptable import HEALTH_STYLE, cut, table
 from .where import Gateway
 
@@ -90,11 +88,7 @@ def run_top_several(nodes: list[int], named: Sequence[Gateway], timeout: float,
                     as_json: bool) -> int:
     """Draw the gateways' statuses until ``q``, Ctrl-C or SIGTERM."""
     stop = Stop()
-    utf = "utf" in (getattr(sys.stdout, "encoding", "") or "").lower()
-    with contextlib.suppress(AttributeError, ValueError):
-        sys.stdout.reconfigure(errors="replace")  # type: ignore[union-attr]
-    ellipsis = "…" if utf else "~"
-    console = Console(highlight=False)
+    console, ellipsis = terminal()
     found = sources(nodes, named, timeout, every=False)
     called = names(found)
     with subscribe_all(nodes, found, status="only") as sub:
