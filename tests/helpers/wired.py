@@ -43,6 +43,17 @@ class RecordingPublisher:
                 if n == node and (record is None or r == record)]
 
 
+def one_node_reader(idle: float = 0.03, **options: Any) -> tuple[Reader, RecordingPublisher]:
+    """A reader of one station with node 76 configured and streaming accel_angrate at
+    100 Hz; ``options`` for :class:`Reader` (station, byte_time, ...)."""
+    nodes = {76: Node(NodeEntry(address=76))}
+    nodes[76].streaming("accel_angrate", 512)
+    scheduler = Scheduler(lambda data: None)
+    publisher = RecordingPublisher()
+    return Reader(nodes, publisher, Supervisor(scheduler, nodes), scheduler,  # type: ignore[arg-type]
+                  idle, idle_timer=False, **options), publisher
+
+
 class Wired:
     """``async with Wired([NodeSettings(76)], [{"address": 76}]) as gw: ...``"""
 

@@ -10,14 +10,10 @@ from types import SimpleNamespace
 from aspp.frame import FLAGS_DISCOVERY, encode_reply_packet
 from aspp.records import encode
 from aspp.timing import TICKS_PER_CLOCK
-from gateway.daemon.config import NodeEntry
 from gateway.daemon.station import heard as heard_module
 from gateway.daemon.station.heard import HEARD_MAX, LOG_BURST, LOG_WINDOW, Heard
-from gateway.daemon.station.nodes import Node
 from gateway.daemon.station.reader import Reader
-from gateway.daemon.station.scheduler import Scheduler
-from gateway.daemon.station.supervisor import Supervisor
-from tests.helpers.wired import RecordingPublisher
+from tests.helpers.wired import RecordingPublisher, one_node_reader
 
 T0 = 1_800_000_000.0
 
@@ -39,12 +35,7 @@ def discovery(node: int) -> bytes:
 
 def reader() -> tuple[Reader, RecordingPublisher]:
     """A reader of one station with node 76 configured and streaming."""
-    nodes = {76: Node(NodeEntry(address=76))}
-    nodes[76].streaming("accel_angrate", 512)
-    scheduler = Scheduler(lambda data: None)
-    publisher = RecordingPublisher()
-    return Reader(nodes, publisher, Supervisor(scheduler, nodes), scheduler,  # type: ignore[arg-type]
-                  0.03, idle_timer=False, station="north"), publisher
+    return one_node_reader(station="north")
 
 
 def feed(got: Reader, *packets: bytes) -> None:

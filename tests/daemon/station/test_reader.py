@@ -10,12 +10,8 @@ from aspp.events import DiscardReason
 from aspp.frame import encode_reply_packet
 from aspp.records import encode
 from aspp.timing import TICKS_PER_CLOCK, byte_time
-from gateway.daemon.config import NodeEntry
-from gateway.daemon.station.nodes import Node
 from gateway.daemon.station.reader import Reader
-from gateway.daemon.station.scheduler import Scheduler
-from gateway.daemon.station.supervisor import Supervisor
-from tests.helpers.wired import RecordingPublisher
+from tests.helpers.wired import RecordingPublisher, one_node_reader
 
 IDLE = 0.03
 BYTE = byte_time(115200)
@@ -30,12 +26,7 @@ def stream(count: int, first: int = 1) -> bytes:
 
 
 def reader() -> tuple[Reader, RecordingPublisher]:
-    nodes = {76: Node(NodeEntry(address=76))}
-    nodes[76].streaming("accel_angrate", 512)
-    scheduler = Scheduler(lambda data: None)
-    publisher = RecordingPublisher()
-    return Reader(nodes, publisher, Supervisor(scheduler, nodes), scheduler,  # type: ignore[arg-type]
-                  IDLE, idle_timer=False, byte_time=BYTE), publisher
+    return one_node_reader(IDLE, byte_time=BYTE)
 
 
 def timers(publisher: RecordingPublisher) -> list[int]:
