@@ -272,7 +272,8 @@ def test_the_gateway_warns_while_its_recorders_queue_overflowed_within_the_windo
 def test_a_line_over_capacity_warns_for_the_gateway_and_its_held_nodes() -> None:
     node = streaming_node()
     stream = Stream(node)
-    line = LineLoad(11520.0)
+    lags = iter([0.0] * 4 + [0.36] * 4 + [0.0] * 8)  # floors seen, a queue full, drained
+    line = LineLoad(11520.0, lambda: [(node.address, next(lags), 0)])
     health = Health([node], LIMITS, lines=[("north", line)])
     now = settled(node)
     for second in range(8):  # the line full, second after second
@@ -282,8 +283,9 @@ def test_a_line_over_capacity_warns_for_the_gateway_and_its_held_nodes() -> None
     node.clock.hold()  # (the station holds its nodes' clocks: tests/daemon/test_station.py)
     verdict = health.gateway(now + 7)
     assert verdict.level is Level.WARN
-    assert verdict.reasons == ("base station north: line over capacity: 100% of 11520 B/s: "
-                               "sample times unreliable",)
+    assert verdict.reasons == ("base station north: line over capacity: the base station "
+                               "queues 360 ms of packets (100% of 11520 B/s read): sample "
+                               "times unreliable",)
     reasons = health.verdict(node, now + 7).reasons
     assert "line over capacity: sample times unreliable" in reasons
     assert "clock not locked" not in reasons

@@ -138,6 +138,11 @@ class Node:
         self._reboot_announced = False
         """A discovery packet said the node rebooted, and its timer has not shown it yet
         (see :meth:`TimerUnwrapper.expect_reset`): the reset to come is not counted."""
+        self._least_lag = math.inf
+        """The least arrival less device time of its records since :meth:`take_lag`:
+        what its line's queue is judged by (:mod:`.lineload`)."""
+        self._power_ups = 0
+        """Its timer's restarts seen: a lag is only compared within one power-up."""
         self._last_stream_device: float | None = None
         self._down_from: tuple[float, float] | None = None
         """Its stream's last record before its base station went down, until the
@@ -229,6 +234,8 @@ class Node:
             payload["device_time"] = device = unwrapper.update(timer, arrival)
             if unwrapper.last_was_reset:
                 self._timer_restarted()
+            if arrival - device < self._least_lag:  # (the line's queue: take_lag)
+                self._least_lag = arrival - device
             # whether it waited behind the packet before it on the line (then it shows no
             # floor): aspp.clock.waited, inlined here where the arrival is known.
             # Instructions a record (bench/instructions.py): 91,574 without the judgement,
@@ -263,6 +270,15 @@ class Node:
         # no gap across a power-up
         self._last_stream_device = self._down_from = self._back_at = None
         self.clock.reset()
+        self._power_ups += 1
+        self._least_lag = math.inf
+
+    def take_lag(self) -> tuple[float, int]:
+        """The least lag (arrival less device time) of its timed records since the last
+        call (inf: none), and its power-up count: a bin's evidence of a queue on its
+        line (:mod:`.lineload`)."""
+        lag, self._least_lag = self._least_lag, math.inf
+        return lag, self._power_ups
 
     def _after_last_time(self, sampled: float) -> float:
         """``time`` for a record whose ``sampled`` is not above the last one published.

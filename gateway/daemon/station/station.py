@@ -61,7 +61,7 @@ class Station:
         self.retiring: set[int] = set()
         """Nodes a reload removed whose stream is being stopped: still in :attr:`nodes`
         (their records are the stop's evidence), no longer configured."""
-        self.line = LineLoad(config.baudrate / BITS_PER_BYTE)
+        self.line = LineLoad(config.baudrate / BITS_PER_BYTE, self._lags)
         self.replay = Port.replay_of(config.port)
         self._replays = replays or ReplayReaders()
         self.replaying = self.replay is not None
@@ -158,6 +158,10 @@ class Station:
             self._line_changed()
         self._on_data(data, host_time, monotonic)
 
+    def _lags(self) -> list[tuple[int, float, int]]:
+        """Each node's least lag since the last bin: its line's evidence of a queue."""
+        return [(address, *node.take_lag()) for address, node in self.nodes.items()]
+
     def _line_changed(self) -> None:
         """Its line went over capacity, or has room again: its nodes' clocks told."""
         log.warning("base station %s: %s", self.name, self.line.reason()
@@ -195,6 +199,9 @@ class Station:
             self.reader.line_opened()
         else:
             self.scheduler.on_link_down()
+            if self.line.over:  # (its queue went with it)
+                self.line.link_down()
+                self._line_changed()
         self.supervisor.link_changed(up)
         self._on_link_state(self, up)
 

@@ -1,48 +1,134 @@
-"""When the serial line is over capacity (pure: fed bytes read at given times)."""
+"""When the serial line is over capacity (pure: fed each bin's least lag of each node,
+as the station takes them from its nodes). The line models behind it, a FIFO base
+station over capacity and host stalls, are tests/daemon/station/test_line_queue.py."""
 
 from __future__ import annotations
 
-from gateway.daemon.station.lineload import AT_CAPACITY, ROOM, SPAN, LineLoad
+import math
+
+from gateway.daemon.station.lineload import (
+    CONFIRM,
+    FLOOR_MIN_BINS,
+    QUEUE_MIN,
+    SPAN,
+    LineLoad,
+)
 
 CAPACITY = 11520.0
+FLOOR = {76: 10.0, 77: 20.0, 78: -5.0}
+"""Each node's lag (arrival less device time) with no wait: its own offset."""
 
 
-def run(line: LineLoad, shares: list[float], start: float = 0.0, read: int = 0) -> list[bool]:
-    """Sample once a second, the line carrying each share in turn; ``over`` after each."""
-    said = []
-    for second, share in enumerate(shares):
-        read += int(share * CAPACITY)
-        line.sample(start + second + 1, read)
-        said.append(line.over)
-    return said
+class Line:
+    """A LineLoad and the lags its nodes show each bin: ``waits`` above their floors."""
+
+    def __init__(self) -> None:
+        self.bins: dict[int, float] = {}
+        self.power_ups = dict.fromkeys(FLOOR, 0)
+        self.line = LineLoad(CAPACITY, self._lags)
+        self.now = 0.0
+        self.read = 0
+
+    def _lags(self) -> list[tuple[int, float, int]]:
+        bins, self.bins = self.bins, {}
+        return [(node, bins.get(node, math.inf), self.power_ups[node]) for node in FLOOR]
+
+    def bin(self, wait: float | dict[int, float] | None, share: float = 0.9) -> bool:
+        """One bin in which every node waited ``wait`` (None: nothing of theirs read);
+        whether the line is over capacity after it."""
+        if wait is not None:
+            waits = wait if isinstance(wait, dict) else dict.fromkeys(FLOOR, wait)
+            self.bins = {node: FLOOR[node] + self.now * 1e-5 + w for node, w in waits.items()}
+        self.now += 1.0
+        self.read += int(share * CAPACITY)
+        self.line.sample(self.now, self.read)
+        return self.line.over
+
+    def run(self, waits: list[float | None], share: float = 0.9) -> list[bool]:
+        return [self.bin(w, share) for w in waits]
 
 
-def test_a_full_line_is_over_capacity_once_a_span_of_it_is_seen() -> None:
-    line = LineLoad(CAPACITY)
-    line.sample(0.0, 0)
-    said = run(line, [1.0] * 8)
-    assert said.index(True) + 1 == 0.8 * SPAN  # (judged from four fifths of a span on)
-    assert line.share == 1.0
-    assert line.reason() == "line over capacity: 100% of 11520 B/s: sample times unreliable"
+def settled() -> Line:
+    """A line whose nodes' floors are known (a few ordinary bins)."""
+    line = Line()
+    assert not any(line.run([0.001, 0.0, 0.002, 0.0]))
+    return line
 
 
-def test_a_busy_line_under_capacity_is_never_over_it() -> None:
-    line = LineLoad(CAPACITY)
-    line.sample(0.0, 0)
-    # 90%, with a stall of a whole second and its catching up (what bench/timesync.py does)
-    assert not any(run(line, [0.9, 0.9, 0.0, 1.0, 1.0, 0.9, 0.9, 0.9, 0.9] * 4))
+def test_a_queue_growing_then_standing_full_is_over_capacity() -> None:
+    line = settled()
+    # 135% offered at a base station whose gaps keep the reads at 90% of the line
+    said = line.run([0.12, 0.36, 0.36, 0.361, 0.358, 0.36], share=0.9)
+    assert said == [False] * (CONFIRM - 1) + [True] * (7 - CONFIRM)
+    assert line.line.reason() == ("line over capacity: the base station queues 360 ms of "
+                                  "packets (90% of 11520 B/s read): sample times unreliable")
 
 
-def test_over_capacity_has_room_again_only_below_room() -> None:
-    line = LineLoad(CAPACITY)
-    line.sample(0.0, 0)
-    run(line, [1.0] * 6)
-    assert line.over
-    between = (AT_CAPACITY + ROOM) / 2
-    read = int(6 * CAPACITY)
-    assert all(run(line, [between] * 10, 6.0, read))  # no flapping between the two
-    read += int(10 * between * CAPACITY)
-    assert not run(line, [0.5] * 6, 16.0, read)[-1]
+def test_a_host_stall_read_back_faster_than_the_line_is_never_over_capacity() -> None:
+    line = settled()
+    # 2 s read nothing; then the backlog at 130% of the line, its waits falling as the
+    # host and the base station's queue behind it catch up
+    said = line.run([None, None, 0.36, 0.29, 0.22, 0.15, 0.08, 0.01, 0.0], share=1.3)
+    assert not any(said)
+    assert not any(line.run([0.0] * 20, share=0.93))  # no band for a busy line to latch in
+
+
+def test_waits_under_the_queues_threshold_are_an_ordinary_busy_line() -> None:
+    line = settled()
+    # a node behind three others' longest packets, every packet: 20 ms, for a minute
+    assert not any(line.run([QUEUE_MIN * 0.7] * 60, share=0.97))
+
+
+def test_one_node_waiting_is_its_radio_not_the_shared_queue() -> None:
+    line = settled()
+    assert not any(line.run([{76: 0.2, 77: 0.0, 78: 0.001}] * 10))
+
+
+def test_a_line_over_capacity_has_room_again_once_the_queue_drained() -> None:
+    line = settled()
+    line.run([0.2, 0.36, 0.36, 0.36])
+    assert line.line.over
+    # the overload ends: the queue drains at the line's spare share
+    said = line.run([0.30, 0.20, 0.10, 0.025, 0.001])
+    assert said == [True, True, True, False, False]
+    # and it is judged again from there, not latched
+    assert not any(line.run([0.0] * 10, share=0.94))
+    line.run([0.1, 0.3, 0.36, 0.36])
+    assert line.line.over
+
+
+def test_nodes_rebooted_while_held_say_room_when_their_lags_fall() -> None:
+    line = settled()
+    line.run([0.2, 0.36, 0.36, 0.36])
+    for node in FLOOR:
+        line.power_ups[node] += 1  # their timers restarted: lags of a new power-up
+    FLOOR.update({76: 500.0, 77: 600.0, 78: 700.0})
+    try:
+        assert all(line.run([0.36, 0.36, 0.35]))  # no floor: held while their lags stand
+        assert not line.bin(0.0)  # the queue drained under them
+    finally:
+        FLOOR.update({76: 10.0, 77: 20.0, 78: -5.0})
+
+
+def test_records_stopped_while_held_leave_nothing_queued_and_a_stall_says_nothing() -> None:
+    line = settled()
+    line.run([0.2, 0.36, 0.36, 0.36])
+    assert line.bin(None, share=0.0)  # nothing read at all (the host stalled): held
+    assert not line.bin(None, share=0.1)  # bytes, no record: the streams stopped
+
+
+def test_the_base_station_gone_takes_its_queue() -> None:
+    line = settled()
+    line.run([0.2, 0.36, 0.36, 0.36])
+    line.line.link_down()
+    assert not line.line.over
+    assert not line.bin(0.0)
+
+
+def test_a_node_needs_a_few_free_bins_before_its_floor_counts() -> None:
+    line = Line()
+    # from its first bin on the nodes wait behind a full queue: no floor to judge by
+    assert not any(line.run([0.36] * (FLOOR_MIN_BINS + 5)))
 
 
 def test_the_bytes_per_second_are_over_the_last_span() -> None:
@@ -53,39 +139,34 @@ def test_the_bytes_per_second_are_over_the_last_span() -> None:
     assert line.bytes_per_s(10.0, 10_000) == 1000.0
 
 
-def replayed(line: LineLoad, reads: list[tuple[float, int]]) -> list[bool]:
-    """Feed a replay's reads, (recorded time, bytes); ``over`` after each."""
-    said, read = [], 0
-    for at, size in reads:
-        line.replayed(at, read, 1.0)
-        read += size
-        said.append(line.over)
-    return said
-
-
 def test_a_replay_is_judged_on_its_recorded_times_however_fast_it_is_played() -> None:
-    # 90% of the line for 20 recorded seconds, in reads of 100 bytes: the wall clock a
-    # replay plays them by is not asked at all
+    # bins closed at the recorded seconds between reads, each with what was read
+    # before it: the wall clock a replay plays them by is not asked at all
+    closed: list[float] = []
+    line = LineLoad(CAPACITY, lambda: closed.append(0.0) or ())
     size = 100
     step = size / (0.9 * CAPACITY)
     reads = [(1000.0 + i * step, size) for i in range(int(20 / step))]
-    line = LineLoad(CAPACITY)
-    assert not any(replayed(line, reads))
+    read = 0
+    for at, size in reads:
+        line.replayed(at, read, 1.0)
+        read += size
+    assert len(closed) == 20
     assert 0.85 < line.share < 0.95
-    # at 135% it is over capacity, from four fifths of a span on, as live
-    line = LineLoad(CAPACITY)
-    said = replayed(line, [(at / 1.5, size) for at, size in reads])
-    first = said.index(True)
-    assert 0.8 * SPAN <= reads[first][0] / 1.5 - reads[0][0] / 1.5 <= 0.8 * SPAN + 1.0
 
 
 def test_a_replay_whose_recorded_clock_goes_back_judges_the_next_run_afresh() -> None:
-    line = LineLoad(CAPACITY)
-    full = [(float(i) / 10, int(CAPACITY / 10)) for i in range(100)]
-    assert replayed(line, full)[-1]
+    line = Line()
+    for second in range(4):  # floors known
+        line.bins = {node: FLOOR[node] for node in FLOOR}
+        line.line.replayed(float(second), 0, 1.0)
+    for second in range(4, 9):  # a queue standing full
+        line.bins = {node: FLOOR[node] + 0.36 for node in FLOOR}
+        line.line.replayed(float(second), 0, 1.0)
+    assert line.line.over
     # another run of the gateway (its host rebooted): its clock starts again lower
-    assert line.replayed(3.0, 0, 1.0)  # changed: it has room until judged again
-    assert not line.over
+    assert line.line.replayed(3.0, 0, 1.0)  # changed: it has room until judged again
+    assert not line.line.over
     # a silence of an hour: only its last span is sampled
-    assert not line.replayed(3603.0, 0, 1.0)
-    assert len(line._samples) <= SPAN + 2
+    assert not line.line.replayed(3603.0, 0, 1.0)
+    assert len(line.line._samples) <= SPAN + 2
