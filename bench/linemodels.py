@@ -122,6 +122,9 @@ class Streams:
     queued: dict[tuple[int, int], float] = field(default_factory=dict)
     visible: dict[tuple[int, int], float] = field(default_factory=dict)
     ages: dict[tuple[int, int], list[float | None]] = field(default_factory=dict)
+    bounds: dict[tuple[int, int], list[float | None]] = field(default_factory=dict)
+    """The bound status gives at each packet after WARM_UP (``late_ms``, seconds): None
+    unless the floor went FLOOR_UNSEEN_S unseen after it was seen."""
 
 
 def feed(model: Model, clock: type[NodeClock] = NodeClock) -> Streams:
@@ -164,7 +167,10 @@ def feed(model: Model, clock: type[NodeClock] = NodeClock) -> Streams:
                                            and arrival - packet.truth < VISIBLE_WITHIN)
         if packet.truth - start >= WARM_UP:
             out.errors.setdefault(key, []).append((packet.truth, time - packet.truth))
-            out.ages.setdefault(key, []).append(getattr(clocks[node], "floor_age", None))
+            age = getattr(clocks[node], "floor_age", None)
+            out.ages.setdefault(key, []).append(age)
+            given = age is not None and age >= FLOOR_UNSEEN_S and clocks[node].floor_seen
+            out.bounds.setdefault(key, []).append(clocks[node].late_bound() if given else None)
     out.queued = {key: q / n for key, (n, q) in counts.items()}
     out.visible = {key: sum(bins.values()) / len(bins) for key, bins in shown.items()}
     return out
@@ -195,6 +201,10 @@ class Figures:
     """Samples within GOOD of the run's median error, after FLOOR_UNSEEN_S ..."""
     good_said: int
     """... of which the floor age was past FLOOR_UNSEEN_S all the same."""
+    bounded: int = 0
+    """Samples for which a bound of how late ``time`` may be was given ..."""
+    bound_broken: int = 0
+    """... of which ``time`` was later than that (against the run's median error)."""
 
 
 OFF, GOOD = 0.5e-3, 0.2e-3
@@ -218,7 +228,12 @@ def measure(streams: Streams) -> Figures:
     spread = sorted(abs(e - middle) for e in pooled)
     medians = [statistics.median(e for _, e in errors) for errors in streams.errors.values()]
     said = [0, 0, 0, 0]  # off, off and said, good, good and said
+    bounded = [0, 0]  # a bound given, and broken
     for key, errors in streams.errors.items():
+        for (_, error), bound in zip(errors, streams.bounds.get(key, ()), strict=False):
+            if bound is not None:
+                bounded[0] += 1
+                bounded[1] += error - middle > bound
         first = errors[0][0] - WARM_UP
         for (truth, error), age in zip(errors, streams.ages[key], strict=True):
             if truth - first < FLOOR_UNSEEN_S:
@@ -234,7 +249,7 @@ def measure(streams: Streams) -> Figures:
                    (max(medians) - min(medians)) * 1e3,
                    max(_moved(errors) for errors in streams.errors.values()) * 1e3,
                    1 - max(streams.queued[key] for key in streams.errors),
-                   min(streams.visible[key] for key in streams.errors), *said)
+                   min(streams.visible[key] for key in streams.errors), *said, *bounded)
 
 
 # -- gx2-sim's line ---------------------------------------------------------------------------

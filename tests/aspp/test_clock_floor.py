@@ -78,7 +78,20 @@ def test_packets_queued_behind_another_nodes_age_the_floor_and_one_near_it_ends_
     # a packet that comes through fast: the floor is seen again
     clock.update(device, host(device, 0.0001))
     assert clock.floor_age == 0.0
-    assert clock.late_bound() == pytest.approx(0.0, abs=1e-9)
+    assert clock.late_bound() == pytest.approx(FLOOR_NOISE, abs=1e-6)  # (its own noise)
+
+
+def test_a_line_that_dropped_since_its_floor_was_seen_never_bounds_time_by_zero() -> None:
+    """A line lowered since the sighting (a faster packet, though one that waited) says
+    the line then was that far above a packet: where the floor lies is uncertain by the
+    move, whichever way. Before, a drop cancelled the drift's allowance, and a WARN said
+    "late by up to 0.0 ms" (issue 38)."""
+    clock, rng = NodeClock(), random.Random(5)
+    device = feed(clock, 0.0, 20.0, free, rng)
+    device = feed(clock, device, 35.0, queued, rng)
+    clock.update(device, host(device, -0.003), True)  # 3 ms below, behind another's
+    assert clock.floor_age is not None and clock.floor_age > 30.0
+    assert clock.late_bound() >= 0.003 + FLOOR_NOISE
 
 
 def test_a_line_risen_onto_the_waiting_packets_is_no_floor_seen() -> None:
