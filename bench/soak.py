@@ -24,15 +24,11 @@ import subprocess
 import sys
 import tempfile
 import time
-import uuid
-from collections import Counter
 from pathlib import Path
-from typing import Any
 
-import msgpack
 import yaml
 import zmq
-from benchutil import free_port, rss_kib, tap_writes
+from benchutil import Tap, Watcher, free_port, gateway_command, gateway_losses, rss_kib
 
 from gateway.sim.base_station import LineFaults, RadioLink
 from gateway.sim.node import NodeSettings
@@ -42,73 +38,6 @@ NODES = (76, 77, 78)
 LINE_BYTES_PER_SECOND = 115200 / 10
 WARM_UP = 10.0
 """Seconds before the first RSS sample: imports, arming and buffers settled."""
-
-
-class Tap:
-    """Counts the reply packets the simulator really wrote into the pty, per node."""
-
-    def __init__(self, sim: Simulator) -> None:
-        self.replies: Counter[int] = Counter()
-        tap_writes(sim, lambda reply, now: self.replies.update((reply.node,)))
-
-
-class Watcher:
-    """The subscriber and the control client, read from the main loop."""
-
-    def __init__(self, context: zmq.Context, publish: str, control: str) -> None:
-        self.sub = context.socket(zmq.SUB)
-        self.sub.setsockopt(zmq.RCVHWM, 0)  # this subscriber must not be the one losing
-        self.sub.setsockopt(zmq.LINGER, 0)
-        self.sub.setsockopt(zmq.SUBSCRIBE, b"gx2/")
-        self.sub.connect(publish)
-        self.control = context.socket(zmq.DEALER)
-        self.control.setsockopt(zmq.LINGER, 0)
-        self.control.connect(control)
-        self.received: Counter[int] = Counter()
-        self.last_seq: dict[int, int] = {}
-        self.first_seq: dict[int, int] = {}
-        """Published before this subscriber joined: seq 1 .. first_seq - 1."""
-        self.seq_gaps = 0
-        self.last_record: dict[int, float] = {}
-
-    def drain(self, seconds: float) -> None:
-        deadline = time.monotonic() + seconds
-        while (left := deadline - time.monotonic()) > 0:
-            if not self.sub.poll(max(1, int(left * 1000))):
-                continue
-            while True:
-                try:
-                    topic, payload = self.sub.recv_multipart(zmq.NOBLOCK)
-                except zmq.Again:
-                    break
-                if topic.startswith(b"gx2/gateway/"):
-                    continue
-                message = msgpack.unpackb(payload)
-                node, seq = message["node"], message["seq"]
-                self.received[node] += 1
-                last = self.last_seq.get(node)
-                self.first_seq.setdefault(node, seq)
-                if last is not None and seq != last + 1:
-                    self.seq_gaps += seq - last - 1
-                self.last_seq[node] = seq
-                self.last_record[node] = time.monotonic()
-
-    def status(self, timeout: float = 2.0) -> dict[str, Any] | None:
-        return self.request("status", timeout)
-
-    def request(self, op: str, timeout: float = 10.0, **fields: Any) -> dict[str, Any] | None:
-        """The result, or None for an error or no answer in time."""
-        request_id = uuid.uuid4().hex
-        self.control.send_multipart([b"", msgpack.packb({"id": request_id, "op": op,
-                                                          **fields})])
-        deadline = time.monotonic() + timeout
-        while (left := deadline - time.monotonic()) > 0:
-            self.drain(0)  # keep up with the stream meanwhile
-            if self.control.poll(min(50, max(1, int(left * 1000)))):
-                reply = msgpack.unpackb(self.control.recv_multipart()[-1])
-                if reply.get("id") == request_id and reply.get("ok"):
-                    return reply["result"]
-        return None
 
 
 def main() -> int:
@@ -130,9 +59,8 @@ def main() -> int:
         "base_station": {"port": str(link)}, "publish": {"endpoint": publish},
         "control": {"endpoint": control},
         "nodes": [{"address": a, "stream": "accel_angrate"} for a in NODES]}))
-    script = shutil.which("gx2-gateway", path=str(Path(sys.executable).parent))
     log = (work / "gateway.log").open("w")
-    gateway = subprocess.Popen([script or "gx2-gateway", "--config", str(work / "nodes.yaml"),
+    gateway = subprocess.Popen([gateway_command(), "--config", str(work / "nodes.yaml"),
                                 "--log-level", "DEBUG"],
                                stdout=log, stderr=subprocess.STDOUT)
     context = zmq.Context()
@@ -200,13 +128,9 @@ def main() -> int:
     assert status is not None, "the gateway stopped answering"
 
     nodes = {n["node"]: n for n in status["nodes"]}
-    delivered = sum(tap.replies[a] for a in NODES)
-    received = sum(nodes[a]["packets"] for a in NODES)
-    published = sum(nodes[a]["published"] for a in NODES)
-    lost_gateway = sum(nodes[a]["lost_gateway"] for a in NODES)
-    got = sum(watch.received.values())
-    before_joining = sum(watch.first_seq.get(a, 1) - 1 for a in NODES)
-    in_gateway = lost_gateway + (received - published) + (published - before_joining - got)
+    losses = gateway_losses(status, tap, watch, NODES)
+    delivered, received, in_gateway = (losses["delivered"], losses["received"],
+                                       losses["in_gateway"])
     rows = [
         ("duration", f"{elapsed / 60:.1f} min"),
         ("line utilisation", f"{line_bytes / (elapsed * LINE_BYTES_PER_SECOND):.1%} "
@@ -214,8 +138,9 @@ def main() -> int:
         ("packets the simulator sent", f"{sum(stats.packets_sent.values()):,}"),
         ("  delivered into the pty (tap)", f"{delivered:,}"),
         ("  received by the gateway", f"{received:,}"),
-        ("  published / got by a subscriber", f"{published:,} / {got:,} (seq gaps "
-                                              f"{watch.seq_gaps}; {before_joining} published "
+        ("  published / got by a subscriber", f"{losses['published']:,} / {losses['got']:,} "
+                                              f"(seq gaps {watch.seq_gaps}; "
+                                              f"{losses['before_joining']} published "
                                               "before it joined)"),
         ("lost over the air (simulator truth)", f"{stats.packets_lost_radio:,}"),
         ("  gateway's lost_radio (from timer gaps)",

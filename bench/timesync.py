@@ -58,7 +58,7 @@ from pathlib import Path
 import msgpack
 import yaml
 import zmq
-from benchutil import free_port
+from benchutil import free_port, gateway_command, unix_minus_monotonic
 from linemodels import BYTE_TIME, feed, gx2sim_packets, update_cost
 
 from aspp.clock import WINDOW
@@ -98,10 +98,6 @@ class Sample:
     truth: float = 0.0
 
 
-def unix_minus_monotonic() -> float:
-    return statistics.median(time.time() - time.monotonic() for _ in range(9))
-
-
 def collect(seconds: float) -> tuple[list[Sample], int]:
     """Run the simulator and the installed gateway; return every record and the number
     of stalls."""
@@ -113,8 +109,7 @@ def collect(seconds: float) -> tuple[list[Sample], int]:
         "publish": {"endpoint": publish},
         "control": {"endpoint": f"tcp://127.0.0.1:{free_port()}"},
         "nodes": [{"address": n.address} for n in NODES]}))
-    script = shutil.which("gx2-gateway", path=str(Path(sys.executable).parent))
-    proc = subprocess.Popen([script or "gx2-gateway", "--config", str(work / "nodes.yaml"),
+    proc = subprocess.Popen([gateway_command(), "--config", str(work / "nodes.yaml"),
                              "--log-level", "WARNING"], stdout=subprocess.DEVNULL)
     context = zmq.Context()
     sub = context.socket(zmq.SUB)

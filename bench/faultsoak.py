@@ -1,0 +1,896 @@
+#!/usr/bin/env python3
+"""Fault soak against ground truth: a week of ordinary faults in an hour. Run by hand:
+
+    python bench/faultsoak.py --minutes 60 --seed 1
+    python bench/faultsoak.py --minutes 3 --seed 1 --kinds stall unplug   # a few kinds
+
+gx2-sim runs in this process on a pty (three nodes streaming accel_angrate at about
+70% of the 115200-baud line, rates a little apart, crystals tens of ppm off); the
+installed gx2-gateway runs as a subprocess on it. A subscriber keeps every record;
+a tap on what the simulator writes into the pty gives each timed record its true
+sample instant (the simulator's ``sampled``, read as the packet is written, so a
+node's restarted timer never meets an old reading). Status is polled at 2 Hz over the
+control socket, never blocking the loop.
+
+A seeded schedule of ordinary faults, one at a time, each followed by its recovery
+and some quiet time (every kind in turn, in a shuffled order, so that a short run
+covers them evenly):
+
+- ``stall``: the gateway's process stopped (SIGSTOP) for 0.3-3 s, then SIGCONT;
+- ``cpu``: two busy processes (both cores) for 5-20 s;
+- ``unplug``: the base station unplugged for 0.5-5 s, then plugged back in;
+- ``power_one`` / ``power_all``: one node, or every node, off for 0.5-5 s, then on;
+- ``radio``: one node's (or every node's) radio loss raised to 20-100% for 3-15 s;
+- ``load``: the line's load moved to 50-98% for 10-30 s (node 76's rate, by the
+  gateway's ``rate`` op), then back;
+- ``overload``: 110-140% of the line for 10-60 s (node 76 streaming
+  accel_angrate_orientation at a faster rate, by ``start`` and ``rate``), then back;
+- ``reload``: node 77's name changed in the configuration, then SIGHUP.
+
+Not covered: an MQTT broker restart and a full disk (the run has neither MQTT nor a
+recording), and ``--model fifo`` (the FIFO line exists only in bench/linemodels.py's
+simulated time, not behind a pty).
+
+Checked at the end, from the records, the truth and the polls:
+
+- recovery: from each fault's end to the first status (asked after the end) with the
+  gateway and every node OK and every clock locked; bound: ``health.window_s`` (a
+  fault's losses and reboots stay in the health window that long, by design) plus
+  RECOVERY_SLACK;
+- ``time`` - truth, per node against its median outside the windows (a window: a
+  fault and its recovery, the warm-up, and the polls around one where status says the
+  node's clock is held, unlocked or its floor unseen): p99 of |error - median| and the
+  spread of the nodes' medians, inside and outside; targets outside: p99 <= 0.2 ms,
+  medians within 0.15 ms;
+- honesty: the share of samples more than 0.5 ms off whose arrival had, within 1 s, a
+  status naming the node's clock or line in a WARN (target >= 95%); the share of such
+  WARN time (poll to poll) whose samples were all within 0.2 ms (target <= 5%); every
+  ``clock.late_ms`` given at least the true lateness (less the node's median error) of
+  the node's samples arriving around that poll, within LATE_TOLERANCE;
+- losses: the replies delivered into the pty, received, published and got (the
+  tap of bench/soak.py); nothing may be lost in the gateway;
+- the gateway's RSS and open descriptors after the warm-up and at the end: flat.
+
+The exit status is 1 if an invariant fails.
+"""
+
+from __future__ import annotations
+
+import argparse
+import bisect
+import os
+import random
+import shutil
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from array import array
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from itertools import pairwise
+from pathlib import Path
+from typing import Any
+
+import yaml
+import zmq
+from benchutil import (
+    Tap,
+    Watcher,
+    free_port,
+    gateway_command,
+    gateway_losses,
+    open_fds,
+    rss_kib,
+    unix_minus_monotonic,
+)
+
+from aspp import Reply
+from aspp.frame import REPLY_OVERHEAD
+from aspp.records import BY_NAME, lookup
+from gateway.sim.base_station import RADIO_LATENCY, BaseStation
+from gateway.sim.node import NodeSettings
+from gateway.sim.server import Simulator
+
+NODES = (NodeSettings(76, divider=740, ppm=25.0), NodeSettings(77, divider=760, ppm=-30.0),
+         NodeSettings(78, divider=780, ppm=10.0))
+"""69.2, 67.4 and 65.6 Hz of 40-byte packets: 70% of the line, rates apart so that no
+node's packets wait behind another's for long."""
+ADDRESSES = tuple(n.address for n in NODES)
+STREAM, BIG_STREAM = "accel_angrate", "accel_angrate_orientation"
+LINE_BYTES = 11520.0
+"""Bytes a second a 115200-baud line carries."""
+KINDS = ("stall", "cpu", "unplug", "power_one", "power_all", "radio", "load", "overload",
+         "reload")
+RECOVERY_SLACK = 5.0
+"""Seconds past the health window a recovery may take: the health's 1 s sampling, the
+2 Hz poll, a clock locking after a second of packets, a stream re-armed."""
+POLL_PERIOD = 0.5
+P99_TARGET, APART_TARGET = 0.2e-3, 0.15e-3
+OFF, GOOD = 0.5e-3, 0.2e-3
+"""A sample more than OFF from its node's median is off; WARN time whose samples are
+all within GOOD was needless."""
+HONEST_SHARE, NEEDLESS_SHARE = 0.95, 0.05
+WARN_NEAR = 1.0
+"""Seconds around a sample's arrival in which a poll's WARN covers it."""
+LATE_NEAR = 0.5
+LATE_TOLERANCE = 0.1e-3
+"""What a sample's error may exceed ``late_ms`` by: the estimate's noise on a free line."""
+RSS_FLAT_KIB = 4096
+UNMATCHED_S = 2.0
+"""Seconds a record waits for the tap to decode its packet (the simulator's thread may
+be descheduled between writing a packet and decoding it; the gateway may not)."""
+
+
+def bytes_per_second(stream: str, hz: float) -> float:
+    return (BY_NAME[stream].reply_size + REPLY_OVERHEAD) * hz
+
+
+def rate_hz(node: NodeSettings) -> float:
+    return 51200 / node.divider
+
+
+def others_load() -> float:
+    """Bytes a second nodes 77 and 78 send: what node 76's rate is set against."""
+    return sum(bytes_per_second(STREAM, rate_hz(n)) for n in NODES[1:])
+
+
+# -- the run's records ---------------------------------------------------------------
+
+
+@dataclass
+class Fault:
+    """One fault as it ran; times are ``time.monotonic()``."""
+
+    kind: str
+    detail: str
+    start: float
+    due: float
+    end: float | None = None
+    undo: Callable[[], None] | None = None
+    recovered: float | None = None
+    """Seconds from its end to the first healthy status asked after it."""
+
+
+@dataclass
+class NodePoll:
+    health: str
+    reasons: tuple[str, ...]
+    locked: bool
+    floor_age_s: float | None
+    floor_seen: bool | None
+    late_ms: float | None
+
+    @property
+    def clock_warn(self) -> bool:
+        """A WARN that names the clock or the line: what tells a user ``time`` is off."""
+        return self.health == "WARN" and any("clock" in r or "line" in r
+                                             for r in self.reasons)
+
+    @property
+    def clock_trouble(self) -> bool:
+        """Status says the estimate is held, unlocked or its floor unseen."""
+        return not self.locked or self.clock_warn
+
+
+@dataclass
+class Poll:
+    asked: float
+    at: float
+    healthy: bool
+    nodes: dict[int, NodePoll]
+    gateway_reasons: tuple[str, ...]
+
+
+@dataclass
+class Samples:
+    """Every timed record with its truth, per node, as columns (an hour is a million)."""
+
+    truth: dict[int, array] = field(default_factory=lambda: {a: array("d") for a in ADDRESSES})
+    arrival: dict[int, array] = field(default_factory=lambda: {a: array("d")
+                                                                for a in ADDRESSES})
+    error: dict[int, array] = field(default_factory=lambda: {a: array("d") for a in ADDRESSES})
+    untrue: int = 0
+    """Records for which the tap saw no true instant."""
+
+    def add(self, node: int, truth: float, arrival: float, error: float) -> None:
+        self.truth[node].append(truth)
+        self.arrival[node].append(arrival)
+        self.error[node].append(error)
+
+    def sort(self) -> None:
+        """In order of arrival (records matched late were added late), for bisect."""
+        for node, arrival in self.arrival.items():
+            order = sorted(range(len(arrival)), key=arrival.__getitem__)
+            for column in (self.truth, self.arrival, self.error):
+                column[node] = array("d", (column[node][i] for i in order))
+
+
+@dataclass
+class Result:
+    seconds: float
+    window_s: float
+    started: float
+    warmed: float
+    faults: list[Fault]
+    polls: list[Poll]
+    samples: Samples
+    losses: dict[str, int]
+    resources: list[tuple[int, int]]
+    """(RSS KiB, open fds) after the warm-up and at the end."""
+    ops_failed: list[str]
+    work: Path
+
+    @property
+    def bound(self) -> float:
+        return self.window_s + RECOVERY_SLACK
+
+
+# -- the rig: simulator, gateway, subscriber ----------------------------------------
+
+
+class Truths:
+    """Each timed record's true instant, taken from the simulator as the tap sees its
+    packet written (its timer then is the one the node sampled it at)."""
+
+    def __init__(self, sim: Simulator) -> None:
+        self.sim = sim
+        self.lock = threading.Lock()
+        self.by_timer: dict[tuple[int, int], float] = {}
+
+    def on_reply(self, reply: Reply, _now: float) -> None:
+        spec = lookup(reply.command) if reply.command in TIMED else None
+        node = self.sim.station.nodes.get(reply.node)
+        if spec is None or node is None:
+            return
+        timer = int.from_bytes(reply.payload[-4:], "big")
+        truth = node.sampled.get(timer)
+        if truth is not None:
+            with self.lock:
+                self.by_timer[(reply.node, timer)] = truth
+                if len(self.by_timer) > 200_000:  # (records lost at an unplug)
+                    del self.by_timer[next(iter(self.by_timer))]
+
+    def take(self, node: int, timer: int) -> float | None:
+        with self.lock:
+            return self.by_timer.pop((node, timer), None)
+
+
+TIMED = frozenset(spec.code for spec in BY_NAME.values() if spec.timed)
+
+
+class Rig:
+    """gx2-sim on a pty, the installed gateway on it, and a watcher of both."""
+
+    def __init__(self, seed: int, window_s: float, settle_s: float) -> None:
+        self.work = Path(tempfile.mkdtemp(prefix="gx2-faultsoak-"))
+        self.link = self.work / "gx2"
+        self.sim = Simulator(list(NODES), link=self.link, seed=seed).start()
+        self.truths = Truths(self.sim)
+        self.tap = Tap(self.sim, self.truths.on_reply)
+        self.samples = Samples()
+        self.shift = unix_minus_monotonic()
+        self.config = self.work / "nodes.yaml"
+        publish, control = (f"tcp://127.0.0.1:{free_port()}" for _ in range(2))
+        self.settings: dict[str, Any] = {
+            "base_station": {"port": str(self.link), "latency_ms": RADIO_LATENCY * 1000},
+            "publish": {"endpoint": publish},
+            "control": {"endpoint": control, "allow_eeprom_write": True},
+            "health": {"window_s": window_s, "settle_s": settle_s},
+            "nodes": [{"address": a, "stream": STREAM, "name": f"n{a}"} for a in ADDRESSES]}
+        self.write_config()
+        self.log = (self.work / "gateway.log").open("w")
+        self.gateway = subprocess.Popen(
+            [gateway_command(), "--config", str(self.config), "--log-level", "INFO"],
+            stdout=self.log, stderr=subprocess.STDOUT)
+        self.context = zmq.Context()
+        self.watch = Watcher(self.context, publish, control, self.on_record)
+        self.hogs: list[subprocess.Popen[bytes]] = []
+        self.unmatched: list[tuple[float, int, int, float]] = []
+        """(arrival, node, timer, time on the monotonic clock) awaiting their truth."""
+
+    def write_config(self) -> None:
+        self.config.write_text(yaml.safe_dump(self.settings))
+
+    def on_record(self, _topic: bytes, message: dict[str, Any]) -> None:
+        if "time" not in message or "timer" not in message:
+            return
+        node = message["node"]
+        truth = self.truths.take(node, message["timer"])
+        if node not in self.samples.truth:
+            return
+        unix = message["time"] - self.shift
+        if truth is None:  # (the tap may not have decoded what it wrote yet)
+            self.unmatched.append((time.monotonic(), node, message["timer"], unix))
+            return
+        self.samples.add(node, truth, time.monotonic(), unix - truth)
+
+    def match_late(self, now: float) -> None:
+        """Records that arrived before the tap had decoded their packet: matched now,
+        or counted as without truth after UNMATCHED_S."""
+        waiting, self.unmatched = self.unmatched, []
+        for arrival, node, timer, unix in waiting:
+            truth = self.truths.take(node, timer)
+            if truth is not None:
+                self.samples.add(node, truth, arrival, unix - truth)
+            elif now - arrival < UNMATCHED_S:
+                self.unmatched.append((arrival, node, timer, unix))
+            else:
+                self.samples.untrue += 1
+
+    def close(self) -> None:
+        for hog in self.hogs:
+            hog.kill()
+            hog.wait()
+        if self.gateway.poll() is None:
+            self.gateway.send_signal(signal.SIGCONT)
+            self.gateway.terminate()
+            try:
+                self.gateway.wait(10)
+            except subprocess.TimeoutExpired:
+                self.gateway.kill()
+                self.gateway.wait()
+        self.sim.stop()
+        self.context.destroy(linger=0)
+        self.log.close()
+
+
+# -- the faults -----------------------------------------------------------------------
+
+Begin = Callable[[Rig, random.Random], tuple[float, str, Callable[[], None] | None]]
+"""Starts a fault; returns its duration, what it is, and what ends it (None: nothing)."""
+
+
+def stall(rig: Rig, rng: random.Random) -> tuple[float, str, Callable[[], None]]:
+    seconds = rng.uniform(0.3, 3.0)
+    rig.gateway.send_signal(signal.SIGSTOP)
+    return seconds, f"{seconds:.2f} s", lambda: rig.gateway.send_signal(signal.SIGCONT)
+
+
+def cpu(rig: Rig, rng: random.Random) -> tuple[float, str, Callable[[], None]]:
+    seconds = rng.uniform(5.0, 20.0)
+    rig.hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
+                for _ in range(2)]
+
+    def undo() -> None:
+        for hog in rig.hogs:
+            hog.kill()
+            hog.wait()
+        rig.hogs = []
+    return seconds, f"{seconds:.1f} s, 2 hogs", undo
+
+
+def unplug(rig: Rig, rng: random.Random) -> tuple[float, str, Callable[[], None]]:
+    seconds = rng.uniform(0.5, 5.0)
+    rig.sim.unplug()
+    return seconds, f"{seconds:.1f} s", rig.sim.replug
+
+
+def power(addresses: tuple[int, ...]) -> Begin:
+    def begin(rig: Rig, rng: random.Random) -> tuple[float, str, Callable[[], None]]:
+        seconds = rng.uniform(0.5, 5.0)
+        for a in addresses:
+            rig.sim.power(a, False)
+
+        def undo() -> None:
+            for a in addresses:
+                rig.sim.power(a, True)
+        return seconds, f"{','.join(map(str, addresses))} off {seconds:.1f} s", undo
+    return begin
+
+
+def radio(rig: Rig, rng: random.Random) -> tuple[float, str, Callable[[], None]]:
+    seconds, loss = rng.uniform(3.0, 15.0), rng.choice([0.2, 0.5, 0.8, 1.0])
+    addresses = ADDRESSES if rng.random() < 0.3 else (rng.choice(ADDRESSES),)
+
+    def set_loss(value: float) -> Callable[[BaseStation, float], None]:
+        def change(station: BaseStation, _now: float) -> None:
+            for a in addresses:
+                station.radio[a].data_loss = station.radio[a].command_loss = value
+        return change
+    rig.sim.call(set_loss(loss))
+    return (seconds, f"{','.join(map(str, addresses))} {loss:.0%} for {seconds:.1f} s",
+            lambda: rig.sim.call(set_loss(0.0)))
+
+
+def node76(rig: Rig, stream: str, hz: float) -> None:
+    """Node 76 to ``stream`` at ``hz``, through the gateway as an operator would."""
+    rig.watch.ask("rate", node=76, hz=hz, timeout=10.0)
+    rig.watch.ask("start", node=76, record=stream, timeout=10.0)
+
+
+def restore76(rig: Rig) -> Callable[[], None]:
+    return lambda: node76(rig, STREAM, rate_hz(NODES[0]))
+
+
+def load(rig: Rig, rng: random.Random) -> tuple[float, str, Callable[[], None]]:
+    seconds, share = rng.uniform(10.0, 30.0), rng.uniform(0.50, 0.98)
+    hz = (share * LINE_BYTES - others_load()) / bytes_per_second(STREAM, 1.0)
+    node76(rig, STREAM, hz)
+    return seconds, f"{share:.0%} ({hz:.1f} Hz) for {seconds:.0f} s", restore76(rig)
+
+
+def overload(rig: Rig, rng: random.Random) -> tuple[float, str, Callable[[], None]]:
+    seconds, share = rng.uniform(10.0, 60.0), rng.uniform(1.10, 1.40)
+    hz = (share * LINE_BYTES - others_load()) / bytes_per_second(BIG_STREAM, 1.0)
+    node76(rig, BIG_STREAM, hz)
+    return seconds, f"{share:.0%} ({BIG_STREAM} {hz:.1f} Hz) for {seconds:.0f} s", \
+        restore76(rig)
+
+
+def reload(rig: Rig, _rng: random.Random) -> tuple[float, str, None]:
+    node = rig.settings["nodes"][1]
+    node["name"] = "m77" if node["name"] == "n77" else "n77"
+    rig.write_config()
+    rig.gateway.send_signal(signal.SIGHUP)
+    return 0.0, f"node 77 named {node['name']}, SIGHUP", None
+
+
+BEGIN: dict[str, Begin] = {
+    "stall": stall, "cpu": cpu, "unplug": unplug, "power_one": power((77,)),
+    "power_all": power(ADDRESSES), "radio": radio, "load": load, "overload": overload,
+    "reload": reload}
+
+
+def deck(rng: random.Random, kinds: tuple[str, ...]) -> Iterable[str]:
+    """Every kind in turn, each round shuffled: a short run still covers them all."""
+    while True:
+        order = list(kinds)
+        rng.shuffle(order)
+        yield from order
+
+
+# -- the loop -------------------------------------------------------------------------
+
+
+def node_poll(node: dict[str, Any]) -> NodePoll:
+    clock = node.get("clock") or {}
+    return NodePoll(node["health"], tuple(node.get("reasons") or ()),
+                    bool(clock.get("locked")), clock.get("floor_age_s"),
+                    clock.get("floor_seen"), clock.get("late_ms"))
+
+
+def make_poll(asked: float, status: dict[str, Any]) -> Poll:
+    nodes = {n["node"]: node_poll(n) for n in status["nodes"]}
+    gateway = status["gateway"]
+    healthy = gateway["health"] == "OK" and all(
+        nodes.get(a) is not None and nodes[a].health == "OK" and nodes[a].locked
+        for a in ADDRESSES)
+    return Poll(asked, time.monotonic(), healthy, nodes, tuple(gateway.get("reasons") or ()))
+
+
+class Poller:
+    """Asks for status every POLL_PERIOD, one request at a time (given up after 5 s:
+    a stopped gateway answers it when it runs again, and that answer is still taken)."""
+
+    def __init__(self, watch: Watcher) -> None:
+        self.watch = watch
+        self.polls: list[Poll] = []
+        self.pending: dict[str, float] = {}
+        self.next_at = 0.0
+        self.ops_failed: list[str] = []
+
+    def tick(self, now: float) -> None:
+        for request_id, reply in list(self.watch.answers.items()):
+            del self.watch.answers[request_id]
+            asked = self.pending.pop(request_id, None)
+            if asked is not None and reply.get("ok"):
+                self.polls.append(make_poll(asked, reply["result"]))
+            elif asked is None and not reply.get("ok"):  # an operator's op of a fault
+                self.ops_failed.append(f"{reply.get('error')}: {reply.get('message')}")
+        if now >= self.next_at and all(now - t > 5.0 for t in self.pending.values()):
+            self.pending[self.watch.ask("status", timeout=5.0)] = now
+            self.next_at = now + POLL_PERIOD
+
+    def healthy_since(self, since: float) -> Poll | None:
+        """The first healthy poll asked after ``since``."""
+        i = len(self.polls)
+        while i > 0 and self.polls[i - 1].asked > since:
+            i -= 1
+        return next((p for p in self.polls[i:] if p.healthy), None)
+
+
+@dataclass
+class Schedule:
+    """Faults one at a time: begin, end when due, wait for recovery (or the bound),
+    then quiet time; nothing new begins within ``last_start`` of the run's end."""
+
+    rig: Rig
+    poller: Poller
+    rng: random.Random
+    kinds: Iterable[str]
+    bound: float
+    quiet: tuple[float, float]
+    faults: list[Fault] = field(default_factory=list)
+    next_start: float = 0.0
+    rig_start: float = 0.0
+    active: Fault | None = None
+
+    def tick(self, now: float, may_begin: bool) -> None:
+        fault = self.active
+        if fault is None:
+            if may_begin and now >= self.next_start:
+                self.begin(now)
+            return
+        if fault.end is None:
+            if now >= fault.due:
+                if fault.undo is not None:
+                    fault.undo()
+                fault.end = time.monotonic()
+            return
+        poll = self.poller.healthy_since(fault.end)
+        if poll is not None or now > fault.end + self.bound:
+            if poll is not None:
+                fault.recovered = poll.at - fault.end
+            self.active = None
+            self.next_start = now + self.rng.uniform(*self.quiet)
+
+    def begin(self, now: float) -> None:
+        kind = next(iter(self.kinds))
+        seconds, detail, undo = BEGIN[kind](self.rig, self.rng)
+        fault = Fault(kind, detail, now, now + seconds, undo=undo)
+        self.faults.append(fault)
+        self.active = fault
+        print(f"  {now - self.rig_start:7.1f} s  {kind:<9} {detail}", flush=True)
+
+
+def warm_up(rig: Rig, poller: Poller, settle_s: float, limit: float = 60.0) -> float:
+    """Until the first healthy status (every node streaming, OK and locked) asked once
+    the streams are old enough to be judged (settle_s after the start, and 2 s more)."""
+    start = time.monotonic()
+    deadline = start + limit
+    while (now := time.monotonic()) < deadline:
+        rig.watch.drain(0.05)
+        rig.match_late(now)
+        poller.tick(now)
+        if poller.healthy_since(start + settle_s + 2.0) is not None:
+            return now
+        if rig.gateway.poll() is not None:
+            raise RuntimeError(f"the gateway exited; its log: {rig.work / 'gateway.log'}")
+    raise RuntimeError(f"not healthy within {limit:.0f} s; its log: {rig.work / 'gateway.log'}")
+
+
+def stop_and_settle(rig: Rig, poller: Poller) -> dict[str, Any] | None:
+    """Stop the streams as gx2ctl stop does, then wait until the counts settle."""
+    poller.tick(time.monotonic())  # (take what answers are waiting)
+    for address in ADDRESSES:
+        rig.watch.request("stop", node=address)
+    settle = time.monotonic() + 10
+    status = rig.watch.status()
+    while time.monotonic() < settle:
+        rig.watch.drain(0.5)
+        status = rig.watch.status()
+        if status and sum(n["published"] for n in status["nodes"]) == sum(
+                rig.watch.received.values()):
+            break
+    return status
+
+
+def run(seconds: float, seed: int, *, kinds: tuple[str, ...] = KINDS, window_s: float = 20.0,
+        settle_s: float = 5.0, quiet: tuple[float, float] = (5.0, 20.0),
+        keep: bool = False) -> Result:
+    """The soak: warm-up, then faults for ``seconds``, then the final counts."""
+    rng = random.Random(seed)
+    rig = Rig(seed, window_s, settle_s)
+    poller = Poller(rig.watch)
+    try:
+        started = time.monotonic()
+        warmed = warm_up(rig, poller, settle_s)
+        resources = [(rss_kib(rig.gateway.pid), open_fds(rig.gateway.pid))]
+        schedule = Schedule(rig, poller, rng, deck(rng, kinds), window_s + RECOVERY_SLACK,
+                            quiet, next_start=warmed + rng.uniform(*quiet) / 2)
+        schedule.rig_start = started
+        end = warmed + seconds
+        longest = 60.0 + window_s + RECOVERY_SLACK
+        next_shift = 0.0
+        while (now := time.monotonic()) < end or schedule.active is not None:
+            rig.watch.drain(0.05)
+            rig.match_late(now)
+            poller.tick(now)
+            schedule.tick(now, may_begin=end - now > min(longest, seconds / 4))
+            if now >= next_shift:
+                rig.shift, next_shift = unix_minus_monotonic(), now + 1.0
+            if rig.gateway.poll() is not None:
+                raise RuntimeError(f"the gateway exited; its log: {rig.work / 'gateway.log'}")
+        status = stop_and_settle(rig, poller)
+        resources.append((rss_kib(rig.gateway.pid), open_fds(rig.gateway.pid)))
+        if status is None:
+            raise RuntimeError("the gateway stopped answering")
+        losses = gateway_losses(status, rig.tap, rig.watch, ADDRESSES)
+    finally:
+        rig.close()
+    if not keep:
+        shutil.rmtree(rig.work, ignore_errors=True)
+    rig.samples.sort()
+    return Result(seconds, window_s, started, warmed, schedule.faults, poller.polls,
+                  rig.samples, losses, resources, poller.ops_failed, rig.work)
+
+
+# -- the analysis ---------------------------------------------------------------------
+
+Interval = tuple[float, float]
+
+
+def merged(intervals: Iterable[Interval]) -> list[Interval]:
+    out: list[Interval] = []
+    for start, end in sorted(intervals):
+        if out and start <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], end))
+        else:
+            out.append((start, end))
+    return out
+
+
+def covers(intervals: list[Interval], starts: list[float], first: float, last: float) -> bool:
+    """Whether [first, last] meets one of the (merged, sorted) intervals."""
+    i = bisect.bisect_right(starts, last) - 1
+    return i >= 0 and intervals[i][1] >= first
+
+
+def fault_span(fault: Fault, bound: float) -> Interval:
+    end = fault.end if fault.end is not None else fault.due
+    return fault.start, end + (fault.recovered if fault.recovered is not None else bound)
+
+
+def trouble_spans(polls: list[Poll], node: int) -> list[Interval]:
+    """The polls around each that says the node's clock is held, unlocked or unseen."""
+    spans = []
+    for i, poll in enumerate(polls):
+        state = poll.nodes.get(node)
+        if state is not None and state.clock_trouble:
+            spans.append((polls[max(i - 1, 0)].asked, polls[min(i + 1, len(polls) - 1)].at))
+    return spans
+
+
+def windows(result: Result, node: int) -> list[Interval]:
+    spans = [(result.started, result.warmed)]
+    spans += [fault_span(f, result.bound) for f in result.faults]
+    return merged(spans + trouble_spans(result.polls, node))
+
+
+def p99(values: list[float]) -> float:
+    if not values:
+        return float("nan")
+    d = sorted(abs(v) for v in values)
+    return d[int(0.99 * (len(d) - 1))]
+
+
+def split(result: Result, spans: dict[int, list[Interval]]) -> tuple[dict[int, list[int]],
+                                                                      dict[int, list[int]]]:
+    """Each node's sample indexes inside and outside its windows."""
+    inside: dict[int, list[int]] = {}
+    outside: dict[int, list[int]] = {}
+    for node in ADDRESSES:
+        starts = [s for s, _ in spans[node]]
+        truth, arrival = result.samples.truth[node], result.samples.arrival[node]
+        inside[node], outside[node] = [], []
+        for i in range(len(truth)):
+            target = inside if covers(spans[node], starts, truth[i], arrival[i]) else outside
+            target[node].append(i)
+    return inside, outside
+
+
+@dataclass
+class Figures:
+    """p99 of |error - the node's median outside| (s), the nodes' medians' spread (s),
+    and how many samples."""
+
+    p99: float
+    apart: float
+    count: int
+    worst: float
+
+
+def figures(result: Result, medians: dict[int, float],
+            chosen: dict[int, list[int]]) -> Figures:
+    deviations: list[float] = []
+    own: list[float] = []
+    for node, indexes in chosen.items():
+        errors = result.samples.error[node]
+        values = [errors[i] for i in indexes]
+        deviations += [v - medians[node] for v in values]
+        if values:
+            own.append(statistics.median(values))
+    apart = max(own) - min(own) if len(own) > 1 else 0.0
+    return Figures(p99(deviations), apart, len(deviations),
+                   max(map(abs, deviations), default=float("nan")))
+
+
+def polls_near(polls: list[Poll], at: list[float], t: float, near: float) -> list[Poll]:
+    lo, hi = bisect.bisect_left(at, t - near), bisect.bisect_right(at, t + near)
+    return polls[lo:hi]
+
+
+@dataclass
+class Honesty:
+    off: int
+    off_warned: int
+    warn_seconds: float
+    warn_good_seconds: float
+    late_given: int
+    late_violations: list[str]
+
+
+def warned_off(result: Result, medians: dict[int, float],
+               chosen: dict[int, list[int]]) -> tuple[int, int]:
+    """How many of the chosen samples were off, and how many of those arrived within
+    WARN_NEAR of a status naming their node's clock or line in a WARN."""
+    polls = result.polls
+    at = [p.at for p in polls]
+    off = warned = 0
+    for node, indexes in chosen.items():
+        errors, arrival = result.samples.error[node], result.samples.arrival[node]
+        for i in indexes:
+            if abs(errors[i] - medians[node]) > OFF:
+                off += 1
+                warned += any(p.nodes[node].clock_warn for p in
+                              polls_near(polls, at, arrival[i], WARN_NEAR) if node in p.nodes)
+    return off, warned
+
+
+def honesty(result: Result, medians: dict[int, float]) -> Honesty:
+    polls = result.polls
+    every = {n: list(range(len(result.samples.error[n]))) for n in ADDRESSES}
+    off, off_warned = warned_off(result, medians, every)
+    warn_s = good_s = 0.0
+    late_given, violations = 0, []
+    for node in ADDRESSES:
+        errors, arrival = result.samples.error[node], result.samples.arrival[node]
+        for a, b in pairwise(polls):
+            state = a.nodes.get(node)
+            if state is None or not state.clock_warn:
+                continue
+            lo, hi = bisect.bisect_left(arrival, a.at), bisect.bisect_right(arrival, b.at)
+            warn_s += b.at - a.at
+            if all(abs(errors[i] - medians[node]) <= GOOD for i in range(lo, hi)):
+                good_s += b.at - a.at
+        for poll in polls:
+            state = poll.nodes.get(node)
+            if state is None or state.late_ms is None:
+                continue
+            late_given += 1
+            lo = bisect.bisect_left(arrival, poll.asked - LATE_NEAR)
+            hi = bisect.bisect_right(arrival, poll.at + LATE_NEAR)
+            worst = max((errors[i] - medians[node] for i in range(lo, hi)), default=0.0)
+            if worst > state.late_ms * 1e-3 + LATE_TOLERANCE:
+                violations.append(f"node {node} at {poll.at - result.started:.1f} s: late_ms "
+                                  f"{state.late_ms:.2f}, truly {worst * 1e3:.2f}")
+    return Honesty(off, off_warned, warn_s, good_s, late_given, violations)
+
+
+@dataclass
+class Report:
+    lines: list[str]
+    invariants: dict[str, tuple[bool, str]]
+
+    @property
+    def passed(self) -> bool:
+        return all(ok for ok, _ in self.invariants.values())
+
+
+def pct(values: list[float], q: float) -> float:
+    d = sorted(values)
+    return d[int(q * (len(d) - 1))] if d else float("nan")
+
+
+def kind_rows(result: Result, medians: dict[int, float]) -> list[str]:
+    rows = ["| fault | count | recovery p50 / max (s) | never | time in its windows: "
+            "p99 / max / medians apart (ms) | samples | off / under a WARN |",
+            "|---|---|---|---|---|---|---|"]
+    for kind in dict.fromkeys(f.kind for f in result.faults):
+        faults = [f for f in result.faults if f.kind == kind]
+        times = [f.recovered for f in faults if f.recovered is not None]
+        spans = merged(fault_span(f, result.bound) for f in faults)
+        inside, _ = split(result, dict.fromkeys(ADDRESSES, spans))
+        fig = figures(result, medians, inside)
+        off, warned = warned_off(result, medians, inside)
+        rows.append(f"| {kind} | {len(faults)} | {pct(times, 0.5):.1f} / "
+                    f"{max(times, default=float('nan')):.1f} | {len(faults) - len(times)} | "
+                    f"{fig.p99 * 1e3:.3f} / {fig.worst * 1e3:.1f} / {fig.apart * 1e3:.3f} | "
+                    f"{fig.count:,} | {off:,} / {warned / off if off else 1:.0%} |")
+    return rows
+
+
+def analyse(result: Result) -> Report:
+    spans = {node: windows(result, node) for node in ADDRESSES}
+    inside, outside = split(result, spans)
+    medians = {node: statistics.median([result.samples.error[node][i] for i in outside[node]])
+               if outside[node] else 0.0 for node in ADDRESSES}
+    out, within = figures(result, medians, outside), figures(result, medians, inside)
+    honest = honesty(result, medians)
+    lines = kind_rows(result, medians)
+    for name, fig, chosen in (("all windows", within, inside), ("outside windows", out, outside)):
+        off, warned = warned_off(result, medians, chosen)
+        lines.append(f"| {name} | | | | {fig.p99 * 1e3:.3f} / {fig.worst * 1e3:.1f} / "
+                     f"{fig.apart * 1e3:.3f} | {fig.count:,} | {off:,} / "
+                     f"{warned / off if off else 1:.0%} |")
+    warned = honest.off_warned / honest.off if honest.off else 1.0
+    needless = honest.warn_good_seconds / honest.warn_seconds if honest.warn_seconds else 0.0
+    losses = result.losses
+    (rss0, fds0), (rss1, fds1) = result.resources
+    lines += [
+        "",
+        "nodes' median errors (ms): " + ", ".join(f"{a} {m * 1e3:+.3f}"
+                                                  for a, m in medians.items()),
+        f"off samples (> {OFF * 1e3:.1f} ms): {honest.off:,}, under a clock/line WARN "
+        f"{warned:.1%}; WARN time {honest.warn_seconds:.0f} s, on good samples "
+        f"{needless:.1%}; late_ms given {honest.late_given}, not a bound "
+        f"{len(honest.late_violations)}",
+        f"replies delivered {losses['delivered']:,}, received {losses['received']:,}, "
+        f"published {losses['published']:,}, got {losses['got']:,} (seq gaps "
+        f"{losses['seq_gaps']}); lost in the gateway {losses['in_gateway']}; "
+        f"records without truth {result.samples.untrue}",
+        f"RSS {rss0 / 1024:.1f} -> {rss1 / 1024:.1f} MiB, open fds {fds0} -> {fds1}",
+    ]
+    lines += [f"  late_ms not a bound: {v}" for v in honest.late_violations[:10]]
+    lines += [f"  an operator's op failed: {op}" for op in result.ops_failed[:10]]
+    slow = [f for f in result.faults if f.recovered is None or f.recovered > result.bound]
+    lines += [f"  not recovered within {result.bound:.0f} s: {f.kind} {f.detail} at "
+              f"{f.start - result.started:.0f} s; last reasons: {last_reasons(result, f)}"
+              for f in slow[:10]]
+    invariants = {
+        "recovery": (not slow, f"{len(result.faults) - len(slow)} of {len(result.faults)} "
+                               f"within {result.bound:.0f} s"),
+        "time outside windows": (out.p99 <= P99_TARGET and out.apart <= APART_TARGET,
+                                 f"p99 {out.p99 * 1e3:.3f} ms, apart {out.apart * 1e3:.3f} ms"),
+        "off samples warned": (warned >= HONEST_SHARE, f"{warned:.1%}"),
+        "needless WARN": (needless <= NEEDLESS_SHARE, f"{needless:.1%}"),
+        "late_ms a bound": (not honest.late_violations,
+                            f"{len(honest.late_violations)} of {honest.late_given}"),
+        "nothing lost in the gateway": (losses["in_gateway"] == 0 and not losses["seq_gaps"],
+                                        f"{losses['in_gateway']}"),
+        "RSS and fds flat": (rss1 - rss0 <= RSS_FLAT_KIB and fds1 <= fds0,
+                             f"RSS {(rss1 - rss0) / 1024:+.1f} MiB, fds {fds1 - fds0:+d}"),
+    }
+    return Report(lines, invariants)
+
+
+def last_reasons(result: Result, fault: Fault) -> str:
+    """What the last poll within the bound after the fault said, for the reader."""
+    end = (fault.end or fault.due) + result.bound
+    polls = [p for p in result.polls if p.at <= end]
+    if not polls:
+        return "no status"
+    poll = polls[-1]
+    said = [f"gateway: {'; '.join(poll.gateway_reasons)}"] if poll.gateway_reasons else []
+    said += [f"{a} {s.health} {'; '.join(s.reasons)}{'' if s.locked else ' (unlocked)'}"
+             for a, s in poll.nodes.items() if s.health != "OK" or not s.locked]
+    return " | ".join(said) or "OK"
+
+
+def print_report(result: Result, report: Report) -> None:
+    print(f"\nfault soak: {result.seconds / 60:.1f} min of faults after "
+          f"{result.warmed - result.started:.0f} s of warm-up, {len(result.faults)} faults, "
+          f"{len(result.polls):,} polls; health window {result.window_s:.0f} s, recovery "
+          f"bound {result.bound:.0f} s")
+    for line in report.lines:
+        print(line)
+    print()
+    for name, (ok, text) in report.invariants.items():
+        print(f"{'PASS' if ok else 'FAIL'}  {name}: {text}")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--minutes", type=float, default=60.0)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS))
+    parser.add_argument("--health-window", type=float, default=20.0,
+                        help="the gateway's health.window_s (the recovery bound's base)")
+    parser.add_argument("--keep", action="store_true", help="keep the work directory")
+    args = parser.parse_args()
+    print(f"fault soak: {args.minutes:g} min, seed {args.seed}, pid {os.getpid()}", flush=True)
+    result = run(args.minutes * 60, args.seed, kinds=tuple(args.kinds),
+                 window_s=args.health_window, keep=args.keep)
+    report = analyse(result)
+    print_report(result, report)
+    if args.keep:
+        print(f"work directory (gateway.log): {result.work}")
+    return 0 if report.passed else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
