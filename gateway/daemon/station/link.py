@@ -31,6 +31,9 @@ from .offloop import in_thread
 from .ports import open_serial, why_not_open
 
 log = logging.getLogger("gx2.link")
+STAMP_NOISE = 50e-6
+"""Seconds between two readings of the monotonic clock, around the UNIX one, within
+which a read's pair of clocks is taken as read at one instant."""
 REOPEN_STEPS = (0.1, 0.2, 0.5, 1.0)
 """Backoff between reopen attempts; it stays at the last step (1 s) until the port returns."""
 READ_SIZE = 65536
@@ -41,6 +44,34 @@ OPEN_BOUND = 10.0
 """Seconds an open (or the close before it) is waited for before the attempt is given
 up as hung: longer than pyserial's own 5 s connect timeout, so only an open that would
 never end (a driver stuck in the kernel) reaches it."""
+
+
+class ReadStamp:
+    """Each read's instant on the UNIX clock and on the monotonic one, as one pair.
+
+    ``time`` is the monotonic clock's instant plus the UNIX clock's offset from it, and
+    that offset is only taken from readings of the two clocks close together: a host
+    that preempted the gateway between them (a busy 2-core machine, a VM's steal) shifted
+    the offset, and every record of that read, by the preemption (3-4 ms on all nodes
+    at once in bench/faultsoak.py's quiet stretches). A pair read further apart than
+    STAMP_NOISE keeps the last offset; a step of the UNIX clock (NTP) is still followed
+    at the next clean pair."""
+
+    __slots__ = ("_monotonic", "_offset", "_unix")
+
+    def __init__(self, unix: Callable[[], float] = time.time,
+                 monotonic: Callable[[], float] = time.monotonic) -> None:
+        self._unix, self._monotonic = unix, monotonic
+        self._offset: float | None = None
+
+    def __call__(self) -> tuple[float, float]:
+        """(UNIX seconds, monotonic seconds) of now."""
+        before = self._monotonic()
+        unix = self._unix()
+        after = self._monotonic()
+        if after - before <= STAMP_NOISE or self._offset is None:
+            self._offset = unix - (before + after) / 2
+        return after + self._offset, after
 
 
 class SerialLink:
@@ -68,6 +99,7 @@ class SerialLink:
         self.up = False
         self.since = time.time()
         self.reconnects = 0
+        self._stamp = ReadStamp()
         self.bytes_read = 0
         self.last_error = ""
         self._closing = False
@@ -220,7 +252,7 @@ class SerialLink:
             self._lost("the port reported end of file")
             return
         self.bytes_read += len(data)
-        self._on_data(data, time.time(), time.monotonic())
+        self._on_data(data, *self._stamp())
 
     def _poll_url(self) -> None:
         try:
@@ -230,7 +262,7 @@ class SerialLink:
             return
         if data:
             self.bytes_read += len(data)
-            self._on_data(data, time.time(), time.monotonic())
+            self._on_data(data, *self._stamp())
         self._poll_handle = asyncio.get_running_loop().call_later(0.005, self._poll_url)
 
     def _lost(self, why: str) -> None:
