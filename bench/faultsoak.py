@@ -258,6 +258,14 @@ class Truths:
         with self.lock:
             return self.by_timer.pop((node, timer), None)
 
+    def forget(self, addresses: Iterable[int]) -> None:
+        """The nodes powered off: their timers start again, and a reading of the new
+        power-up must not be matched to a packet of the old one that was never read
+        (one such match read 173 s off)."""
+        with self.lock:
+            for key in [k for k in self.by_timer if k[0] in addresses]:
+                del self.by_timer[key]
+
 
 TIMED = frozenset(spec.code for spec in BY_NAME.values() if spec.timed)
 
@@ -376,6 +384,7 @@ def power(addresses: tuple[int, ...]) -> Begin:
             rig.sim.power(a, False)
 
         def undo() -> None:
+            rig.truths.forget(addresses)
             for a in addresses:
                 rig.sim.power(a, True)
         return seconds, f"{','.join(map(str, addresses))} off {seconds:.1f} s", undo
@@ -731,6 +740,26 @@ def warned_off(result: Result, medians: dict[int, float],
     return off, warned
 
 
+def unwarned(result: Result, medians: dict[int, float]) -> list[str]:
+    """The off samples no WARN named the clock or line for, each with the fault
+    nearest before it: where to look."""
+    polls, at = result.polls, [p.at for p in result.polls]
+    said = []
+    for node in ADDRESSES:
+        errors, arrival = result.samples.error[node], result.samples.arrival[node]
+        for i in range(len(errors)):
+            if abs(errors[i] - medians[node]) <= OFF or any(
+                    p.nodes[node].clock_warn for p in
+                    polls_near(polls, at, arrival[i], WARN_NEAR) if node in p.nodes):
+                continue
+            before = [f for f in result.faults if f.start <= arrival[i]]
+            near = (f"{before[-1].kind} {arrival[i] - before[-1].start:.1f} s after its "
+                    "start" if before else "before any fault")
+            said.append(f"node {node} at {arrival[i] - result.started:.1f} s "
+                        f"{(errors[i] - medians[node]) * 1e3:+.2f} ms, {near}")
+    return sorted(said, key=lambda line: float(line.split(" at ")[1].split(" s ")[0]))
+
+
 def honesty(result: Result, medians: dict[int, float]) -> Honesty:
     polls = result.polls
     every = {n: list(range(len(result.samples.error[n]))) for n in ADDRESSES}
@@ -826,6 +855,7 @@ def analyse(result: Result) -> Report:
         f"RSS {rss0 / 1024:.1f} -> {rss1 / 1024:.1f} MiB, open fds {fds0} -> {fds1}",
     ]
     lines += [f"  late_ms not a bound: {v}" for v in honest.late_violations[:10]]
+    lines += [f"  off, no clock/line WARN: {v}" for v in unwarned(result, medians)[:10]]
     lines += [f"  an operator's op failed: {op}" for op in result.ops_failed[:10]]
     slow = [f for f in result.faults if f.recovered is None or f.recovered > result.bound]
     lines += [f"  not recovered within {result.bound:.0f} s: {f.kind} {f.detail} at "

@@ -149,6 +149,32 @@ class Window:
                       statistics.median(heard) if heard else None, *streamed)
 
 
+FLOOR_NEVER_SEEN_S = 3.0
+"""Device seconds of a locked line that never saw its floor before it is said: such a
+node is late by a wait no packet shows (up to a packet's time on the line), at once,
+unlike a floor seen and then unseen, whose bound grows slowly (floor_unseen_s)."""
+
+
+def clock_reasons(node: Node) -> list[str]:
+    """What its clock says of ``time``: held with its line over capacity, its floor
+    unseen past floor_unseen_s (with the bound), or never seen since its line started."""
+    clock = node.clock
+    if clock.held:
+        return [LINE_OVER_CAPACITY]
+    age = clock.floor_age
+    if age is None:
+        return []
+    if clock.floor_seen:
+        if age < node.floor_unseen_s or (late := node.floor_unseen()) is None:
+            return []
+        return [f"clock floor unseen for {age:.0f} s: time may be late by up to "
+                f"{late * 1e3:.1f} ms"]
+    if age < min(FLOOR_NEVER_SEEN_S, node.floor_unseen_s):
+        return []
+    return [f"clock floor never seen in {age:.0f} s: its packets may wait behind another "
+            "node's, and time may be late by that wait"]
+
+
 def judge(node: Node, recent: Recent, now: float, limits: HealthConfig) -> Verdict:
     """The node's health at ``now`` (``time.monotonic()``), from its state, its stream
     and its recent counters."""
@@ -165,18 +191,12 @@ def judge(node: Node, recent: Recent, now: float, limits: HealthConfig) -> Verdi
                                         - 1 / recent.stream_seconds):
             reasons.append(f"rate {rate:.1f} Hz of {expected:.4g} in "
                            f"{recent.stream_seconds:.0f} s")
-        if node.clock.held:
-            reasons.append(LINE_OVER_CAPACITY)
-        elif node.clock.points and not node.clock.locked:
+        if node.clock.points and not node.clock.locked and not node.clock.held:
             reasons.append("clock not locked")
-        elif (age := node.clock.floor_age) is not None and age >= node.floor_unseen_s:
-            if (late := node.floor_unseen()) is not None:
-                reasons.append(f"clock floor unseen for {age:.0f} s: time may be late by up "
-                               f"to {late * 1e3:.1f} ms")
-            else:  # (aspp.clock.NodeClock.floor_seen: no bound comes with the wait)
-                reasons.append(f"clock floor never seen in {age:.0f} s: its packets may "
-                               "wait behind another node's, and time may be late by that "
-                               "wait")
+    if expected is not None:
+        # (what the clock says is true from its first packets: a node back from a reboot
+        # behind another's packets was 3.9 ms late, and said nothing while it settled)
+        reasons.extend(clock_reasons(node))
     window = f"in {recent.seconds:.0f} s"
     if recent.seconds >= min(limits.window_s, limits.settle_s):  # enough to go by
         loss = recent.loss_percent

@@ -28,7 +28,10 @@ queue in the base station is shared by every node behind it, so:
   second). One bin of waiting followed by falling waits is a stall, never a queue. A
   bin in which no node's record was read says nothing.
 - **Room again**: while held, every node whose floor was known when the hold began
-  waits less than QUEUE_MIN again (the queue drained). A node that rebooted meanwhile
+  waits less than QUEUE_MIN again (the queue drained), above its floor as its crystal
+  may have moved it meanwhile (MAX_DRIFT a second held: a floor frozen at the hold's
+  start would, after an hour's overload, stand 0.7 s below a node 200 ppm off, and
+  the line would never have room again). A node that rebooted meanwhile
   has no floor of its power-up: it says room when its lag fell by QUEUE_MIN from its
   first bin (its first packets came behind the queue); it speaks only when no node
   with a floor read anything. Bytes read with no node's record among them (every
@@ -51,6 +54,8 @@ import math
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+
+from aspp.clock import MAX_DRIFT
 
 SPAN = 5.0
 """Seconds over which the line's bytes per second are shown."""
@@ -112,6 +117,8 @@ class LineLoad:
         """What the line carried over SPAN at the last sample, as a share of its
         capacity (shown; it judges nothing)."""
         self._bytes_at_bin = 0
+        self._held_at = 0.0
+        """When (the bins' clock) the line was last said over capacity."""
         self._next: float | None = None
         """A replay's next sample, on the recording's clock (:meth:`replayed`)."""
 
@@ -129,7 +136,7 @@ class LineLoad:
         self._bytes_at_bin = bytes_read
         lags = {address: (lag, power_up) for address, lag, power_up in self._lags()}
         was = self.over
-        self._judge(lags, read)
+        self._judge(lags, read, now)
         return self.over != was
 
     def link_down(self) -> None:
@@ -140,7 +147,7 @@ class LineLoad:
             track.floor = track.first_held = None
             track.last = math.inf
 
-    def _judge(self, lags: dict[int, tuple[float, int]], read: bool) -> None:
+    def _judge(self, lags: dict[int, tuple[float, int]], read: bool, now: float) -> None:
         """The rule of the module's docstring, on one bin's lags."""
         tracks = self._tracks
         seen: dict[int, _Track] = {}
@@ -155,9 +162,11 @@ class LineLoad:
                 self._release()
             return
         if self.over:
-            self._while_held(lags, seen)
+            self._while_held(lags, seen, MAX_DRIFT * (now - self._held_at))
         else:
             self._while_free(lags, seen)
+            if self.over:
+                self._held_at = now
         for address, track in seen.items():
             track.last = lags[address][0]
 
@@ -187,13 +196,14 @@ class LineLoad:
             if floor is None or lag - floor <= QUEUE_MIN:  # (a waiting bin is no floor)
                 track.free.append(lag)
 
-    def _while_held(self, lags: dict[int, tuple[float, int]],
-                    seen: dict[int, _Track]) -> None:
+    def _while_held(self, lags: dict[int, tuple[float, int]], seen: dict[int, _Track],
+                    drifted: float) -> None:
+        """``drifted``: how far a node's floor may have moved since the hold began."""
         with_floor = {a: t for a, t in seen.items() if t.floor is not None}
         if with_floor:
             waits = [lags[a][0] - t.floor for a, t in with_floor.items()]  # type: ignore[operator]
             self.wait = max(min(waits), 0.0)
-            if max(waits) < QUEUE_MIN:
+            if max(waits) < QUEUE_MIN + drifted:
                 self._release()
             return
         drained = True

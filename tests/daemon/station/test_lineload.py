@@ -170,3 +170,20 @@ def test_a_replay_whose_recorded_clock_goes_back_judges_the_next_run_afresh() ->
     # a silence of an hour: only its last span is sampled
     assert not line.line.replayed(3603.0, 0, 1.0)
     assert len(line.line._samples) <= SPAN + 2
+
+
+def test_a_long_overload_has_room_again_though_a_crystal_moved_the_floor() -> None:
+    """An hour over capacity, a node 200 ppm off: its floor moved 0.72 s meanwhile, and
+    a floor frozen at the hold's start never saw the line have room again."""
+    line = settled()
+    line.run([0.2, 0.36, 0.36, 0.36])
+    for _ in range(3600):
+        line.bins = {node: FLOOR[node] + 0.36 + 200e-6 * line.now for node in FLOOR}
+        line.now += 1.0
+        line.read += 11000
+        line.line.sample(line.now, line.read)
+    assert line.line.over
+    line.bins = {node: FLOOR[node] + 0.001 + 200e-6 * line.now for node in FLOOR}  # drained
+    line.now += 1.0
+    assert line.line.sample(line.now, line.read + 11000)
+    assert not line.line.over
