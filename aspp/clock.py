@@ -235,6 +235,8 @@ class NodeClock:
         "_floor_offset",
         "_floor_seen",
         "_given",
+        "_held_at",
+        "_held_last",
         "_last",
         "_locked_since",
         "_offset",
@@ -249,6 +251,9 @@ class NodeClock:
         """Device seconds over which the drift has been fitted (kept through a reset:
         the drift is the crystal's)."""
         self._state = FRESH
+        self._held_at = self._held_last = 0.0
+        """Device time of the newest packet when the line was last held, and of the
+        newest since."""
         self._start_over()
         self._given: tuple[float, float] | None = None
         """The last (device, host) time given: times are strictly increasing (until a
@@ -284,6 +289,7 @@ class NodeClock:
         a reset starts both over."""
         self._state = after(self._state, event)
         if event is HOLD:
+            self._held_at = self._held_last = self._last
             if self._fitted < SETTLE_SPAN:  # (no line yet: _last is 0, nothing moves)
                 self._offset += self._drift * self._last  # the same line where it is now
                 self._drift = self._fitted = 0.0
@@ -361,6 +367,7 @@ class NodeClock:
         state = self._state
         y = host - device - self._drift * device
         if state in HELD_STATES:
+            self._held_last = device
             self._event(POINT)
             if state is HELD_FRESH:
                 if not self._points or y < self._offset:
@@ -457,6 +464,19 @@ class NodeClock:
     @property
     def held(self) -> bool:
         return self._state in HELD_STATES
+
+    def held_error(self) -> float | None:
+        """How far ``time`` may have gone from the line kept since the hold (seconds):
+        its drift's uncertainty times the device seconds held (a drift not settled was
+        dropped for the nominal rate: any a crystal can have); inf with no line of this
+        power-up to keep (HELD_FRESH: placed at the arrivals, late by the queue); None
+        unless held."""
+        if self._state is HELD_FRESH:
+            return math.inf
+        if self._state not in HELD_STATES:
+            return None
+        rate = DRIFT_ERROR if self._fitted >= SETTLE_SPAN else MAX_DRIFT
+        return rate * max(self._held_last - self._held_at, 0.0)
 
     @property
     def floor_age(self) -> float | None:

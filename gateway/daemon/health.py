@@ -34,6 +34,7 @@ from collections import deque
 from collections.abc import Iterable, Mapping
 from typing import Any, NamedTuple, Protocol
 
+from aspp.clock import FLOOR_NOISE
 from gateway.common.protocol import HealthLevel as Level
 
 from .config import HealthConfig
@@ -156,14 +157,19 @@ unlike a floor seen and then unseen, whose bound grows slowly (floor_unseen_s)."
 
 
 def clock_reasons(node: Node) -> list[str]:
-    """What its clock says of ``time``: held with its line over capacity, its floor
-    unseen past floor_unseen_s (with the bound), or never seen since its line started."""
+    """What its clock says of ``time``: held with its line over capacity (once the line
+    kept may be off), not locked yet, its floor unseen past floor_unseen_s (with the
+    bound), or never seen since its line started."""
     clock = node.clock
     if clock.held:
-        return [LINE_OVER_CAPACITY]
+        # (while the line kept is still within the floor's noise of where it was, time
+        # is as good as before the hold: the station's WARN says the line is over
+        # capacity, and the node's says so once its time may be off)
+        error = clock.held_error()
+        return [LINE_OVER_CAPACITY] if error is None or error > FLOOR_NOISE else []
     age = clock.floor_age
-    if age is None:
-        return []
+    if age is None:  # (not locked: a line of its first second, placed by few packets)
+        return ["clock not locked"] if clock.points else []
     if clock.floor_seen:
         if age < node.floor_unseen_s or (late := node.floor_unseen()) is None:
             return []
@@ -185,14 +191,12 @@ def judge(node: Node, recent: Recent, now: float, limits: HealthConfig) -> Verdi
         return Verdict(Level.ERROR, (failed,))
     reasons = []
     expected, rate = node.expected_hz, recent.rate_hz
-    if expected is not None and now - node.stream_started >= limits.settle_s:
-        # (a record more or less in the span is how it was sampled, not a slow stream)
-        if rate is not None and rate < (expected * (1 - limits.rate_under_percent / 100)
-                                        - 1 / recent.stream_seconds):
-            reasons.append(f"rate {rate:.1f} Hz of {expected:.4g} in "
-                           f"{recent.stream_seconds:.0f} s")
-        if node.clock.points and not node.clock.locked and not node.clock.held:
-            reasons.append("clock not locked")
+    # (a record more or less in the span is how it was sampled, not a slow stream)
+    if expected is not None and now - node.stream_started >= limits.settle_s \
+            and rate is not None and rate < (expected * (1 - limits.rate_under_percent / 100)
+                                             - 1 / recent.stream_seconds):
+        reasons.append(f"rate {rate:.1f} Hz of {expected:.4g} in "
+                       f"{recent.stream_seconds:.0f} s")
     if expected is not None:
         # (what the clock says is true from its first packets: a node back from a reboot
         # behind another's packets was 3.9 ms late, and said nothing while it settled)

@@ -98,12 +98,15 @@ def test_a_stream_at_its_rate_with_little_loss_and_a_good_signal_is_ok() -> None
     assert verdict == (Level.OK, ())
 
 
-def test_a_stream_just_started_is_not_judged_by_its_rate_or_clock_yet() -> None:
+def test_a_stream_just_started_is_not_judged_by_its_rate_but_its_clock_is_said() -> None:
+    """Its rate waits for settle_s; what its clock says of ``time`` does not: a line of
+    a few packets places them by those packets alone (bench/faultsoak.py: samples 0.5
+    to 1.8 ms off in a node's first second, back from a power cycle, unsaid)."""
     node = streaming_node()
     node.clock.update(1.0, 1.0)
     assert node.clock.points and not node.clock.locked
     slow = recent(stream_seconds=5.0, stream_received=10)
-    assert judge(node, slow, settled(node) - 2, LIMITS) == (Level.OK, ())
+    assert judge(node, slow, settled(node) - 2, LIMITS) == (Level.WARN, ("clock not locked",))
     assert judge(node, slow, settled(node), LIMITS) == \
         (Level.WARN, ("rate 2.0 Hz of 100 in 5 s", "clock not locked"))
 
@@ -286,7 +289,12 @@ def test_a_line_over_capacity_warns_for_the_gateway_and_its_held_nodes() -> None
     assert verdict.reasons == ("base station north: line over capacity: the base station "
                                "queues 360 ms of packets (100% of 11520 B/s read): sample "
                                "times unreliable",)
-    reasons = health.verdict(node, now + 7).reasons
+    # the node: its line kept is as good as before the hold while its drift's
+    # uncertainty over the seconds held is under the floor's noise (a settled drift,
+    # 33 ppm: 15 s), then it says the line over capacity made its time unreliable
+    assert health.verdict(node, now + 7).reasons == ()
+    stream.send(1000)
+    reasons = health.verdict(node, now + 17).reasons
     assert "line over capacity: sample times unreliable" in reasons
     assert "clock not locked" not in reasons
     for second in range(8, 16):  # room again
