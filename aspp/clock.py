@@ -236,6 +236,7 @@ class NodeClock:
         "_floor_seen",
         "_given",
         "_held_at",
+        "_held_first",
         "_held_last",
         "_last",
         "_locked_since",
@@ -243,6 +244,7 @@ class NodeClock:
         "_points",
         "_residuals",
         "_state",
+        "last_wait",
     )
 
     def __init__(self) -> None:
@@ -251,7 +253,11 @@ class NodeClock:
         """Device seconds over which the drift has been fitted (kept through a reset:
         the drift is the crystal's)."""
         self._state = FRESH
-        self._held_at = self._held_last = 0.0
+        self.last_wait = 0.0
+        """How far above the line the newest packet arrived (seconds): its wait, if the
+        line stands on the floor; held, above the line kept (what a queue on the
+        serial line is judged by: gateway.daemon.station.lineload)."""
+        self._held_at = self._held_last = self._held_first = 0.0
         """Device time of the newest packet when the line was last held, and of the
         newest since."""
         self._start_over()
@@ -349,7 +355,7 @@ class NodeClock:
             self._offset = y - self._drift * device  # lowered to it; refit at the block's end
         offset, drift = self._offset, self._drift
         line = offset + drift * device
-        residual = y - line
+        self.last_wait = residual = y - line
         self._residuals.append(residual)
         # the floor seen (see DRIFT_ERROR)
         if not waited and residual <= FLOOR_NOISE:
@@ -370,11 +376,19 @@ class NodeClock:
             self._held_last = device
             self._event(POINT)
             if state is HELD_FRESH:
+                if not self._points:
+                    self._held_first = y
                 if not self._points or y < self._offset:
                     self._offset = y
                 self._points += 1
+                # (against its first packet: the floor follows the fastest, and a
+                # queue draining under it shows as its packets coming ever earlier)
+                self.last_wait = y - self._held_first
+            else:
+                self.last_wait = y - self._offset
             return self._give(device, device + self._offset + self._drift * device)
         self._event(POINT)  # -> FITTED
+        self.last_wait = 0.0
         _push(self._current, device, host - device)
         self._points = 1
         self._first = self._block_start = self._last = device

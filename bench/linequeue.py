@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 from linemodels import BYTE_TIME, Model, Packet
 
-from aspp.clock import NodeClock
+from aspp.clock import FLOOR_NOISE, NodeClock
 from aspp.frame import REPLY_OVERHEAD
 from aspp.records import BY_NAME
 from aspp.timing import (
@@ -37,7 +37,7 @@ from aspp.timing import (
     TimerUnwrapper,
     sample_period,
 )
-from gateway.daemon.station.lineload import LineLoad
+from gateway.daemon.station.lineload import LineLoad, Waited
 
 CAPACITY = 1 / BYTE_TIME
 """Bytes a second of a 115200-baud line."""
@@ -105,8 +105,9 @@ def fifo_queue(seed: int, seconds: float, streams: list[Stream], *,
 
 @dataclass
 class Judged:
-    """A model played through the line's judge: each bin's end, whether the line was
-    over capacity then, and each record's error of ``time`` against its true instant."""
+    """A model played through the line's judge: at the first read of each second and
+    where it changed, whether the line was over capacity, and each record's error of
+    ``time`` against its true instant."""
 
     bins: list[tuple[float, bool]] = field(default_factory=list)
     errors: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
@@ -122,37 +123,48 @@ class Judged:
 
 
 def judged(model: Model) -> Judged:
-    """The model's packets through the gateway's path for the line (module docstring)."""
+    """The model's packets through the gateway's path for the line (module docstring):
+    each read's bins closed first, then its packets tallied as Node.tally does."""
     clocks = {node: NodeClock() for node in model.periods}
     unwrappers = {node: TimerUnwrapper(expect=clocks[node].device_at) for node in clocks}
     least: dict[int, float] = {}
-    power_ups = dict.fromkeys(clocks, 0)
-    line = LineLoad(CAPACITY, lambda: [(node, least.pop(node, math.inf), power_ups[node])
-                                      for node in clocks])
+    epochs = dict.fromkeys(clocks, 0)
+
+    def waits() -> list[Waited]:
+        taken = [Waited(node, least.pop(node, math.inf), epochs[node], clock.floor_seen,
+                        clock.held_error() or 0.0) for node, clock in clocks.items()]
+        least.clear()
+        return taken
+    line = LineLoad(CAPACITY, waits)
     out = Judged()
-    read_bytes = 0
-    next_bin = math.floor(model.packets[0].read) + 1.0
+    read_bytes, second, line_free = 0, None, -math.inf
     for packet in model.packets:
-        while packet.read >= next_bin:
-            if line.sample(next_bin, read_bytes):
-                for clock in clocks.values():
-                    clock.hold() if line.over else clock.release()
-            out.bins.append((next_bin, line.over))
-            next_bin += 1.0
+        changed = line.read(packet.read, read_bytes, 1.0)
+        if changed:
+            for clock in clocks.values():
+                if line.over and not clock.held:
+                    clock.hold()
+                elif not line.over and clock.held:
+                    clock.release()
+        if changed or math.floor(packet.read) != second:  # (a read a second, and changes)
+            second = math.floor(packet.read)
+            out.bins.append((packet.read, line.over))
         read_bytes += packet.size
         node, clock = packet.node, clocks[packet.node]
         if packet.ticks is None:  # a discovery packet: the node powered up
+            line_free = packet.read
             clock.reset()
             unwrappers[node].expect_reset()
             continue
         arrival = packet.read - packet.size * BYTE_TIME
+        behind, line_free = arrival - line_free < FLOOR_NOISE, packet.read
         device = unwrappers[node].update(packet.ticks, arrival)
         if unwrappers[node].last_was_reset:
             clock.reset()
-            power_ups[node] += 1
+            epochs[node] += 1
             least.pop(node, None)
-        least[node] = min(least.get(node, math.inf), arrival - device)
-        time = clock.update(device, arrival)
+        time = clock.update(device, arrival, behind)
+        least[node] = min(least.get(node, math.inf), clock.last_wait)
         out.errors.setdefault(node, []).append((packet.truth, time - packet.truth))
     return out
 

@@ -14,7 +14,7 @@ from aspp.timing import TICKS_PER_CLOCK
 from gateway.daemon.config import HealthConfig, NodeEntry
 from gateway.daemon.health import Health, Level, Recent, Window, judge
 from gateway.daemon.station.heard import Heard
-from gateway.daemon.station.lineload import LineLoad
+from gateway.daemon.station.lineload import LineLoad, Waited
 from gateway.daemon.station.nodes import Node, State
 
 LIMITS = HealthConfig()
@@ -276,7 +276,7 @@ def test_a_line_over_capacity_warns_for_the_gateway_and_its_held_nodes() -> None
     node = streaming_node()
     stream = Stream(node)
     lags = iter([0.0] * 4 + [0.36] * 4 + [0.0] * 8)  # floors seen, a queue full, drained
-    line = LineLoad(11520.0, lambda: [(node.address, next(lags), 0)])
+    line = LineLoad(11520.0, lambda: [Waited(node.address, next(lags), 0, True, 0.0)])
     health = Health([node], LIMITS, lines=[("north", line)])
     now = settled(node)
     for second in range(8):  # the line full, second after second

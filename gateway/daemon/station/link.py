@@ -49,29 +49,33 @@ never end (a driver stuck in the kernel) reaches it."""
 class ReadStamp:
     """Each read's instant on the UNIX clock and on the monotonic one, as one pair.
 
-    ``time`` is the monotonic clock's instant plus the UNIX clock's offset from it, and
-    that offset is only taken from readings of the two clocks close together: a host
-    that preempted the gateway between them (a busy 2-core machine, a VM's steal) shifted
-    the offset, and every record of that read, by the preemption (3-4 ms on all nodes
-    at once in bench/faultsoak.py's quiet stretches). A pair read further apart than
-    STAMP_NOISE keeps the last offset; a step of the UNIX clock (NTP) is still followed
-    at the next clean pair."""
+    The two clocks are read one after the other, and a host that preempts the gateway
+    between the readings (a busy 2-core machine, a VM's steal) shifts the pair, and
+    every record of that read, by the preemption (3-4 ms on all nodes at once in
+    bench/faultsoak.py's quiet stretches). So the UNIX clock is read between two
+    readings of the monotonic one, and taken with the second only when they are within
+    STAMP_NOISE; else read again, TRIES times at most. The pair stays the clocks' own
+    readings: a recording keeps them to the nanosecond, and a replay gives the same
+    ``time`` as live (a sum of an offset and a reading did not round-trip)."""
 
-    __slots__ = ("_monotonic", "_offset", "_unix")
+    __slots__ = ("_monotonic", "_unix")
+
+    TRIES = 3
 
     def __init__(self, unix: Callable[[], float] = time.time,
                  monotonic: Callable[[], float] = time.monotonic) -> None:
         self._unix, self._monotonic = unix, monotonic
-        self._offset: float | None = None
 
     def __call__(self) -> tuple[float, float]:
         """(UNIX seconds, monotonic seconds) of now."""
-        before = self._monotonic()
-        unix = self._unix()
-        after = self._monotonic()
-        if after - before <= STAMP_NOISE or self._offset is None:
-            self._offset = unix - (before + after) / 2
-        return after + self._offset, after
+        monotonic = self._monotonic
+        for _ in range(self.TRIES):
+            before = monotonic()
+            unix = self._unix()
+            after = monotonic()
+            if after - before <= STAMP_NOISE:
+                break
+        return unix, after
 
 
 class SerialLink:

@@ -11,6 +11,7 @@ no copies.
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from enum import StrEnum
@@ -32,6 +33,7 @@ from aspp.timing import (
 from gateway.common.topics import default_station_name
 
 from ..config import FLOOR_UNSEEN_S, NodeEntry
+from .lineload import Waited
 
 RATE_WINDOW = 2.0
 """Seconds over which the record rate is measured."""
@@ -81,6 +83,9 @@ class Delivery(NamedTuple):
 
     record: Record
     payload: dict[str, Any]
+
+
+_EPOCHS = itertools.count()
 
 
 class Node:
@@ -138,11 +143,13 @@ class Node:
         self._reboot_announced = False
         """A discovery packet said the node rebooted, and its timer has not shown it yet
         (see :meth:`TimerUnwrapper.expect_reset`): the reset to come is not counted."""
-        self._least_lag = math.inf
-        """The least arrival less device time of its records since :meth:`take_lag`:
-        what its line's queue is judged by (:mod:`.lineload`)."""
-        self._power_ups = 0
-        """Its timer's restarts seen: a lag is only compared within one power-up."""
+        self._least_wait = math.inf
+        """The least wait above its clock's line of its records since :meth:`take_wait`:
+        what its serial line's queue is judged by (:mod:`.lineload`)."""
+        self._epoch = next(_EPOCHS)
+        """Its line's: new at each power-up, and for each Node made (a node a reload
+        removed and added again starts its device time over): waits are compared
+        within one."""
         self._last_stream_device: float | None = None
         self._down_from: tuple[float, float] | None = None
         """Its stream's last record before its base station went down, until the
@@ -234,14 +241,15 @@ class Node:
             payload["device_time"] = device = unwrapper.update(timer, arrival)
             if unwrapper.last_was_reset:
                 self._timer_restarted()
-            if arrival - device < self._least_lag:  # (the line's queue: take_lag)
-                self._least_lag = arrival - device
             # whether it waited behind the packet before it on the line (then it shows no
             # floor): aspp.clock.waited, inlined here where the arrival is known.
             # Instructions a record (bench/instructions.py): 91,574 without the judgement,
             # 92,900 with the call in the reader, 92,532 inlined there, 92,001 here
-            sampled = (self.clock.update(device, arrival, arrival - line_free < FLOOR_NOISE)
+            clock = self.clock
+            sampled = (clock.update(device, arrival, arrival - line_free < FLOOR_NOISE)
                        - self._latency + host_time - monotonic)
+            if clock.last_wait < self._least_wait:  # (the line's queue: take_wait)
+                self._least_wait = clock.last_wait
             if sampled <= self._last_time:
                 sampled = self._after_last_time(sampled)
             payload["time"] = self._last_time = sampled
@@ -270,15 +278,16 @@ class Node:
         # no gap across a power-up
         self._last_stream_device = self._down_from = self._back_at = None
         self.clock.reset()
-        self._power_ups += 1
-        self._least_lag = math.inf
+        self._epoch = next(_EPOCHS)
+        self._least_wait = math.inf
 
-    def take_lag(self) -> tuple[float, int]:
-        """The least lag (arrival less device time) of its timed records since the last
-        call (inf: none), and its power-up count: a bin's evidence of a queue on its
-        line (:mod:`.lineload`)."""
-        lag, self._least_lag = self._least_lag, math.inf
-        return lag, self._power_ups
+    def take_wait(self) -> Waited:
+        """What its records since the last call say of a queue on its serial line
+        (:mod:`.lineload`)."""
+        wait, self._least_wait = self._least_wait, math.inf
+        clock = self.clock
+        return Waited(self.address, wait, self._epoch, clock.floor_seen,
+                      clock.held_error() or 0.0)
 
     def _after_last_time(self, sampled: float) -> float:
         """``time`` for a record whose ``sampled`` is not above the last one published.

@@ -20,7 +20,7 @@ from aspp.timing import BITS_PER_BYTE, byte_time
 
 from ..config import NodeEntry, StationConfig
 from ..health import SAMPLE_PERIOD
-from .lineload import LineLoad
+from .lineload import LineLoad, Waited
 from .link import SerialLink
 from .nodes import Node
 from .outlet import Outlet, SerialTap
@@ -61,7 +61,7 @@ class Station:
         self.retiring: set[int] = set()
         """Nodes a reload removed whose stream is being stopped: still in :attr:`nodes`
         (their records are the stop's evidence), no longer configured."""
-        self.line = LineLoad(config.baudrate / BITS_PER_BYTE, self._lags)
+        self.line = LineLoad(config.baudrate / BITS_PER_BYTE, self._waits)
         self.replay = Port.replay_of(config.port)
         self._replays = replays or ReplayReaders()
         self.replaying = self.replay is not None
@@ -93,8 +93,11 @@ class Station:
     def add_node(self, entry: NodeEntry) -> Node:
         """A node a reload added: its reader, supervisor and status see it from now on
         (they share :attr:`nodes`), and it is no longer among those heard that are not
-        configured; the supervisor arms it (:meth:`Supervisor.adopt`)."""
+        configured; the supervisor arms it (:meth:`Supervisor.adopt`). Its clock is held
+        if its line is over capacity (it would learn the queue)."""
         node = self.nodes[entry.address] = self._node(entry)
+        if self.line.over:
+            node.clock.hold()
         self.reader.heard.forget(entry.address)
         return node
 
@@ -119,17 +122,17 @@ class Station:
         """Make its port (an embedded simulator makes a directory: only once nothing of
         the gateway can fail any more) and its link."""
         self.recorder = recorder
-        self._on_data = on_data = (self.reader.on_data if recorder is None
-                                   else self._read_and_record)
+        self._on_data = (self.reader.on_data if recorder is None
+                         else self._read_and_record)
         self.port = Port(self.config.port, list(self.nodes))
         if self.replay is not None:
-            self.link = ReplayLink(self.replay, self._replayed, self._link_state,
+            self.link = ReplayLink(self.replay, self._read, self._link_state,
                                    self._replay_ended, self._publisher.replayed,
                                    station=self.name, marks=self._replays_marks,
                                    start=self.recorded,
                                    source=self._replays.of(self.replay))
         else:
-            self.link = SerialLink(self.port.path, self.config.baudrate, on_data,
+            self.link = SerialLink(self.port.path, self.config.baudrate, self._read,
                                    self._link_state)
 
     def start(self) -> None:
@@ -141,35 +144,29 @@ class Station:
         if isinstance(self.link, SerialLink):
             await self.link.tried.wait()
 
-    def sample(self, now: float) -> None:
-        """Once a second: how full its line is; while it is over capacity, its nodes'
-        clocks learn nothing from the backlog (:meth:`aspp.clock.NodeClock.hold`). A
-        replay's line is judged on the recording's clock instead (:meth:`_replayed`)."""
-        if self.replaying:
-            return
-        if self.line.sample(now, self.link.bytes_read):  # type: ignore[union-attr]
-            self._line_changed()
-
-    def _replayed(self, data: bytes, host_time: float, monotonic: float) -> None:
-        """A replayed read: its line judged at the recorded seconds before it, as the
-        live gateway judged it between its reads (:meth:`.LineLoad.replayed`)."""
+    def _read(self, data: bytes, host_time: float, monotonic: float) -> None:
+        """A read (live, or replayed): its line judged first at the seconds before it,
+        on the reads' own clock (:meth:`.LineLoad.read`, so a replay holds where live
+        did); while it is over capacity, its nodes' clocks learn nothing from the
+        backlog (:meth:`aspp.clock.NodeClock.hold`)."""
         before = self.link.bytes_read - len(data)  # type: ignore[union-attr]
-        if self.line.replayed(monotonic, before, SAMPLE_PERIOD):
+        if self.line.read(monotonic, before, SAMPLE_PERIOD):
             self._line_changed()
         self._on_data(data, host_time, monotonic)
 
-    def _lags(self) -> list[tuple[int, float, int]]:
-        """Each node's least lag since the last bin: its line's evidence of a queue."""
-        return [(address, *node.take_lag()) for address, node in self.nodes.items()]
+    def _waits(self) -> list[Waited]:
+        """Each node's evidence since the last bin of a queue on its line."""
+        return [node.take_wait() for node in self.nodes.values()]
 
     def _line_changed(self) -> None:
-        """Its line went over capacity, or has room again: its nodes' clocks told."""
+        """Its line went over capacity, or has room again: its nodes' clocks told (a
+        clock already as the line is, a node added meanwhile, is left)."""
         log.warning("base station %s: %s", self.name, self.line.reason()
                     if self.line.over else "line has room again")
         for node in self.nodes.values():
-            if self.line.over:
+            if self.line.over and not node.clock.held:
                 node.clock.hold()
-            else:
+            elif not self.line.over and node.clock.held:
                 node.clock.release()
 
     def close(self) -> None:

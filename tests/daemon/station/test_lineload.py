@@ -12,33 +12,38 @@ from gateway.daemon.station.lineload import (
     QUEUE_MIN,
     SPAN,
     LineLoad,
+    Waited,
 )
 
 CAPACITY = 11520.0
-FLOOR = {76: 10.0, 77: 20.0, 78: -5.0}
-"""Each node's lag (arrival less device time) with no wait: its own offset."""
+FLOOR = {76: 0.0005, 77: 0.001, 78: 0.0}
+"""Each node's least wait above its clock's line with no queue: its radio's."""
 
 
 class Line:
-    """A LineLoad and the lags its nodes show each bin: ``waits`` above their floors."""
+    """A LineLoad and the waits its nodes show each bin: ``waits`` above their floors."""
 
     def __init__(self) -> None:
         self.bins: dict[int, float] = {}
-        self.power_ups = dict.fromkeys(FLOOR, 0)
-        self.line = LineLoad(CAPACITY, self._lags)
+        self.epochs = dict.fromkeys(FLOOR, 0)
+        self.floor_seen = dict.fromkeys(FLOOR, True)
+        self.held_error = 0.0
+        self.line = LineLoad(CAPACITY, self._waits)
         self.now = 0.0
         self.read = 0
 
-    def _lags(self) -> list[tuple[int, float, int]]:
+    def _waits(self) -> list[Waited]:
         bins, self.bins = self.bins, {}
-        return [(node, bins.get(node, math.inf), self.power_ups[node]) for node in FLOOR]
+        return [Waited(node, bins.get(node, math.inf), self.epochs[node],
+                       self.floor_seen[node], self.held_error if self.line.over else 0.0)
+                for node in FLOOR]
 
     def bin(self, wait: float | dict[int, float] | None, share: float = 0.9) -> bool:
         """One bin in which every node waited ``wait`` (None: nothing of theirs read);
         whether the line is over capacity after it."""
         if wait is not None:
             waits = wait if isinstance(wait, dict) else dict.fromkeys(FLOOR, wait)
-            self.bins = {node: FLOOR[node] + self.now * 1e-5 + w for node, w in waits.items()}
+            self.bins = {node: FLOOR[node] + w for node, w in waits.items()}
         self.now += 1.0
         self.read += int(share * CAPACITY)
         self.line.sample(self.now, self.read)
@@ -97,17 +102,39 @@ def test_a_line_over_capacity_has_room_again_once_the_queue_drained() -> None:
     assert line.line.over
 
 
-def test_nodes_rebooted_while_held_say_room_when_their_lags_fall() -> None:
+def test_nodes_rebooted_while_held_say_room_when_their_waits_fall() -> None:
     line = settled()
     line.run([0.2, 0.36, 0.36, 0.36])
     for node in FLOOR:
-        line.power_ups[node] += 1  # their timers restarted: lags of a new power-up
-    FLOOR.update({76: 500.0, 77: 600.0, 78: 700.0})
+        line.epochs[node] += 1  # their timers restarted: waits above a new line's
+    # (placed at their first packets' arrival, behind the queue: waits from there)
+    assert all(line.run([0.0, 0.0, 0.001]))  # no floor: held while their waits stand
+    assert not line.bin(-0.33)  # the queue drained under them
+
+
+def test_a_node_removed_and_added_again_is_a_new_line() -> None:
+    """A node a reload removed and added again starts its device time over: its waits
+    never compare with the old node's (its old floor held a line over capacity for
+    days), and a node no longer there is forgotten."""
+    line = settled()
+    line.epochs[76] = "a new node"
+    assert not any(line.run([{76: 5.0, 77: 0.0, 78: 0.0}] * 5))
+    line.epochs[76] = 0
+    FLOOR.pop(78)
     try:
-        assert all(line.run([0.36, 0.36, 0.35]))  # no floor: held while their lags stand
-        assert not line.bin(0.0)  # the queue drained under them
+        line.bin(0.0)
+        assert set(line.line._tracks) == {76, 77}
     finally:
-        FLOOR.update({76: 10.0, 77: 20.0, 78: -5.0})
+        FLOOR[78] = 0.0
+
+
+def test_a_floor_is_only_taken_from_a_node_whose_clock_saw_one() -> None:
+    """A gateway (re)started on a line already over capacity reads every packet behind
+    the full queue: no floor is taken from waits of packets that all waited."""
+    line = Line()
+    line.floor_seen = dict.fromkeys(FLOOR, False)
+    line.run([0.0] * 5)
+    assert all(line.line._tracks[node].known_floor() is None for node in FLOOR)
 
 
 def test_records_stopped_while_held_leave_nothing_queued_and_a_stall_says_nothing() -> None:
@@ -139,9 +166,10 @@ def test_the_bytes_per_second_are_over_the_last_span() -> None:
     assert line.bytes_per_s(10.0, 10_000) == 1000.0
 
 
-def test_a_replay_is_judged_on_its_recorded_times_however_fast_it_is_played() -> None:
+def test_bins_close_on_the_reads_clock_however_fast_a_replay_plays_them() -> None:
     # bins closed at the recorded seconds between reads, each with what was read
-    # before it: the wall clock a replay plays them by is not asked at all
+    # before it: the wall clock a replay plays them by is not asked at all, and the
+    # live gateway closed the same ones
     closed: list[float] = []
     line = LineLoad(CAPACITY, lambda: closed.append(0.0) or ())
     size = 100
@@ -149,7 +177,7 @@ def test_a_replay_is_judged_on_its_recorded_times_however_fast_it_is_played() ->
     reads = [(1000.0 + i * step, size) for i in range(int(20 / step))]
     read = 0
     for at, size in reads:
-        line.replayed(at, read, 1.0)
+        line.read(at, read, 1.0)
         read += size
     assert len(closed) == 20
     assert 0.85 < line.share < 0.95
@@ -158,32 +186,44 @@ def test_a_replay_is_judged_on_its_recorded_times_however_fast_it_is_played() ->
 def test_a_replay_whose_recorded_clock_goes_back_judges_the_next_run_afresh() -> None:
     line = Line()
     for second in range(4):  # floors known
-        line.bins = {node: FLOOR[node] for node in FLOOR}
-        line.line.replayed(float(second), 0, 1.0)
+        line.bins = dict(FLOOR)
+        line.line.read(float(second), 0, 1.0)
     for second in range(4, 9):  # a queue standing full
         line.bins = {node: FLOOR[node] + 0.36 for node in FLOOR}
-        line.line.replayed(float(second), 0, 1.0)
+        line.line.read(float(second), 0, 1.0)
     assert line.line.over
     # another run of the gateway (its host rebooted): its clock starts again lower
-    assert line.line.replayed(3.0, 0, 1.0)  # changed: it has room until judged again
+    assert line.line.read(3.0, 0, 1.0)  # changed: it has room until judged again
     assert not line.line.over
     # a silence of an hour: only its last span is sampled
-    assert not line.line.replayed(3603.0, 0, 1.0)
+    assert not line.line.read(3603.0, 0, 1.0)
     assert len(line.line._samples) <= SPAN + 2
 
 
-def test_a_long_overload_has_room_again_though_a_crystal_moved_the_floor() -> None:
-    """An hour over capacity, a node 200 ppm off: its floor moved 0.72 s meanwhile, and
-    a floor frozen at the hold's start never saw the line have room again."""
+def test_a_long_overload_has_room_again_as_far_as_the_held_lines_may_have_gone() -> None:
+    """An hour over capacity: the held lines may have gone as far as their drift's
+    uncertainty over the hour (aspp.clock.NodeClock.held_error); the room allows it, so
+    the line has room again once the queue drained."""
     line = settled()
     line.run([0.2, 0.36, 0.36, 0.36])
-    for _ in range(3600):
-        line.bins = {node: FLOOR[node] + 0.36 + 200e-6 * line.now for node in FLOOR}
-        line.now += 1.0
-        line.read += 11000
-        line.line.sample(line.now, line.read)
-    assert line.line.over
-    line.bins = {node: FLOOR[node] + 0.001 + 200e-6 * line.now for node in FLOOR}  # drained
-    line.now += 1.0
-    assert line.line.sample(line.now, line.read + 11000)
-    assert not line.line.over
+    assert all(line.run([0.36] * 3600))
+    line.held_error = 0.12  # (33 ppm for an hour)
+    assert not line.bin(0.10)
+
+
+def test_a_line_behind_a_full_queue_from_the_start_is_over_capacity_by_its_bytes() -> None:
+    """No node has shown its floor (every packet back to back behind the queue from the
+    gateway's start), and the line reads at its baud rate: over capacity; room once the
+    waits fall by the queue's threshold (the queue drained under the lines kept)."""
+    line = Line()
+    line.floor_seen = dict.fromkeys(FLOOR, False)
+    said = line.run([0.0] * 8, share=1.0)
+    assert not said[0] and said[-1]
+    assert line.line.reason() == ("line over capacity: no node shows its floor (100% of "
+                                  "11520 B/s read): sample times unreliable")
+    assert line.bin(0.0, share=1.0)
+    assert not line.bin(-0.3, share=0.7)
+    # and a busy line under its baud rate, floors unseen, is no queue
+    line = Line()
+    line.floor_seen = dict.fromkeys(FLOOR, False)
+    assert not any(line.run([0.0] * 10, share=0.93))
