@@ -1,0 +1,62 @@
+"""A station's line and its nodes' clocks together: held and released as the line's
+judge says, whatever the nodes a reload added or removed meanwhile (pure: the station
+is not opened; its reads are handed in as the link would)."""
+
+from __future__ import annotations
+
+import types
+
+from gateway.daemon.config import NodeEntry, StationConfig
+from gateway.daemon.station.station import Station
+
+
+class Line:
+    """A station of nodes 76 and 77, each read once a second with the wait given."""
+
+    def __init__(self) -> None:
+        config = StationConfig(port="/dev/ttyUSB9",
+                               nodes=[NodeEntry(address=76), NodeEntry(address=77)])
+        self.station = Station(config, types.SimpleNamespace(publish=lambda *a: True),
+                               channels=("r", "w"), replays_marks=False,
+                               on_link_state=lambda *a: None, on_replay_end=lambda *a: None,
+                               floor_unseen_s=60.0)
+        self.station.link = types.SimpleNamespace(bytes_read=0)
+        self.station._on_data = lambda *a: None
+        self.now = 0.0
+        for node in self.station.nodes.values():
+            node.clock.update(0.0, 0.0)  # (a first packet that did not wait: a floor)
+
+    def second(self, wait: float) -> None:
+        """A second of reads in which every node's fastest packet waited ``wait``."""
+        for node in self.station.nodes.values():
+            node._least_wait = wait
+        self.now += 1.0
+        self.station.link.bytes_read += 10000
+        self.station._read(b"x" * 10000, self.now, self.now)
+
+
+def test_a_node_added_while_the_line_is_held_is_held_and_released_with_it() -> None:
+    line = Line()
+    for wait in [0.0, 0.0, 0.0, 0.0, 0.2, 0.3, 0.3, 0.3]:
+        line.second(wait)
+    station = line.station
+    assert station.line.over and all(n.clock.held for n in station.nodes.values())
+    added = station.add_node(NodeEntry(address=78))  # a reload, meanwhile
+    assert added.clock.held  # (it would learn the queue)
+    for wait in [0.0, 0.0]:
+        line.second(wait)  # the queue drained: released, no clock asked twice
+    assert not station.line.over
+    assert not any(n.clock.held for n in station.nodes.values())
+
+
+def test_a_release_leaves_a_clock_that_is_not_held_as_it_is() -> None:
+    """A release of a clock that was never held raised (ClockStateError): out of the
+    loop that judged the line, or out of a lost link before it was reopened."""
+    line = Line()
+    for wait in [0.0, 0.0, 0.0, 0.0, 0.2, 0.3, 0.3, 0.3]:
+        line.second(wait)
+    station = line.station
+    station.nodes[77].clock.release()  # (as a node whose clock is not held)
+    station.line.link_down()
+    station._line_changed()
+    assert not any(n.clock.held for n in station.nodes.values())
