@@ -77,6 +77,10 @@ def said(model: str, figures: list[Figures]) -> None:
           f"were under a floor-unseen WARN ({off_said} of {off}); of those within "
           f"{GOOD * 1e3:g} ms, {good_said / max(good, 1):.1%} ({good_said} of {good}) "
           f"(after the first {FLOOR_UNSEEN_S:g} s of each stream)")
+    bounded = sum(getattr(f, "bounded", 0) for f in figures)
+    broken = sum(getattr(f, "bound_broken", 0) for f in figures)
+    print(f"{model}: samples given a bound of how late time may be (late_ms) {bounded}, "
+          f"later than it {broken}")
 
 
 def main() -> int:
