@@ -286,7 +286,9 @@ class Gateway:
             waiting.cancel()
         while True:
             now = time.monotonic()
-            self.health.sample(now)  # (each line is judged on its reads: Station._read)
+            for station in self.stations:  # (each line is judged on its reads, and
+                station.sample()  # here only whether it fell silent: Station.sample)
+            self.health.sample(now)
             if self.outputs.reads_reports and now - self._reported >= SAMPLE_PERIOD:
                 self.status()
             await asyncio.sleep(SAMPLE_PERIOD)

@@ -33,6 +33,8 @@ from .scheduler import Scheduler
 from .supervisor import Supervisor
 
 log = logging.getLogger("gx2.gateway")
+SILENT_SAMPLES = 2
+"""Seconds of a live line reading nothing after which a hold on it ends."""
 
 
 class Station:
@@ -84,6 +86,9 @@ class Station:
         self._opened = False
         """Its port has been open once (later opens are the link's reconnects)."""
         self._on_data: Callable[[bytes, float, float], None] = self.reader.on_data
+        self._read_at_sample = 0
+        self._silent = 0
+        """Samples running (:meth:`sample`) in which its link read nothing."""
 
     def _node(self, entry: NodeEntry) -> Node:
         return Node(entry, byte_time=byte_time(self.config.baudrate),
@@ -153,6 +158,22 @@ class Station:
         if self.line.read(monotonic, before, SAMPLE_PERIOD):
             self._line_changed()
         self._on_data(data, host_time, monotonic)
+
+    def sample(self) -> None:
+        """Once a second, live: a line held over capacity that has read nothing for
+        SILENT_SAMPLES seconds running has no queue (a base station with one sends at
+        its baud rate): it has room again. Its bins close on its reads, and a line whose
+        streams were all stopped while it was held reads nothing more to close one
+        with (the line stayed over capacity for good). Two seconds, not one: after a
+        host stall this may run before the backlog's read."""
+        if self.replaying or self.link is None:
+            return
+        read = self.link.bytes_read
+        self._silent = self._silent + 1 if read == self._read_at_sample else 0
+        self._read_at_sample = read
+        if self.line.over and self._silent >= SILENT_SAMPLES:
+            self.line.link_down()
+            self._line_changed()
 
     def _waits(self) -> list[Waited]:
         """Each node's evidence since the last bin of a queue on its line."""

@@ -60,3 +60,21 @@ def test_a_release_leaves_a_clock_that_is_not_held_as_it_is() -> None:
     station.line.link_down()
     station._line_changed()
     assert not any(n.clock.held for n in station.nodes.values())
+
+
+def test_a_held_line_that_falls_silent_has_room_again() -> None:
+    """Every stream stopped while the line was held: nothing more is read to close a bin
+    with, and the line stayed over capacity for good. A live line reading nothing for
+    two seconds of the gateway's once-a-second sampling has no queue."""
+    line = Line()
+    for wait in [0.0, 0.0, 0.0, 0.0, 0.2, 0.3, 0.3, 0.3]:
+        line.second(wait)
+    station = line.station
+    station.link = types.SimpleNamespace(bytes_read=station.link.bytes_read)
+    station.replaying = False
+    station.sample()  # (the first: its count taken)
+    station.sample()  # a second with nothing read: after a host stall, maybe the backlog
+    assert station.line.over  # (not yet read)
+    station.sample()
+    assert not station.line.over
+    assert not any(n.clock.held for n in station.nodes.values())
