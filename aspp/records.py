@@ -14,7 +14,7 @@ from __future__ import annotations
 import difflib
 import math
 import struct
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from operator import itemgetter
 from typing import NamedTuple
@@ -254,8 +254,10 @@ def all_specs() -> Iterator[CommandSpec]:
     return iter(_SPECS)
 
 
-def lookup(record: str | int) -> CommandSpec:
-    """The command for a record name (``"euler"``), a byte (``0xCE``) or ``"0xCE"``."""
+def lookup(record: str | int, among: Iterable[str] | None = None) -> CommandSpec:
+    """The command for a record name (``"euler"``), a byte (``0xCE``) or ``"0xCE"``.
+    ``among``: the names an unknown one is said to be none of (and may be a typo of):
+    those that fit where it was given (default: every record)."""
     if isinstance(record, str):
         text = record.strip()
         if text.lower().startswith("0x"):
@@ -266,10 +268,11 @@ def lookup(record: str | int) -> CommandSpec:
         elif text in BY_NAME:
             return BY_NAME[text]
         else:
-            close = difflib.get_close_matches(text, BY_NAME, n=1)
+            names = list(BY_NAME if among is None else among)
+            close = difflib.get_close_matches(text, names, n=1)
             hint = f"did you mean {close[0]!r}? " if close else ""
             raise RecordError(f"unknown record {record!r}; {hint}known: "
-                              f"{', '.join(BY_NAME)}")
+                              f"{', '.join(names)}")
     if isinstance(record, bool) or not isinstance(record, int):
         raise RecordError(f"a record is a name or a command byte, not {record!r}")
     try:
@@ -281,8 +284,15 @@ def lookup(record: str | int) -> CommandSpec:
 def checked(record: str | int, *, streamable: bool = False,
             pollable: bool = False) -> CommandSpec:
     """:func:`lookup`, then check the record can be streamed in continuous mode or
-    polled with a bare command byte; RecordError (a ValueError) names what is wrong."""
-    spec = lookup(record)
+    polled with a bare command byte; RecordError (a ValueError) names what is wrong
+    (an unknown name, with the records that could be given there: issue 43 listed
+    ``eeprom_write`` to a stream)."""
+    among = None
+    if streamable or pollable:
+        among = [spec.name for spec in _SPECS
+                 if (not streamable or spec.code in STREAMABLE)
+                 and (not pollable or spec.pollable)]
+    spec = lookup(record, among)
     if streamable and spec.code not in STREAMABLE:
         raise RecordError(f"{spec.name} cannot be streamed in continuous mode")
     if pollable and not spec.pollable:

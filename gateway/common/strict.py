@@ -27,36 +27,40 @@ class Strict(BaseModel):
 
 def describe(error: ValidationError, source: str = "", *, skip: int = 0,
              noun: str = "key", model: type[BaseModel] | None = None) -> str:
-    """The most useful problem pydantic found as one line, ``source: where: what`` (and
-    how many more there are). ``skip`` drops leading parts of the location (a tagged
-    union's tag); ``noun`` is what an unknown name is called ("key", "field");
-    ``model``, what was validated, lets an unknown key name the key it may be a typo of.
+    """Every problem pydantic found, in one line: ``source: where: what; where: what``.
+    ``skip`` drops leading parts of the location (a tagged union's tag); ``noun`` is
+    what an unknown name is called ("key", "field"); ``model``, what was validated,
+    lets an unknown key name the key it may be a typo of.
 
     Pydantic lists problems in the order of the model's fields, with unknown keys last:
-    a typo (``node:`` for ``nodes:``) came out as ``nodes: required key is missing (and
-    1 more)``, the typo itself hidden behind the "1 more". An unknown key is most often
-    the cause of the other problems near it, so it is said first; one that is close to
-    a known key first of all, with that key."""
+    a typo (``node:`` for ``nodes:``) came out as ``nodes: required key is missing``,
+    the typo itself after it. An unknown key is most often the cause of the other
+    problems near it, so it is said first; one that is close to a known key first of
+    all, with that key. All are said (issue 43: ``(and 1 more)`` left a user fixing a
+    file one run at a time)."""
     problems = error.errors(include_url=False)
     hints = {index: _near(model, tuple(problem["loc"][skip:]))
              for index, problem in enumerate(problems)
              if problem["type"] == "extra_forbidden"}
     order = sorted(range(len(problems)),
                    key=lambda i: 0 if hints.get(i) else 1 if i in hints else 2)
-    first = problems[order[0]]
-    message = first["msg"].removeprefix("Value error, ")
-    if first["type"] == "extra_forbidden":
-        near = hints[order[0]]
+    said = [_problem(problems[i], hints.get(i), skip, noun) for i in order]
+    return ": ".join([source, "; ".join(dict.fromkeys(said))] if source
+                     else ["; ".join(dict.fromkeys(said))])
+
+
+def _problem(problem: Any, near: str | None, skip: int, noun: str) -> str:
+    """One problem: ``where: what``."""
+    message = problem["msg"].removeprefix("Value error, ")
+    if problem["type"] == "extra_forbidden":
         message = (f"unknown {noun} (did you mean {near}?)" if near
                    else "unknown key (a typo?)" if noun == "key" else f"unknown {noun}")
-    elif first["type"] == "missing":
+    elif problem["type"] == "missing":
         message = f"required {noun} is missing"
-    elif first["type"] in ("bool_type", "bool_parsing"):
-        message = f"must be a boolean: write true or false, not {first['input']!r}"
-    more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
-    location = tuple(first["loc"][skip:])
-    parts = [part for part in (source, key_path(location) if location else "") if part]
-    return ": ".join([*parts, message]) + more
+    elif problem["type"] in ("bool_type", "bool_parsing"):
+        message = f"must be a boolean: write true or false, not {problem['input']!r}"
+    location = tuple(problem["loc"][skip:])
+    return f"{key_path(location)}: {message}" if location else message
 
 
 def _near(model: type[BaseModel] | None, location: tuple[int | str, ...]) -> str | None:

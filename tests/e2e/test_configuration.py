@@ -262,7 +262,7 @@ def test_only_true_and_false_are_booleans(tmp_path):
 # An unknown key is most often a typo, and the cause of the other problems near it (the
 # key it should have been is missing): it is said first, with the key it is close to
 # (issue 31: `node:` in a station said `base_stations[0].nodes: required key is missing
-# (and 1 more)`).
+# (and 1 more)`). The others follow it, every one (issue 43).
 
 def _stations_with(typo: str) -> Any:
     def change(config: dict[str, Any]) -> None:
@@ -284,14 +284,15 @@ TYPOS: dict[str, tuple[Any, str]] = {
     # (change to a valid config, what the one line must say right after the file)
     "node for nodes in a station": (_stations_with("node"),
                                     r"base_stations\[1\]\.node: unknown key \(did you mean "
-                                    r"nodes\?\) \(and 1 more\)$"),
+                                    r"nodes\?\); base_stations\[1\]\.nodes: required key is "
+                                    r"missing$"),
     "nodez for nodes": (_renamed(None, "nodes", "nodez"),
                         r"nodez: unknown key \(did you mean nodes\?\)$"),
     "base_staton": (_renamed(None, "base_station", "base_staton"),
                     r"base_staton: unknown key \(did you mean base_station\?\)$"),
     "adress in a node": (_renamed("nodes", "address", "adress", 0),
-                         r"nodes\[0\]\.adress: unknown key \(did you mean address\?\) "
-                         r"\(and 1 more\)$"),
+                         r"nodes\[0\]\.adress: unknown key \(did you mean address\?\); "
+                         r"nodes\[0\]\.address: required key is missing$"),
     "a key like no other": (lambda c: c["control"].update(zzz=1),
                             r"control\.zzz: unknown key \(a typo\?\)$"),
 }
@@ -314,6 +315,24 @@ def test_a_typo_is_said_first_with_the_key_it_may_be(tmp_path):
     assert failures == {}, "\n".join(f"{k}: {v}" for k, v in failures.items())
     assert one_line_problems(sim_run.result(), sim, [
         r"nodes\[0\]\.adress: unknown key \(did you mean address\?\)"]) == []
+
+
+def test_every_problem_is_said_and_a_stream_is_offered_only_streamable_records(tmp_path):
+    """Two mistakes are two said, on the one line (issue 43: ``(and 1 more)``); an
+    unknown record where a stream is asked for lists the records that can stream, not
+    ``eeprom_write`` or ``built_in_test``."""
+    def change(config: dict[str, Any]) -> None:
+        config["base_station"]["baudrate"] = "fast"
+        config["nodes"][1]["stream"] = "eulr"
+    path = write_bad_config(tmp_path, "two-mistakes", change)
+    run = run_gateway("--config", str(path), "--check")
+    assert one_line_problems(run, path, [
+        r"base_station\.baudrate: [^;]*integer; nodes\[1\]\.stream: unknown record 'eulr'; "
+        r"did you mean 'euler'\? known: .*\beuler_angrate\b"]) == [], run
+    known = run.stderr.split("known: ")[1].strip().split(", ")
+    assert "euler" in known and "accel_angrate" in known, known
+    assert not {"eeprom_write", "built_in_test", "device_id", "store_nonvolatile"} & set(
+        known), known
 
 
 def test_check_rejects_a_bad_sim_port(tmp_path):
