@@ -16,6 +16,7 @@ from gateway.common.jsontext import json_line
 from gateway.common.ops import BY_NAME
 from gateway.common.protocol import Exit
 from gateway.common.reading import number
+from gateway.common.timetext import TIME, seconds_at
 
 from .cells import MISSING, cell
 from .statusview import status_lines, terminal_width, unhealthy
@@ -250,15 +251,9 @@ def _selftest(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
 
 
 def time_of_day(stamp: Any) -> str:
-    """``12:03:04.123``, local time, of a UNIX time (``-`` for anything else)."""
-    value = number(stamp)
-    if value is None:
-        return MISSING
-    try:
-        whole = time.strftime("%H:%M:%S", time.localtime(value))
-    except (OverflowError, OSError, ValueError):
-        return MISSING
-    return f"{whole}.{int(value % 1 * 1000):03d}"
+    """``12:03:04.123 UTC`` of a UNIX time, as every time is shown
+    (:mod:`gateway.common.timetext`; ``-`` for anything else)."""
+    return seconds_at(stamp, TIME) or MISSING
 
 
 @prints("mark")

@@ -4,11 +4,11 @@ as a table for a person, or one JSON line for a script."""
 from __future__ import annotations
 
 import argparse
-import time
 from typing import TYPE_CHECKING
 
 from gateway.common.jsontext import json_line
 from gateway.common.protocol import Exit
+from gateway.common.timetext import DAY, TIME, at
 
 from .client import CtlError
 
@@ -53,9 +53,7 @@ def run_recordings(args: argparse.Namespace) -> int:
 
 
 def _when(stamp: int, day: bool = True) -> str:
-    seconds, ms = divmod(round(stamp / 1e6), 1000)
-    shape = "%Y-%m-%d %H:%M:%S" if day else "%H:%M:%S"
-    return time.strftime(shape, time.gmtime(seconds)) + f".{ms:03d}"
+    return at(stamp, DAY if day else TIME, zone="")
 
 
 def _length(seconds: float) -> str:
@@ -68,9 +66,10 @@ def lines(d: Described) -> list[str]:
     if d.start is None or d.end is None:
         span = "no messages"
     else:
-        same_day = time.gmtime(d.start // 10**9)[:3] == time.gmtime(d.end // 10**9)[:3]
-        span = (f"{_when(d.start)} to {_when(d.end, not same_day)} UTC "
-                f"({_length((d.end - d.start) / 1e9)})")
+        start, end = _when(d.start), _when(d.end)
+        if end[:10] == start[:10]:  # (the same day, as shown)
+            end = _when(d.end, day=False)
+        span = f"{start} to {end} UTC ({_length((d.end - d.start) / 1e9)})"
     head = f"{d.path}  {span}  {d.bytes / 1e6:,.1f} MB"
     if d.stations:
         head += f"  stations {', '.join(d.stations)}"

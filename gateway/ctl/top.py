@@ -32,6 +32,7 @@ from gateway.client import Status
 from gateway.common.jsontext import json_line
 from gateway.common.protocol import Exit, HealthLevel
 from gateway.common.reading import as_map, number
+from gateway.common.timetext import TIME, seconds_at
 
 from .cells import MISSING, cell, duration, node_maps, reasons
 from .statusview import station_maps
@@ -121,11 +122,9 @@ def _bytes(value: float) -> str:
 
 
 def clock_text(now: float) -> str:
-    """The local time of day at ``now`` (a gateway's clock may say anything)."""
-    try:
-        return time.strftime("%H:%M:%S", time.localtime(now))
-    except (OverflowError, OSError, ValueError):
-        return "--:--:--"
+    """The time of day at ``now`` to the second, as every time is shown
+    (:mod:`gateway.common.timetext`; a gateway's clock may say anything)."""
+    return seconds_at(now, TIME, digits=0) or "--:--:--"
 
 
 def link_text(label: str, link: Mapping[str, Any], now: float, stale: bool = False) -> Text:

@@ -29,7 +29,6 @@ from __future__ import annotations
 import itertools
 import math
 import statistics
-import time
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -38,6 +37,7 @@ from typing import Any
 
 from aspp.orientation import euler_from_matrix
 from aspp.records import BY_NAME
+from gateway.common import timetext
 from gateway.common.topics import parse
 
 from .files import MARK, STATUS
@@ -198,8 +198,7 @@ def picture(node: int, record: str, payloads: list[dict], name: str | None,
     rate = f"{1 / period:.1f} Hz" if period else "rate unknown"
     title = (f"{who}: {record}, {rate}, {len(rows):,} records\n"
              f"{summary.line(' · ')}")
-    when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(start)) if clock == "time" \
-        else "the node's timer"
+    when = timetext.at(timetext.nanoseconds(start)) if clock == "time" else "the node's timer"
     shown = [(mark.time - start, mark.text) for mark in marks or ()
              if clock == "time" and (window or x[0] <= mark.time - start <= x[-1])]
     return Picture(broken(x, panels, gaps), panels, title,

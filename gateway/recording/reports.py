@@ -3,10 +3,11 @@ line for the user."""
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from gateway.common.timetext import at
 
 
 @dataclass
@@ -106,9 +107,8 @@ class FileReport:
 
 
 def _when(stamp: int) -> str:
-    """A log_time (ns) to the nearest millisecond, UTC."""
-    seconds, milliseconds = divmod((stamp + 500_000) // 1_000_000, 1000)
-    return time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime(seconds)) + f".{milliseconds:03d} UTC"
+    """A log_time (ns) to the millisecond, UTC, as every time is shown."""
+    return at(stamp)
 
 
 def _after(stamp: int | None) -> str:

@@ -9,11 +9,11 @@ a mark's text is that mark's log_time, and a window ending at a mark holds the m
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import datetime
 
+from gateway.common.timetext import ISO, at
 from gateway.common.topics import parse
 
 from .catalogue import Described, Marked, span_of
@@ -70,9 +70,8 @@ class Window:
 
 
 def when(stamp: int) -> str:
-    """A log_time (ns) as ISO 8601, UTC, to the millisecond."""
-    seconds, ms = divmod(round(stamp / 1e6), 1000)
-    return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(seconds)) + f".{ms:03d}Z"
+    """A log_time (ns) as ISO 8601, UTC, to the millisecond (as ``--from`` takes it)."""
+    return at(stamp, ISO, zone="Z")
 
 
 def _marks(files: list[Described]) -> list[Marked]:
@@ -192,8 +191,7 @@ def unclosed(between: tuple[str, str], files: list[Described]) -> str:
 
 
 def _label(number: int, span: Span) -> str:
-    stamp = time.strftime("%Y-%m-%dT%H-%M-%SZ", time.gmtime(span[0] // 1_000_000_000))
-    return f"trial-{number}_{stamp}"
+    return f"trial-{number}_{at(span[0], ISO.replace(':', '-'), digits=0, zone='Z')}"
 
 
 def windows(asked: Asked, files: list[Described]) -> list[Window]:

@@ -7,6 +7,7 @@ asserted run alone, first."""
 
 from __future__ import annotations
 
+import calendar
 import json
 import os
 import queue
@@ -32,10 +33,15 @@ from gateway.common.endpoints import connectable
 from gateway.common.protocol import MAX_PING_NODES
 from gateway.ctl.client import Client, CtlError
 from gateway.daemon.requests import RequestError, parse_request
+from gateway.recording.files import MARK
+from gateway.recording.writer import RecordingWriter
 from tests.helpers.ports import free_port
 from tests.helpers.processes import spawn_run
 
 NAN = float("nan")
+MARKED_AT = calendar.timegm((2026, 11, 22, 12, 3, 4, 0, 0, 0)) + 0.1236
+"""The time the fake gives a mark: 12:03:04.1236 UTC, whose millisecond a cut and a
+rounding tell apart (issue 43: mark said .695 where recordings said .696)."""
 PING_SILENT = 77
 """Does not answer a ping."""
 REFUSES_WRITES = 78
@@ -186,8 +192,8 @@ def result_for(request: Any, advertised: str) -> dict[str, Any]:
     if op == "rate":
         return {"node": request.node, "hz": request.hz, "divider": round(51200 / request.hz)}
     if op == "mark":
-        at = time.mktime((2026, 11, 22, 12, 3, 4, 0, 0, -1)) + 0.1234  # (local time)
-        return {"text": request.text, "time": at, "host_time": at, "nodes": request.nodes}
+        return {"text": request.text, "time": MARKED_AT, "host_time": MARKED_AT,
+                "nodes": request.nodes}
     return {"node": request.node, "firmware": 4105, "model_number": "6211-4220",
             "serial_number": "2217-0122", "model_name": "3DM-GX2", "options": "Inertia-Link"}
 
@@ -332,9 +338,9 @@ READABLE: dict[str, tuple[list[str], str]] = {
                      r"\(1 attempt\)\n"),
     "rate": (["rate", "76", "100"], r"76 rate 100 Hz \(divider 512\)\n"),
     "mark": (["mark", "76", "77", "trial 3 start"],
-             r"mark at 12:03:04\.123: trial 3 start \(76, 77\)\n"),
+             r"mark at 12:03:04\.124 UTC: trial 3 start \(76, 77\)\n"),
     "mark of the whole experiment": (["mark", " a knock\t(left) "],
-                                     r"mark at 12:03:04\.123: a knock \(left\)\n"),
+                                     r"mark at 12:03:04\.124 UTC: a knock \(left\)\n"),
     "info": (["info", "76"], r"node +76\nfirmware +4105\nmodel number +6211-4220\n"
              r"serial number +2217-0122\nmodel name +3DM-GX2\noptions +Inertia-Link\n"),
     "status": (["status"], r"gateway  version 9\.9\.9, up 1 h 02 min, publish tcp://\*:\d+, "
@@ -364,6 +370,31 @@ def test_each_command_prints_its_result(name: str, readable_runs: dict[str, Futu
     assert result.status == 0, result
     assert result.stderr == "", result
     assert re.fullmatch(READABLE[name][1], result.stdout), result
+
+
+def test_a_mark_reads_the_same_in_mark_recordings_and_export(
+        fake: FakeGateway, tmp_path: Path) -> None:
+    """One instant, one text: what ``mark`` prints is what ``recordings`` lists and
+    what export's and a window's lines say of that mark (issue 43: mark cut the
+    millisecond, recordings rounded it)."""
+    marked = run("--control", fake.control, "mark", "go")
+    assert marked.status == 0, marked
+    shown = re.fullmatch(r"mark at (\S+) UTC: go\n", marked.stdout)
+    assert shown, marked
+    path = tmp_path / "marked.mcap"
+    with path.open("wb") as output:
+        writer = RecordingWriter(output)
+        for before, text in ((2, "go"), (1, "halt"), (0, "go")):
+            writer.message(MARK, {"text": text, "time": MARKED_AT - before,
+                                  "host_time": MARKED_AT - before, "nodes": []})
+        writer.finish()
+    listed = run("recordings", str(path))
+    assert f"    mark 2026-11-22 {shown[1]}  go\n" in listed.stdout, (marked, listed)
+    # the last, a trial never closed, is said with the same time
+    exported = run("export", str(path), "--out", str(tmp_path / "out"),
+                   "--between-marks", "go", "halt")
+    assert f"the mark 'go' at 2026-11-22T{shown[1]}Z has no mark" in exported.stderr, \
+        exported
 
 
 def test_the_requests_carry_what_the_command_line_said(

@@ -44,7 +44,7 @@ def test_marks_are_published_recorded_exported_and_drawn(simulator, gateway, tmp
 
     tapped = gx2ctl(*control, "mark", "76", "left wing tapped")
     assert tapped.status == 0, tapped
-    assert re.fullmatch(r"mark at \d\d:\d\d:\d\d\.\d{3}: left wing tapped \(76\)\n",
+    assert re.fullmatch(r"mark at \d\d:\d\d:\d\d\.\d{3} UTC: left wing tapped \(76\)\n",
                         tapped.stdout), tapped
     assert gx2ctl(*control, "mark", "77", "76", "77", "right wing tapped").status == 0
     started = gx2ctl(*control, "--json", "mark", "trial 1 start")
