@@ -79,6 +79,21 @@ class FileReport:
             "the rest" if self.losses or self.orphans else
             "up to there" if not self.whole else "every message")
 
+    def joined(self, other: FileReport) -> FileReport:
+        """This file's report and another of the same file (read again for another
+        window: each trial of an export reads the files it touches) as one: what
+        either skipped, and where the later read found the file ending."""
+        offsets = {loss.offset for loss in self.losses}
+        whole = self.whole and other.whole
+        return FileReport(
+            self.path, self.skipped or other.skipped,
+            [*self.losses, *(loss for loss in other.losses if loss.offset not in offsets)],
+            max(self.orphans, other.orphans), max(self.read, other.read),
+            self.expected if self.expected == other.expected else None, whole,
+            _latest(self.last, other.last), (self.writing or other.writing) and not whole,
+            _latest(self.passed, other.passed), self.decompressed + other.decompressed,
+            self.summary or other.summary)
+
     def _damage(self) -> str:
         chunks = sum(loss.chunk for loss in self.losses)
         stray = sum(loss.size for loss in self.losses if not loss.chunk)
@@ -111,6 +126,10 @@ def _when(stamp: int) -> str:
     return at(stamp)
 
 
+def _latest(one: int | None, other: int | None) -> int | None:
+    return max((t for t in (one, other) if t is not None), default=None)
+
+
 def _after(stamp: int | None) -> str:
     return "before any message" if stamp is None else f"after {_when(stamp)}"
 
@@ -141,8 +160,13 @@ class Reading:
         return any(report.partial for report in self.files)
 
     def lines(self) -> list[str]:
-        """One line for each file not read whole."""
-        return [line for report in self.files if (line := report.line())]
+        """One line for each file not read whole, however often it was read (issue 43:
+        an export of two trials said a file being written twice)."""
+        joined: dict[Path, FileReport] = {}
+        for report in self.files:
+            kept = joined.get(report.path)
+            joined[report.path] = report if kept is None else kept.joined(report)
+        return [line for report in joined.values() if (line := report.line())]
 
     def done(self, report: FileReport) -> None:
         if self._on_file is not None:

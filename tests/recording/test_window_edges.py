@@ -12,7 +12,7 @@ from mcap.reader import make_reader
 from mcap.writer import IndexType, Writer
 
 from gateway.recording.catalogue import catalogue
-from gateway.recording.files import RECORD_HEAD
+from gateway.recording.files import MARK, RECORD_HEAD
 from gateway.recording.reports import Reading
 from gateway.recording.window import Reader, Window
 from gateway.recording.writer import RecordingWriter
@@ -190,6 +190,31 @@ def test_the_file_a_writer_holds_open_is_being_written_not_cut_short(
     assert len(column(tmp_path / "out" / "11_euler.csv", "host_time")) == 5 * RATE
     killed = json.loads(gx2ctl("recordings", "--json", str(path)).stdout)["files"][0]
     assert killed["writing"] is False and killed["cut_short"] is True
+
+
+def test_a_file_read_for_each_trial_is_said_once(tmp_path: Path) -> None:
+    """Each trial reads the files it touches: a file being written, read for two
+    trials, is one line, as one read of it is (issue 43: the line came twice)."""
+    path = tmp_path / "gx2-now.mcap"
+    with path.open("wb") as output:
+        writer = RecordingWriter(output)
+        for second in range(6):
+            if second in (1, 3):
+                writer.message(MARK, {"time": T0 + second, "host_time": T0 + second,
+                                      "nodes": [], "text": "go"})
+            if second in (2, 4):
+                writer.message(MARK, {"time": T0 + second, "host_time": T0 + second,
+                                      "nodes": [], "text": "halt"})
+            for i in range(RATE):
+                writer.message("gx2/11/euler", {"node": 11, "record": "euler", "seq": i,
+                                                "host_time": T0 + second + i / RATE})
+            writer.flush()
+        exported = gx2ctl("export", str(path), "--out", str(tmp_path / "out"),
+                          "--between-marks", "go", "halt")
+    assert exported.status == 0, exported.stderr
+    assert exported.stdout.count("11_euler.csv") == 2, exported.stdout
+    assert exported.stderr == (f"gx2ctl: {path}: being written: its last flush after "
+                               "2026-11-18 11:06:45.960 UTC; read up to there\n")
 
 
 def test_plot_takes_its_node_as_export_does(tmp_path: Path) -> None:
