@@ -57,9 +57,10 @@ def add_commands(commands: Any) -> None:
         "export", help="write one table per node and record from MCAP recordings",
         description="Write DIR/<address>_<record>.csv (or .parquet, .mat): a row per record, "
         "columns time, host_time, device_time, seq, lqi, rssi, then the record's fields "
-        "(vectors as _x/_y/_z, matrices as _11.._33), and DIR/marks.csv if there are "
-        "marks. FILE may be a directory of recordings (read in name order, which is "
-        "time order). Exit 1 if something unreadable was skipped (said on stderr).")
+        "(vectors as _x/_y/_z, matrices as _11.._33), and DIR/marks.csv (its header "
+        "alone if there are no marks). FILE may be a directory of recordings (read in "
+        "name order, which is time order). Exit 1 if something unreadable was skipped "
+        "(said on stderr).")
     exporter.add_argument("files", nargs="+", metavar="FILE.mcap")
     exporter.add_argument("--out", required=True, metavar="DIR", help="created if missing")
     exporter.add_argument("--format", dest="form", choices=("csv", "parquet", "mat"),
@@ -203,7 +204,7 @@ def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
     for path, table in tables:
         apart = table.losses.apart()
         print(f"{path}  {table.rows:,} rows" + (f" ({apart})" if apart else ""))
-    if marks:
+    if marks or tables:
         print(f"{out / f'{MARKS}.{args.form}'}  {marks:,} marks")
     return len(tables), marks
 

@@ -17,7 +17,8 @@ after the node's timer restarted (a reboot) or the gateway's ``seq`` did.
 
 Marks (``gx2ctl mark``) go in a table of their own, ``marks.csv``: ``time``,
 ``host_time``, ``nodes`` (their addresses, space-separated; empty: the whole
-experiment), ``text``.
+experiment), ``text``; written beside every export of tables, its header alone when
+the window holds no mark (a script that reads it finds it).
 
 Rows are written as they are read, once the WINDOW rows of their table after them are
 read too (the steps that tell the stream's period): a CSV export holds that many rows a
@@ -244,6 +245,8 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
         _write(losses.finish(), losses)
         if tables_only and not tables:
             raise NoTables(out)
+        if marks is None and tables:  # (its header alone: the window holds no mark)
+            marks = Output(out, f"{MARKS}.{form}", form, mark_columns(), outputs)
         for output in outputs:
             output.finish()
             done.append(output.path)

@@ -347,7 +347,8 @@ def test_messages_a_damaged_file_lost_are_said_as_the_files_not_the_gateways(tmp
     ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
     assert ran.status == 1, ran
     assert ran.stdout == (f"{tmp_path / 'out' / '76_euler.csv'}  897 rows "
-                          "(file damaged: 100 messages, 1.0 s unread)\n")
+                          "(file damaged: 100 messages, 1.0 s unread)\n"
+                          f"{tmp_path / 'out' / 'marks.csv'}  0 marks\n")
     assert "skipped 1 damaged chunk (100 messages" in ran.stderr
     found = records_of([path], 76, None, Reading())
     image = picture(76, found.record, found.payloads, found.name, found.marks, found.counts)

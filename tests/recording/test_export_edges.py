@@ -48,3 +48,22 @@ def test_mat_keeps_every_column_whose_names_collide(tmp_path: Path) -> None:
     assert struct["a_b"] == 1.0 and struct["a_b_2"] == 2.0 and struct["units_2"] == 3.0
     assert struct["descriptions_2"] == "text"
     assert struct["units"]["rssi"] == "dBm" and "a_b_2" in struct["units"]
+
+
+def test_a_window_without_marks_has_its_marks_table_all_the_same(tmp_path: Path) -> None:
+    """docs/recording.md says export writes the marks: a window that holds none gets
+    the table's header alone, in every format (issue 43: no marks.csv at all)."""
+    path = foreign_file(tmp_path / "unmarked.mcap", [("gx2/11/euler", EULER)])
+    for form in ("csv", "parquet", "mat"):
+        out = tmp_path / form
+        ran = gx2ctl("export", str(path), "--out", str(out), "--format", form)
+        assert ran.status == 0 and not ran.stderr, ran.stderr
+        assert f"{out / f'marks.{form}'}  0 marks\n" in ran.stdout, ran.stdout
+    with (tmp_path / "csv" / "marks.csv").open() as table:
+        assert list(csv.reader(table)) == [["time", "host_time", "nodes", "text"]]
+    marks = pq.read_table(tmp_path / "parquet" / "marks.parquet")
+    assert marks.num_rows == 0 and marks.column_names == ["time", "host_time", "nodes",
+                                                          "text"]
+    struct = loadmat(tmp_path / "mat" / "marks.mat", simplify_cells=True)["marks"]
+    assert {"time", "host_time", "nodes", "text", "units"} <= set(struct)
+    assert len(struct["time"]) == 0

@@ -104,7 +104,8 @@ def test_export_csv_columns_values_and_empty_cells(recording, tmp_path):
     assert ran.status == 0, ran.stderr
     out = tmp_path / "out"
     assert sorted(p.name for p in out.iterdir()) == [
-        "76_accel_angrate_mag.csv", "76_firmware_version.csv", "77_orientation.csv"]
+        "76_accel_angrate_mag.csv", "76_firmware_version.csv", "77_orientation.csv",
+        "marks.csv"]  # (its header alone: the recording holds no mark)
     table = rows(out / "76_accel_angrate_mag.csv")
     with (out / "76_accel_angrate_mag.csv").open() as file:
         header = file.readline().strip().split(",")
@@ -215,7 +216,8 @@ def test_export_mat_holds_a_struct_a_table_with_units(recording, tmp_path):
     ran = gx2ctl("export", str(path), "--out", str(tmp_path), "--format", "mat")
     assert ran.status == 0, ran.stderr
     assert sorted(p.name for p in tmp_path.iterdir() if p.suffix == ".mat") == [
-        "76_accel_angrate_mag.mat", "76_firmware_version.mat", "77_orientation.mat"]
+        "76_accel_angrate_mag.mat", "76_firmware_version.mat", "77_orientation.mat",
+        "marks.mat"]
     assert f"76_accel_angrate_mag.mat  {len(streamed)} rows" in ran.stdout
     content = loadmat(tmp_path / "76_accel_angrate_mag.mat")
     assert [k for k in content if not k.startswith("__")] == ["n76_accel_angrate_mag"]
