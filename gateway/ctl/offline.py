@@ -14,6 +14,7 @@ partial.
 from __future__ import annotations
 
 import argparse
+import re
 import signal
 import sys
 from pathlib import Path
@@ -66,6 +67,9 @@ def add_commands(commands: Any) -> None:
     exporter.add_argument("--format", dest="form", choices=("csv", "parquet", "mat"),
                           default="csv", help="csv (default), parquet (needs "
                           "gx2-gateway[parquet]), or mat: MATLAB (needs gx2-gateway[mat])")
+    exporter.add_argument("--force", action="store_true",
+                          help="replace the tables of an earlier export in DIR (without "
+                          "it, export refuses to, as record refuses an existing file)")
     add_window_options(exporter)
     plotter = commands.add_parser(
         "plot", help="draw a node's recorded stream to a PNG or a PDF",
@@ -146,11 +150,27 @@ def _check_held(args: argparse.Namespace, files: list[Described]) -> None:
         raise CtlError(str(error), Exit.USAGE) from None
 
 
+def _refuse_to_replace(outs: list[Path], form: str) -> None:
+    """Exit 2, nothing written, if an earlier export's tables of this format are where
+    this one writes (issue 43: export replaced them without a word, where record
+    refuses an existing file); --force replaces them."""
+    from gateway.recording.export import MARKS
+    found = sorted(path for out in outs if out.is_dir() for path in out.iterdir()
+                   if path.suffix == f".{form}" and (
+                       path.stem == MARKS or re.fullmatch(r"\d+_.+", path.stem)))
+    if found:
+        more = f" (and {len(found) - 1} more tables)" if len(found) > 1 else ""
+        raise CtlError(f"{found[0]} exists{more}: export to a new --out, or give --force "
+                       "to replace an earlier export's tables", Exit.USAGE)
+
+
 def run_export(args: argparse.Namespace) -> int:
     from gateway.recording.reports import Reading
     from gateway.recording.window import Reader, touched
     paths = _files(args.files)
     files, chosen = _windows(args, paths)
+    if not args.force:
+        _refuse_to_replace([Path(args.out) / window.label for window in chosen], args.form)
     reading = Reading()
     reader = Reader(files, reading)
     found = tables = 0

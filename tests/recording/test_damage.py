@@ -195,13 +195,14 @@ def test_ctrl_c_during_export_leaves_no_table_cut(tmp_path):
     out.mkdir()
     earlier = out / "76_euler.csv"
     whole = "time,seq\n1.5,1\n"
-    earlier.write_text(whole)  # an earlier export's
+    earlier.write_text(whole)  # an earlier export's, replaced (--force) only by a whole one
 
     def writing() -> bool:
         """Anything in ``out`` changed: the export has begun writing its tables."""
         return run.poll() is not None or earlier.read_text() != whole or any(
             p != earlier for p in out.iterdir())
-    run = subprocess.Popen([script("gx2ctl"), "export", str(path), "--out", str(out)],
+    run = subprocess.Popen([script("gx2ctl"), "export", str(path), "--out", str(out),
+                            "--force"],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         wait_for(writing, 30, "the export to begin writing")

@@ -67,3 +67,28 @@ def test_a_window_without_marks_has_its_marks_table_all_the_same(tmp_path: Path)
     struct = loadmat(tmp_path / "mat" / "marks.mat", simplify_cells=True)["marks"]
     assert {"time", "host_time", "nodes", "text", "units"} <= set(struct)
     assert len(struct["time"]) == 0
+
+
+def test_an_earlier_exports_tables_are_replaced_only_with_force(tmp_path: Path) -> None:
+    """As record refuses an existing file, export refuses to replace an earlier
+    export's tables: one line, exit 2, nothing touched (issue 43: it replaced them
+    without a word); --force replaces them. Another format's tables, and files that are
+    no export's, are no reason to refuse."""
+    path = foreign_file(tmp_path / "a.mcap", [("gx2/11/euler", EULER)])
+    out = tmp_path / "out"
+    first = gx2ctl("export", str(path), "--out", str(out))
+    assert first.status == 0, first
+    (out / "notes.txt").write_text("mine")
+    assert gx2ctl("export", str(path), "--out", str(out), "--format", "parquet").status == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    (out / "11_euler.csv").write_text("edited by hand\n")
+    again = gx2ctl("export", str(path), "--out", str(out))
+    assert again.status == 2 and again.stdout == "", again
+    assert again.stderr == (f"gx2ctl: {out / '11_euler.csv'} exists (and 1 more tables): "
+                            "export to a new --out, or give --force to replace an earlier "
+                            "export's tables\n"), again
+    assert (out / "11_euler.csv").read_text() == "edited by hand\n"
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]
+    forced = gx2ctl("export", str(path), "--out", str(out), "--force")
+    assert forced.status == 0, forced
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
