@@ -258,8 +258,9 @@ class Capture:
             if isinstance(event, Message):
                 self.writer.message(topic(event.node, event.record).decode(), event.payload)
                 progress.count(event)
-            elif isinstance(event, Marked):
-                self.writer.message(MARK, event.payload)
+            elif isinstance(event, Marked):  # (flushed: readable at once, as the
+                self.writer.message(MARK, event.payload)  # gateway's own file keeps it)
+                self.writer.flush()
             else:
                 self.writer.message(STATUS, event.payload)
                 progress.status(event)

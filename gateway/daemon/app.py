@@ -101,7 +101,7 @@ class Gateway:
             self.ops = Operations(self.stations, self.status,
                                   allow_eeprom_write=config.control.allow_eeprom_write,
                                   allow_any_eeprom_address=config.control.allow_any_eeprom_address,
-                                  publish_mark=self.outputs.mark)
+                                  publish_mark=self._mark)
             endpoint = config.control.endpoint
             try:
                 self.control = ControlServer(self._context, endpoint, self.ops, server)
@@ -223,6 +223,18 @@ class Gateway:
                  "latency_ms": s.latency_ms, "nodes": [n.address for n in s.nodes]}
                 for s in config.stations])
         return metadata
+
+    async def _mark(self, payload: dict[str, Any]) -> bool:
+        """A mark published, and on the recording's disk before it is answered (the
+        recorder's MARK_KEPT_S at most): an export, ``recordings`` or ``Recording`` run
+        once ``mark`` returns reads it (issue 43). False if it could not be published."""
+        if not self.outputs.mark(payload):
+            return False
+        if self.recorder is not None and not await self.recorder.kept():
+            log.warning("mark %r: not on the recording's disk yet (the disk is slow or "
+                        "failing; recording.dropped counts what it loses)",
+                        payload.get("text"))
+        return True
 
     def _reloaded(self, config: GatewayConfig) -> None:
         """A reload applied ``config`` (its nodes; nothing else differs): a new

@@ -66,7 +66,7 @@ class Operations:
 
     def __init__(self, stations: Sequence[StationParts], status: Callable[[], Result], *,
                  allow_eeprom_write: bool, allow_any_eeprom_address: bool = False,
-                 publish_mark: Callable[[Result], bool] | None = None,
+                 publish_mark: Callable[[Result], Awaitable[bool]] | None = None,
                  reload: Callable[[float | None], Awaitable[Result]] | None = None
                  ) -> None:
         self.stations = stations if isinstance(stations, Stations) else Stations(stations)
@@ -79,7 +79,8 @@ class Operations:
         self.replaying = self.stations.replaying
         """Playing a recording: nothing may be sent to a node."""
         self.publish_mark = publish_mark
-        """Publishes a mark (and so records it); False if it could not be published."""
+        """Publishes a mark, and waits for the recording to keep it; False if it
+        could not be published."""
         self.reload = reload
         """Reloads the configuration file (:class:`~.reload.Reloader`), answering
         within the seconds given; None: cannot."""
@@ -337,7 +338,7 @@ async def mark(gw: Operations, request: Any) -> Result:
     nodes = [gw.node(address).address for address in request.nodes]
     now = time.time()
     payload = {"text": request.text, "time": now, "host_time": now, "nodes": nodes}
-    if gw.publish_mark is None or not gw.publish_mark(payload):
+    if gw.publish_mark is None or not await gw.publish_mark(payload):
         raise OpError("the mark could not be published (the gateway's log says why)")
     return dict(payload)
 

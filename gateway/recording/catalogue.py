@@ -7,7 +7,8 @@ marks are read from the chunks that hold the mark channel only. A file without a
 summary (its writer killed, cut short, damaged) or without statistics is read through,
 past any damage, as export reads it, and says so (``indexed`` false; ``cut_short``,
 ``damaged``); but the file a writer holds open (``writing``) may be described by its
-chunks' headers only, as any file is when only its span is asked."""
+chunks' headers only, as any file is when only its span is asked, and its marks
+from the chunks whose message indexes say they hold one."""
 
 from __future__ import annotations
 
@@ -122,8 +123,8 @@ def describe(path: Path, whole: bool = True, read_writing: bool = True) -> Descr
     without a window need: the summary, else the chunks' headers; so a file without
     summary is not read twice), but for a file whose framing breaks (read through: its
     span past the break is only known so). Not ``read_writing``: a file being
-    written is described by its span only too (it may be an hour's data: its counts
-    and marks are known when it is finished)."""
+    written is described by its span and its marks (read from the chunks that hold
+    them) only (it may be an hour's data: its counts are known when it is finished)."""
     described = Described(path, path.stat().st_size if path.exists() else 0)
     index, report = index_of(path)
     reading = Reading()
@@ -149,7 +150,13 @@ def describe(path: Path, whole: bool = True, read_writing: bool = True) -> Descr
             described.writing = not report.skipped and being_written(path)
             if described.writing:
                 described.how = ("being written: its span from its chunks' headers (its "
-                                 "counts and marks once it is finished)")
+                                 "counts once it is finished)")
+                if whole:  # its marks, from the chunks that hold them (issue 43: a trial
+                    # marked now was not listed until the file rotated, up to an hour)
+                    described.marks = [_marked(entry)
+                                       for entry in read(path, reading, [MARK])]
+                    if (marked := reading.files[0]).partial:
+                        described.damaged, described.problem = True, marked.line()
             return described
         _read_through(described, reading)
     report = reading.files[0]

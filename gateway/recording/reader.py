@@ -172,6 +172,9 @@ class _Walk:
         """A chunk passed over unread (outside the span): (offset, length) of its body,
         decompressed after all if its message index names a channel not yet defined
         (a file without summary defines each channel in the chunk that first uses it)."""
+        self._deferred: tuple[int, int, bool] | None = None
+        """A chunk waiting for its message indexes to say whether it is read: its
+        offset, its end, and whether an index has named a channel (none wanted)."""
         self._unindexed: list[tuple[int, int]] = []
         """The chunks passed over whose channels no message index told (another
         writer's file may have none): decompressed for their channels when a message
@@ -210,6 +213,8 @@ class _Walk:
             opcode, length = RECORD_HEAD.unpack(head) if len(head) == RECORD_HEAD.size \
                 else (0, 0)
             after = at + RECORD_HEAD.size + length
+            if self._deferred is not None:  # (its message indexes follow it)
+                yield from self._undefer(at, after, end, opcode, wanted)
             if not known_opcode(opcode) or after > end:
                 at = self._resync(at, end, chunk=opcode == Opcode.CHUNK)
                 continue
@@ -221,6 +226,11 @@ class _Walk:
                 self._passed = (at + RECORD_HEAD.size, length)
                 self._unindexed.append(self._passed)
                 at = after  # outside the span: passed over without reading it
+                continue
+            if opcode == Opcode.CHUNK and wanted is not None:
+                self._counting = self._passed = None
+                self._deferred = (at, after, False)  # (read if its indexes ask)
+                at = after
                 continue
             if opcode == Opcode.CHUNK:
                 self._passed = None
@@ -243,8 +253,45 @@ class _Walk:
                 if entry is not None:
                     yield entry
             at = after
+        if self._deferred is not None:
+            yield from self._undefer(at, at, end, None, wanted)
         if at >= end and end < self._size:
             self._report.whole = True  # at the summary of a finished file
+
+    # In a file without summary, only some topics wanted (a file being written, read for
+    # its marks: issue 43), a chunk waits for the message indexes written after it, one
+    # a channel: it is read when one names a wanted channel or one not yet defined (its
+    # topic is in the chunk), or when none follows it (another writer's file may have
+    # none); a chunk whose indexes name only other channels is passed over unread.
+
+    def _undefer(self, at: int, after: int, end: int, opcode: int | None,
+                 wanted: frozenset[str] | None) -> Iterator[Entry]:
+        """The chunk waiting for its message indexes, given the record at ``at``: read
+        (its wanted messages yielded), passed over, or still waiting."""
+        assert self._deferred is not None
+        chunk, chunk_end, indexed = self._deferred
+        if opcode == Opcode.MESSAGE_INDEX and after <= end:
+            channel = self._at(at + RECORD_HEAD.size, 2)
+            topic = self._channels.get(int.from_bytes(channel, "little"))
+            if len(channel) == 2 and topic is not None and topic not in (wanted or ()):
+                self._deferred = (chunk, chunk_end, True)
+                return
+        elif indexed:  # its indexes named none wanted: passed over unread
+            self._deferred = None
+            head = self._at(chunk + RECORD_HEAD.size, 16)
+            if len(head) == 16:
+                self._pass_over(*struct.unpack("<QQ", head))
+            return
+        self._deferred = None
+        found = self._chunk(self._at(chunk + RECORD_HEAD.size, chunk_end - chunk
+                                     - RECORD_HEAD.size))
+        if found is None:  # (its messages not counted: its indexes were passed over)
+            self._lost(chunk, chunk_end - chunk, chunk=True)
+            return
+        for channel, log_time, publish_time, data in found:
+            entry = self._entry(channel, log_time, publish_time, data)
+            if entry is not None:
+                yield entry
 
     def _touches(self, at: int) -> bool:
         """Whether the chunk at ``at`` can hold messages of the span, by its header."""
@@ -256,12 +303,16 @@ class _Walk:
         start, stop = struct.unpack("<QQ", head)
         if stop >= self._span[0] and start < self._span[1]:
             return True
-        if start <= stop:  # (what the file holds past the window, for where it ends)
+        self._pass_over(start, stop)
+        return False
+
+    def _pass_over(self, start: int, stop: int) -> None:
+        """A chunk of messages logged from ``start`` to ``stop`` passed over unread."""
+        if start <= stop:  # (what the file holds past it, for where it ends)
             self._report.passed = max(stop, self._report.passed or 0)
             for loss in self._waiting:  # a loss ends where a chunk passed over starts
                 loss.before = start
             self._waiting.clear()
-        return False
 
     def _indexed(self, end: int, wanted: frozenset[str] | None) -> Iterator[Entry]:
         """The messages of the chunks the index says can hold wanted ones, each

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 
+from gateway.client import Recording
 from gateway.recording.plot import picture, records_of
 from gateway.recording.reports import Reading
 from gateway.sim.node import NodeSettings
@@ -85,3 +86,33 @@ def test_marks_are_published_recorded_exported_and_drawn(simulator, gateway, tmp
     # node 76's marks and the experiment's, as labelled lines
     assert [text for _, text in image.marks] == [
         "left wing tapped", "right wing tapped", "trial 1 start"]
+
+
+def test_a_mark_is_read_as_soon_as_mark_returns(simulator, gateway, tmp_path):
+    """A mark is on the recording's disk when its answer comes: Recording, export and
+    recordings read it at once, from the file still being written (issue 43: export
+    said `no trial from a mark 'go' to a mark 'halt'` right after `mark halt`, and
+    worked 1.5 s later; recordings listed no mark of the file being written, for up to
+    the hour of rotate_minutes)."""
+    sim = simulator(NodeSettings(76))
+    directory = tmp_path / "recordings"
+    gw = gateway(sim.path, NODES[:1], record={"directory": str(directory),
+                                              "rotate_minutes": 60})
+    gw.wait_streaming(76)
+    for trial in (1, 2, 3):  # (each at its own place in the recorder's second)
+        for text in ("go", "halt"):
+            made = gw.control.result("mark", text=text)
+            seen = Recording(directory).marks()
+            assert seen and (seen[-1].text, seen[-1].time) == (text, made["time"]), \
+                (trial, text, seen)
+        (last,) = Recording(directory, between_marks=("go", "halt"), trial=trial).trials()
+        assert last.windows[0].label.startswith(f"trial-{trial}_")
+    exported = gx2ctl("export", str(directory), "--out", str(tmp_path / "out"),
+                      "--between-marks", "go", "halt", "--trial", "3")
+    assert exported.status == 0, exported
+    [listed] = json.loads(gx2ctl("recordings", "--json", str(directory)).stdout)["files"]
+    assert listed["writing"] is True, listed
+    assert [m["text"] for m in listed["marks"]] == ["go", "halt"] * 3, listed
+    table = gx2ctl("recordings", str(directory)).stdout
+    assert table.count("  go\n") == 3 and table.count("  halt\n") == 3, table
+    assert gw.terminate()[0] == 0, gw.log()

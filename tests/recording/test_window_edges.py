@@ -13,11 +13,12 @@ from mcap.writer import IndexType, Writer
 
 from gateway.recording.catalogue import catalogue
 from gateway.recording.files import MARK, RECORD_HEAD
+from gateway.recording.reader import read
 from gateway.recording.reports import Reading
 from gateway.recording.window import Reader, Window
 from gateway.recording.writer import RecordingWriter
 from tests.helpers.processes import gx2ctl
-from tests.helpers.recorded import RATE, T0, foreign_file, make_file
+from tests.helpers.recorded import MARKS, RATE, T0, foreign_file, make_file
 from tests.recording.test_windows import column, iso
 
 CHUNK = 0x06
@@ -227,3 +228,43 @@ def test_plot_takes_its_node_as_export_does(tmp_path: Path) -> None:
         refused = gx2ctl("plot", str(path), *asked, "--out", str(out))
         assert refused.status == 2
         assert refused.stderr == "gx2ctl: plot: give one node, as NODE or --node N\n"
+
+
+def test_the_marks_of_a_file_without_summary_are_read_from_their_chunks(
+        tmp_path: Path) -> None:
+    """A file being written (no summary) read for its marks: only the chunks whose
+    message indexes name the mark channel, or a channel not yet defined, are
+    decompressed (issue 43: recordings could list the marks of a file being written
+    only by reading an hour of it); the same marks as a read of every message."""
+    path = make_file(tmp_path / "gx2-now.mcap", 0, 20, finish=False)
+    everything = [e for e in read(path, Reading()) if e.topic == MARK]
+    reading = Reading()
+    marks = list(read(path, reading, [MARK]))
+    assert marks == everything and [e.log_time for e in marks] == [
+        round((T0 + at) * 1e9) for at, _ in MARKS if at < 20]
+    # the first chunk (its channels), and the two that hold a mark (the first of them
+    # also defines the mark channel), of 20
+    assert reading.files[0].decompressed == 3
+    assert not reading.partial
+
+
+def test_marks_of_another_writers_file_without_indexes_are_all_read(
+        tmp_path: Path) -> None:
+    """Without message indexes a chunk cannot say what it holds: each is read."""
+    path = tmp_path / "other.mcap"
+    with path.open("wb") as stream:
+        writer = Writer(stream, chunk_size=2000, index_types=IndexType.NONE)
+        writer.start(profile="", library="another")
+        euler = writer.register_channel("gx2/11/euler", "json", schema_id=0)
+        marked = writer.register_channel(MARK, "json", schema_id=0)
+        for i in range(10 * RATE):
+            at = round((T0 + i / RATE) * 1e9)
+            writer.add_message(euler, at, json.dumps(
+                {"node": 11, "record": "euler", "seq": i, "host_time": at / 1e9}).encode(),
+                at)
+            if i % (3 * RATE) == 0:
+                writer.add_message(marked, at, json.dumps(
+                    {"text": f"m{i}", "time": at / 1e9, "nodes": []}).encode(), at)
+        stream.flush()  # (not finished: its writer killed)
+    texts = [json.loads(e.data)["text"] for e in read(path, Reading(), [MARK])]
+    assert texts == [f"m{i}" for i in range(0, 10 * RATE, 3 * RATE)]

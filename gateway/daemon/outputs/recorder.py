@@ -32,6 +32,10 @@ the file with it). No exception ends the thread quietly: one of the file's that 
 the disk's (a bug) fails the file as a full disk would, with its traceback; one that
 still ends the thread is logged, and ``failure`` says so (the gateway is ERROR).
 
+A mark (``gx2ctl mark``) is flushed as soon as it is written, and :meth:`Recorder.kept`
+lets the mark's answer wait for that (issue 43: export, ``recordings`` and
+``Recording`` did not see a mark for up to a second after ``mark`` returned).
+
 Retention (``record.keep_gb``, ``record.keep_days``; :mod:`.retention`) runs in the
 same thread once a second.
 
@@ -48,6 +52,7 @@ whole chunks, then finds the file cut short.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
 import threading
@@ -57,6 +62,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
+from gateway.common.topics import MARK_TOPIC
 from gateway.recording.files import SERIAL_READS, WRITTEN, OutOfRange, file_name
 from gateway.recording.writer import RecordingWriter
 
@@ -81,6 +87,9 @@ DRAIN_SHARE = 0.5
 summary's (a handful of writes)."""
 QUEUED_READ, QUEUED_WRITE, QUEUED_MESSAGE = 0, 1, 2
 """What a queued item is: a read, a write, a published message."""
+MARK_KEPT_S = 1.0
+"""The longest a mark's answer waits for the mark to be on the disk (a disk slower than
+that: it is written all the same, with the next flush)."""
 
 
 def exclusive(path: Path) -> IO[bytes]:
@@ -139,6 +148,13 @@ class Recorder(Output):
         """Once closing, the time.monotonic() past which no more of the queue is written."""
         self.cut = 0
         """Messages still queued when the queue's share of close()'s time ran out."""
+        self._marks_taken = 0
+        """Marks queued (the loop's count)."""
+        self._marks_done = 0
+        """Of them, those the thread is done with: flushed to the disk, or lost."""
+        self._kept_waiters: list[tuple[int, asyncio.Future[None]]] = []
+        """(marks taken, future) of each :meth:`kept` waiting; under ``_marks_lock``."""
+        self._marks_lock = threading.Lock()
 
     # -- the loop's side: never blocks, never grows past the bound -------------------------
 
@@ -167,8 +183,36 @@ class Recorder(Output):
         queue = self._queue
         if len(queue) < self.capacity:
             queue.append((QUEUED_MESSAGE, message.topic, message))
+            if message.topic == MARK_TOPIC:
+                self._marks_taken += 1
         else:
             self.overflowed += 1
+
+    async def kept(self, timeout: float = MARK_KEPT_S) -> bool:
+        """Wait (on the loop) until every mark taken so far is on the disk, flushed
+        (or lost to a failing disk), at most ``timeout`` s; whether it came to that."""
+        loop = asyncio.get_running_loop()
+        with self._marks_lock:
+            if self._marks_done >= self._marks_taken:
+                return True
+            future: asyncio.Future[None] = loop.create_future()
+            self._kept_waiters.append((self._marks_taken, future))
+        try:
+            await asyncio.wait_for(future, timeout)
+        except TimeoutError:
+            return False
+        return True
+
+    def _mark_done(self) -> None:
+        """The thread is done with a mark: the waiters it was the last of, woken."""
+        with self._marks_lock:
+            self._marks_done += 1
+            ready = [f for taken, f in self._kept_waiters if taken <= self._marks_done]
+            self._kept_waiters = [(taken, f) for taken, f in self._kept_waiters
+                                  if taken > self._marks_done]
+        for future in ready:
+            with contextlib.suppress(RuntimeError):  # (its loop closed: nobody waits)
+                future.get_loop().call_soon_threadsafe(_resolve, future)
 
     @property
     def dropped(self) -> int:
@@ -264,11 +308,13 @@ class Recorder(Output):
                 return True
             item = queue.popleft()
             writer = self._writer or self._open()
-            if writer is None:
+            marked = item[0] == QUEUED_MESSAGE and item[1] == MARK_TOPIC
+            if writer is None or not self._guarded(self._write, writer, item):
                 self.lost += 1
-                continue
-            if not self._guarded(self._write, writer, item):
-                self.lost += 1
+            elif marked:
+                self._guarded(self._flush)  # (readable at once, by anyone)
+            if marked:
+                self._mark_done()
         return False
 
     def _write(self, writer: RecordingWriter, item: tuple[Any, ...]) -> None:
@@ -422,6 +468,11 @@ class Recorder(Output):
 
     def _writing(self) -> Path | None:
         return self.path if self._output is not None else None
+
+
+def _resolve(future: asyncio.Future[None]) -> None:
+    if not future.done():
+        future.set_result(None)
 
 
 def make(needs: Needs) -> Recorder:
