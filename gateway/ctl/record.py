@@ -40,7 +40,7 @@ from gateway.recording.writer import RecordingWriter
 from . import PROG
 from .client import CtlError
 from .sitestream import Silences, quiet_for, sources, subscribe_all
-from .tail import Source, Stop, source
+from .subscribing import Source, Stop, source
 
 if TYPE_CHECKING:
     from .where import Gateway

@@ -15,7 +15,7 @@ from gateway.common.protocol import Exit
 
 from . import PROG
 from .client import CtlError
-from .tail import Source, find, warn_malformed
+from .subscribing import Source, find, warn_malformed
 from .where import Gateway
 
 

@@ -36,7 +36,7 @@ from gateway.common.timetext import TIME, seconds_at
 
 from .cells import MISSING, cell, duration, node_maps, reasons
 from .statusview import station_maps
-from .tail import Stop, subscribe
+from .subscribing import Stop, subscribe
 from .toptable import HEALTH_STYLE, cut, table
 
 if TYPE_CHECKING:

@@ -22,7 +22,7 @@ from gateway.common.reading import as_map
 
 from .cells import cell, reasons
 from .sitestream import names, sources, subscribe_all
-from .tail import Stop
+from .subscribing import Stop
 from .top import QUIT, REDRAW, TICK, Watch, clock_text, grouped, header, keyboard, terminal, within
 from .toptable import HEALTH_STYLE, cut, table
 from .where import Gateway

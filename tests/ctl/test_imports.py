@@ -54,6 +54,16 @@ def test_a_station_never_imports_an_output() -> None:
     assert importing == []
 
 
+def test_tail_and_sitestream_do_not_import_each_other() -> None:
+    """tail.py runs several gateways through sitestream.py, which once took what it
+    needed from tail.py back (in a function: a loop hidden, not removed; issue 43):
+    what both need is in subscribing.py, below them."""
+    ctl = PACKAGE / "ctl"
+    assert "gateway.ctl.tail" not in imported_modules(ctl / "sitestream.py")
+    assert not {"gateway.ctl.tail", "gateway.ctl.sitestream"} & imported_modules(
+        ctl / "subscribing.py")
+
+
 def test_the_daemon_loads_prometheus_client_only_for_a_metrics_endpoint() -> None:
     """64 ms and 1.8 MiB a gateway without metrics: configuration, never a default."""
     code = ("import sys, gateway.daemon.cli, gateway.daemon.app, gateway.ctl.top; "

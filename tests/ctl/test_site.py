@@ -11,7 +11,7 @@ import pytest
 
 from gateway.ctl.client import CtlError
 from gateway.ctl.record import apart
-from gateway.ctl.tail import Source
+from gateway.ctl.subscribing import Source
 from gateway.ctl.where import Endpoints, Gateway
 from tests.helpers.processes import gx2ctl
 
