@@ -12,7 +12,7 @@ import msgpack
 import pytest
 import zmq
 
-from gateway.client import Malformed, Message, Status, Subscriber
+from gateway.client import GatewayError, Malformed, Message, Status, Subscriber
 from gateway.common import curve
 from tests.helpers.ports import endpoint
 from tests.helpers.waiting import wait_for
@@ -131,6 +131,27 @@ def test_several_gateways_are_told_apart(context):
     assert sorted((e.gateway, e.seq) for e in events) == sorted(
         [(first.endpoint, 1), (second.endpoint, 1), (second.endpoint, 2)])
     assert sub.lost == {}
+
+
+def test_a_gateway_added_later_is_read_and_its_silence_counts_from_then(context):
+    """A gateway found after the others (gx2ctl tail of several takes each as found)
+    is subscribed to as those given were; a bad endpoint adds nothing."""
+    first, second = Gateway(context), Gateway(context)
+    with Subscriber(first.endpoint, nodes=[76]) as sub:
+        connected(sub, first)
+        made = time.monotonic()
+        sub.add(second.endpoint)
+        sub.add(second.endpoint)  # (again: nothing more)
+        assert sub.endpoints == [first.endpoint, second.endpoint]
+        assert sub.silent_for(second.endpoint) <= time.monotonic() - made
+        with pytest.raises(GatewayError, match="cannot subscribe to tcp://nowhere"):
+            sub.add("tcp://nowhere")
+        assert sub.endpoints == [first.endpoint, second.endpoint]
+        connected(sub, first, second)
+        second.record(76)
+        [event] = take(sub, 1)
+    assert (event.gateway, event.seq) == (second.endpoint, 1)
+    assert sub.restarts == {first.endpoint: 0, second.endpoint: 0}
 
 
 def all_queued(sub: Subscriber) -> bool:

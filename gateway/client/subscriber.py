@@ -75,6 +75,8 @@ class Subscriber:
         self.heard: dict[str, float] = {}
         """Per gateway: when it last published anything (``time.monotonic()``)."""
         self._created = time.monotonic()
+        self._added: dict[str, float] = {}
+        """Per gateway added after the others (:meth:`add`): when."""
         self.malformed = 0
         try:
             for endpoint in self.endpoints:
@@ -95,12 +97,27 @@ class Subscriber:
         try:
             socket.connect(endpoint)
         except zmq.ZMQError as error:
+            del self._sockets[socket]
+            self._order.remove(socket)
+            socket.close(linger=0)
             raise GatewayError(f"cannot subscribe to {endpoint}: {error}") from None
         prefixes = [node_prefix(node) for node in sorted(self.nodes)] or [PREFIX]
         for prefix in () if self.only_status else prefixes:
             socket.setsockopt(zmq.SUBSCRIBE, prefix.encode())
         socket.setsockopt(zmq.SUBSCRIBE, STATUS_TOPIC)  # (heard from, restarts)
         self._poller.register(socket, zmq.POLLIN)
+
+    def add(self, endpoint: str, keys: curve.ClientKeys | None = None) -> None:
+        """Subscribe to one more gateway's publish endpoint, as those given when it
+        was made (``keys``: its CURVE keys, None: plain); GatewayError for a bad
+        endpoint or key, and nothing added. A gateway found after the others is
+        subscribed to when found: its silence counts from then."""
+        if endpoint in self.endpoints:
+            return
+        self._connect(endpoint, keys)
+        self.endpoints.append(endpoint)
+        self.restarts.setdefault(endpoint, 0)
+        self._added[endpoint] = time.monotonic()
 
     # -- receiving ----------------------------------------------------------------------------
 
@@ -182,8 +199,10 @@ class Subscriber:
 
     def silent_for(self, endpoint: str | None = None) -> float:
         """Seconds since ``endpoint`` (default: the first) last published anything, or
-        since this subscriber was made if it never has."""
-        return time.monotonic() - self.heard.get(endpoint or self.endpoints[0], self._created)
+        since it was subscribed to if it never has."""
+        endpoint = endpoint or self.endpoints[0]
+        return time.monotonic() - self.heard.get(
+            endpoint, self._added.get(endpoint, self._created))
 
     # -- life ---------------------------------------------------------------------------------
 

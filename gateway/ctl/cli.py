@@ -40,16 +40,16 @@ def add_gateway_options(parser: argparse.ArgumentParser, suppress: bool = False)
     # after the command, gateways go to their own lists (AFTER), joined to those given
     # before it: --config a.yaml status --config b.yaml is both gateways, not b alone
     after = "_after" if suppress else ""
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--config", metavar="FILE", action="append", default=default(None),
-                       dest=f"config{after}",
-                       help="the gateway's nodes.yaml: use its control and publish "
-                       "endpoints; or a file listing gateways (gateways:). Given more "
-                       "than once: several gateways (status, top, tail, record)")
-    where.add_argument("--control", type=endpoint, metavar="ENDPOINT", action="append",
-                       default=default(None), dest=f"control{after}",
-                       help=f"the gateway's control endpoint (default {DEFAULT_CONTROL}); "
-                       "more than once: several gateways")
+    parser.add_argument("--config", metavar="FILE", action="append", default=default(None),
+                        dest=f"config{after}",
+                        help="the gateway's nodes.yaml: use its control and publish "
+                        "endpoints; or a file listing gateways (gateways:). Given more "
+                        "than once, or with --control: several gateways (status, top, "
+                        "tail, record)")
+    parser.add_argument("--control", type=endpoint, metavar="ENDPOINT", action="append",
+                        default=default(None), dest=f"control{after}",
+                        help=f"the gateway's control endpoint (default {DEFAULT_CONTROL}); "
+                        "more than once, or with --config: several gateways")
     parser.add_argument("--timeout", type=bounded(float, 0.01, 86400),
                         default=default(DEFAULT_TIMEOUT), metavar="SECONDS",
                         help=f"give up (exit 3) after this long (default {DEFAULT_TIMEOUT:g})")
@@ -231,9 +231,6 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("config", "control"):
         joined = [*(getattr(args, name, None) or ()), *vars(args).pop(f"{name}_after", ())]
         setattr(args, name, joined or None)
-    if getattr(args, "config", None) and getattr(args, "control", None):
-        # (one before the command and one after it: each group saw only one)
-        parser.error("argument --control: not allowed with argument --config")
     try:
         if args.command == "keygen":
             return run_keygen(args.prefix)

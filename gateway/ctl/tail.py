@@ -12,7 +12,7 @@ from gateway.common.jsontext import json_line
 from gateway.common.protocol import Exit
 
 from .client import CtlError
-from .sitestream import Silences, names, sources, subscribe_all
+from .sitestream import Lookups, Silences, add, left_out, names, subscribe_all
 from .subscribing import Stop, subscribe
 
 if TYPE_CHECKING:
@@ -42,19 +42,21 @@ def run_tail(nodes: list[int], where: Endpoints, timeout: float) -> int:
     return Exit.OK
 
 
-FLUSH_S = 0.1
-"""Printed lines reach a pipe at least this often."""
-
-
 def run_tail_several(nodes: list[int], named: Sequence[Gateway], timeout: float) -> int:
     """Print the records of several gateways, each line with the ``gateway`` it came
-    from (its name). One that falls silent is said on stderr and the others go on; exit
-    3 only once all are silent (or none could be found)."""
+    from (its name), from the first found on: one found later is subscribed to then,
+    and one that cannot be found is said on stderr (issue 43: a dead one held every
+    line back for ``--timeout``). One that falls silent is said on stderr and the
+    others go on; exit 3 only once all are silent (or none could be found)."""
     stop = Stop()
-    found = sources(nodes, named, timeout, every=False)
-    called = names(found)
-    with subscribe_all(nodes, found) as sub:
-        silences = Silences(sub, found)
+    lookups = Lookups(nodes, named, timeout)
+    first = lookups.first(lambda: stop.requested)
+    if not first:
+        return Exit.OK
+    said: set[str] = set()
+    called = names(first)
+    with subscribe_all(nodes, first) as sub:
+        silences = Silences(sub, lookups.found)
         flushed = time.monotonic()
         while not stop.requested:
             message = sub.receive(FLUSH_S)
@@ -65,6 +67,10 @@ def run_tail_several(nodes: list[int], named: Sequence[Gateway], timeout: float)
             if message is None or now - flushed >= FLUSH_S:
                 sys.stdout.flush()
                 flushed = now
+                for gateway, source in lookups.take() if lookups.pending else ():
+                    add(sub, source)
+                    called[source.address] = gateway.name
+                left_out(lookups, said)
                 # (looked at on each flush: another gateway's records never hide one
                 # falling silent)
                 if silences.check():
@@ -73,3 +79,5 @@ def run_tail_several(nodes: list[int], named: Sequence[Gateway], timeout: float)
     return Exit.OK
 
 
+FLUSH_S = 0.1
+"""Printed lines reach a pipe at least this often."""

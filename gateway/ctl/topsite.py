@@ -21,8 +21,8 @@ from gateway.common.protocol import Exit, HealthLevel
 from gateway.common.reading import as_map
 
 from .cells import cell, reasons
-from .sitestream import names, sources, subscribe_all
-from .subscribing import Stop
+from .sitestream import Lookups, add, left_out, subscribe_all
+from .subscribing import Source, Stop
 from .top import QUIT, REDRAW, TICK, Watch, clock_text, grouped, header, keyboard, terminal, within
 from .toptable import HEALTH_STYLE, cut, table
 from .where import Gateway
@@ -38,17 +38,20 @@ class Watched:
 
 
 def frame(watched: Sequence[Watched], width: int, ellipsis: str = "…",
-          height: int | None = None) -> list[Text]:
+          height: int | None = None, absent: Mapping[str, str] | None = None
+          ) -> list[Text]:
     """Every line of one frame of several gateways, as :func:`gateway.ctl.top.frame`
     draws one: the columns' header, each gateway's line and its nodes (by station),
-    then why each node that is not OK is not (``NAME/NODE``)."""
+    each gateway not found yet or left out (``absent``: name -> why) as a line saying
+    so, then why each node that is not OK is not (``NAME/NODE``)."""
+    absent = absent or {}
     nodes, each = [], []
     for one in watched:
         shown = one.watch.shown()
         nodes += shown
         each += [(one.watch.now(), one.watch.stale_for(one.silent_for))] * len(shown)
     rows = table(nodes, time.time(), width, ellipsis, each=each)
-    first = Text(f"gx2ctl top: {len(watched)} gateways ")
+    first = Text(f"gx2ctl top: {len(watched) + len(absent)} gateways ")
     first.append(clock_text(time.time()), "dim")
     head, rest = [first, rows[0]], rows[1:]
     body: list[Text] = []
@@ -63,6 +66,9 @@ def frame(watched: Sequence[Watched], width: int, ellipsis: str = "…",
             body.append(said[3])
         body += grouped(watch.status or {}, shown, mine, watch.now(), stale)
         notes += _notes(one.name, watch.status or {}, shown, stale)
+    for name, why in absent.items():  # (issue 43: a dead one was off the screen)
+        body.append(Text(f"== {name}  ", "bold").append(
+            why, "yellow" if why.startswith(LOOKING) else "bold red"))
     if height is not None:
         body, notes = within(height - 1 - len(head), body, notes)
     return [cut(line, width, ellipsis) for line in (*head, *body, *notes)]
@@ -84,26 +90,49 @@ def _notes(name: str, status: Mapping[str, Any], nodes: Sequence[Mapping[str, An
     return notes
 
 
+LOOKING = "looking for it"
+"""What a gateway not found yet is said to be (then found, or left out, and why)."""
+
+
 def run_top_several(nodes: list[int], named: Sequence[Gateway], timeout: float,
                     as_json: bool) -> int:
-    """Draw the gateways' statuses until ``q``, Ctrl-C or SIGTERM."""
+    """Draw the gateways' statuses until ``q``, Ctrl-C or SIGTERM, each from when it is
+    found; one that cannot be found is a line of the screen saying why (issue 43: it
+    went to stderr, behind the full-screen view)."""
     stop = Stop()
     console, ellipsis = terminal()
-    found = sources(nodes, named, timeout, every=False)
-    called = names(found)
-    with subscribe_all(nodes, found, status="only") as sub:
-        watched = {source.address: Watched(gateway.name, Watch(source.address, tuple(nodes),
-                                                                source.silence))
-                   for gateway, source in found}
+    lookups = Lookups(nodes, named, timeout)
+    first = lookups.first(lambda: stop.requested)
+    if not first:
+        return Exit.OK
+    said: set[str] = set()
+    with subscribe_all(nodes, first, status="only") as sub:
+        watched: dict[str, Watched] = {}
+
+        def adopt(found: Sequence[tuple[Gateway, Source]]) -> None:
+            for gateway, source in found:
+                watched[source.address] = Watched(
+                    gateway.name, Watch(source.address, tuple(nodes), source.silence))
+
+        def absent() -> dict[str, str]:
+            return {**{name: f"{LOOKING} (asking it where it publishes)"
+                       for name in lookups.pending},
+                    **{name: f"left out: {why}" for name, why in lookups.missing.items()}}
 
         def look(event: object) -> str:
-            """Take a heartbeat; the freshness of every gateway, to see a change."""
+            """Take a heartbeat, and the gateways found since; the freshness of every
+            gateway, to see a change."""
+            for gateway, source in lookups.take() if lookups.pending else ():
+                add(sub, source)
+                adopt([(gateway, source)])
             if isinstance(event, Status):
                 watched[event.gateway].watch.take(event)
             for address, one in watched.items():
                 one.silent_for = sub.silent_for(address)
-            return " ".join(one.watch.freshness(one.silent_for) for one in watched.values())
+            return " ".join([*(one.watch.freshness(one.silent_for)
+                               for one in watched.values()), *absent().values()])
 
+        adopt(first)
         was = look(None)
         if as_json or not console.is_terminal:
             while not stop.requested:
@@ -111,12 +140,14 @@ def run_top_several(nodes: list[int], named: Sequence[Gateway], timeout: float,
                 now_is = look(event)
                 changed, was = now_is != was, now_is
                 if as_json:
+                    left_out(lookups, said)  # (stderr: stdout is one heartbeat a line)
                     if isinstance(event, Status):
                         one = watched[event.gateway]
-                        print(json_line({**event.payload, "name": called[event.gateway],
+                        print(json_line({**event.payload, "name": one.name,
                                          "nodes": one.watch.shown()}), flush=True)
                 elif isinstance(event, Status) or changed:
-                    lines = frame(list(watched.values()), console.width, ellipsis)
+                    lines = frame(list(watched.values()), console.width, ellipsis,
+                                  absent=absent())
                     print("\n".join(line.plain for line in lines), end="\n\n", flush=True)
             return Exit.OK
         with keyboard() as pressed, Live(console=console, screen=True,
@@ -128,7 +159,8 @@ def run_top_several(nodes: list[int], named: Sequence[Gateway], timeout: float,
                 if event is not None or now_is != was or time.monotonic() - drawn >= REDRAW:
                     was = now_is
                     width = console.width
-                    lines = frame(list(watched.values()), width, ellipsis, console.height)
+                    lines = frame(list(watched.values()), width, ellipsis, console.height,
+                                  absent())
                     live.update(Group(*lines, cut(Text(QUIT, "dim"), width, ellipsis)),
                                 refresh=True)
                     drawn = time.monotonic()

@@ -282,7 +282,7 @@ def test_the_man_page_names_every_command_and_option() -> None:
     assert escape(NODES_OPTION) not in page
     # the synopsis too: an option's dash is roff's \- (a bare "-" is a hyphen, which
     # some renderers print as U+2010, not what a user types)
-    assert "[\\-\\-config FILE | \\-\\-control ENDPOINT]" in page
+    assert "[\\-\\-config FILE] [\\-\\-control ENDPOINT]" in page
 
 
 def renderer() -> list[str] | None:

@@ -75,3 +75,20 @@ def test_dead_gateways_are_asked_side_by_side_and_each_is_a_line(tmp_path: Path)
     gateways = json.loads(shown.stdout)["gateways"]
     assert [(g["name"], g["control"]) for g in gateways] == [(d, d) for d in dead]
     assert all("no answer" in g["error"] for g in gateways)
+
+
+def test_config_and_control_mix(tmp_path: Path) -> None:
+    """A gateway named by its configuration and another by its control endpoint are
+    two gateways (issue 43: the two options were refused together)."""
+    config = tmp_path / "hall-a.yaml"
+    config.write_text(f"base_station: {{port: 'sim://'}}\nnodes: []\n"
+                      f"control: {{endpoint: 'ipc://{tmp_path}/a-control'}}\n"
+                      f"publish: {{endpoint: 'ipc://{tmp_path}/a-publish'}}\n")
+    dead = f"ipc://{tmp_path}/b-control"
+    for order in (["--config", str(config), "--control", dead],
+                  ["--control", dead, "status", "--config", str(config)]):
+        run = gx2ctl(*order, "--timeout", "0.5", *(["status"] if order[-1] == dead else []))
+        assert run.status == 3, run
+        titles = [line.split(": no answer")[0] for line in run.stdout.splitlines()
+                  if line.startswith("== ")]
+        assert set(titles) == {"== hall-a", f"== {dead}"}, run

@@ -190,6 +190,65 @@ def watch_both(running, terminal: Terminal) -> None:
     assert terminal.exit_status() == 0
 
 
+def with_a_dead_one(running, tmp_path: Path) -> Path:
+    """A gateways file naming both gateways and a third, hall-c, that nothing serves."""
+    listed = tmp_path / "three.yaml"
+    listed.write_text(yaml.safe_dump({"gateways": [
+        {"name": "hall-a", "config": "hall-a/nodes.yaml"},
+        {"name": "hall-b", "control": running["hall-b"].control_endpoint},
+        {"name": "hall-c", "control": f"ipc://{tmp_path}/hall-c-control"}]}))
+    return listed
+
+
+def test_tail_prints_the_live_gateways_while_a_dead_one_is_asked(site,
+                                                                  tmp_path: Path) -> None:
+    """A gateway that does not answer holds no line of the others back: tail prints
+    them from the first found, and says the dead one once it gives it up (issue 43:
+    nothing for --timeout)."""
+    running, _ = site
+    tail = Running("gx2ctl", "--config", str(with_a_dead_one(running, tmp_path)),
+                   "--timeout", "60", "tail")
+    try:
+        seen: set[str] = set()
+
+        def both() -> bool:
+            line = tail.wait_for_line(lambda text: text.startswith("{"), STARTUP)
+            seen.add(json.loads(line)["gateway"])
+            return seen == {"hall-a", "hall-b"}
+        wait_for(both, STARTUP, "records of both live gateways, well before --timeout")
+        assert not [line for line in tail.stderr if "hall-c" in line], tail.stderr
+    finally:
+        tail.proc.send_signal(signal.SIGINT)
+    assert tail.finish(10) == 0, tail.stderr
+
+
+@pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed")
+def test_top_shows_a_gateway_that_does_not_answer_on_its_screen(site,
+                                                                tmp_path: Path) -> None:
+    """A dead gateway is a line of top's screen saying so, and counted (issue 43: its
+    line went to stderr behind the full-screen view, the header said 2 gateways)."""
+    running, _ = site
+    terminal = Terminal(f"{shlex.quote(script('gx2ctl'))} --config "
+                        f"{shlex.quote(str(with_a_dead_one(running, tmp_path)))} "
+                        "--timeout 2 top", tmp_path)
+    try:
+        def said() -> list[str] | None:
+            screen = terminal.screen()
+            dead = [line for line in screen if line.startswith("== hall-c  left out: ")]
+            ok = (row(screen, 76) or "").endswith("OK") and \
+                (row(screen, 90) or "").endswith("OK")
+            return screen if dead and ok else None
+        screen = wait_for(said, STARTUP, "top to show hall-c left out and the others")
+        assert screen[0].startswith("gx2ctl top: 3 gateways "), screen
+        assert any("no answer from the gateway at ipc://" in line for line in screen), \
+            screen
+        terminal.keys("q")
+        wait_for(lambda: terminal.exit_status() is not None, 10, "top to quit")
+        assert terminal.exit_status() == 0
+    finally:
+        terminal.close()
+
+
 def test_top_json_prints_each_gateways_heartbeat_with_its_name(site) -> None:
     _, listed = site
     top = Running("gx2ctl", "--config", str(listed), "--json", "top", "90")
