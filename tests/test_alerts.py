@@ -67,7 +67,8 @@ def test_the_promised_alerts_are_there() -> None:
         "group_left() (gx2_link_up == 0))")
     assert exprs["Gx2GatewayStalled"] == "time() - gx2_gateway_status_timestamp_seconds > 30"
     assert exprs["Gx2NodeWeakSignal"] == "gx2_node_rssi_dbm < -90"
-    assert exprs["Gx2RecordingFailed"] == "gx2_gateway_health == 2"
+    # (not gx2_gateway_health: the worst of all the gateway owns, a link down too)
+    assert exprs["Gx2RecordingFailed"] == "gx2_recording_failing == 1"
     assert exprs["Gx2NodeRadioLoss"].endswith("> 0.05")
     assert "gx2_node_lost_radio_total" in exprs["Gx2NodeRadioLoss"]
 

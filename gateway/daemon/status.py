@@ -12,6 +12,7 @@ from gateway.common.version import VERSION
 
 from .health import station_reasons
 from .outputs import OUTPUTS
+from .owned import fold
 from .station.replay import ReplayLink
 
 if TYPE_CHECKING:
@@ -45,6 +46,7 @@ def report(gateway: Reported) -> dict[str, Any]:
     config = gateway.config
     health, published = gateway.health, gateway.outputs.published()
     stations = [station_link(station, monotonic) for station in gateway.stations]
+    said = outputs_status(gateway.outputs)
     return {
         "gateway": {"version": VERSION, "uptime": round(now - gateway.started, 3),
                     "time": now, "publish_endpoint": config.publish.endpoint,
@@ -58,7 +60,7 @@ def report(gateway: Reported) -> dict[str, Any]:
                     "control_late": gateway.control.late,
                     "curve_denied": gateway.allow_list.denied if gateway.allow_list else 0,
                     "publish_curve": bool(config.curve and config.curve.publish),
-                    **health.gateway_status(monotonic)},
+                    **fold(health.gateway_status(monotonic), stations, said)},
         # each station's link is in ``stations``; ``link`` is the interface's for a
         # client of one base station (the first, in a gateway of several)
         "link": one_station_link(stations[0]),
@@ -68,7 +70,7 @@ def report(gateway: Reported) -> dict[str, Any]:
                   for node in gateway.nodes.values()],
         "replay": replay_status([s.link for s in gateway.stations]),
         "outputs": gateway.outputs.guard_status(),
-        **outputs_status(gateway.outputs),
+        **said,
     }
 
 

@@ -146,6 +146,7 @@ def test_a_full_disk_makes_the_gateway_an_error_and_recording_resumes_when_it_fr
     assert "the gateway is ERROR: recording failed: No space left on device" in check.stderr
     assert "health ERROR (recording failed: No space left on device)" in check.stdout
     assert scrape.value("gx2_gateway_health") == 2.0
+    assert scrape.value("gx2_recording_failing") == 1.0  # (what Gx2RecordingFailed reads)
     # publishing goes on; a file tried meanwhile could not be started: removed
     sub = gw.subscribe("gx2/76/")
     sub.until(lambda m: len(m) > 50, 10, "records published while nothing is recorded")

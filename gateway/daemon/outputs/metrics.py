@@ -203,6 +203,9 @@ def families(report: Mapping[str, Any]) -> Iterator[Metric]:
     recording = report.get("recording")
     if isinstance(recording, Mapping):
         yield from _table(RECORDING, [], [([], recording)])
+        # (the gateway's health is the worst of all it owns: this is the recorder's)
+        yield GAUGE("gx2_recording_failing", "1 while the recorder cannot write "
+                    "(recording.failure says why)", value=float(bool(recording.get("failure"))))
     lsl = report.get("lsl")
     if isinstance(lsl, Mapping):
         yield from _table(LSL, [], [([], lsl)])
