@@ -10,6 +10,7 @@ pointed to README sections that had moved to docs/)."""
 from __future__ import annotations
 
 import re
+import typing
 from pathlib import Path
 
 import pytest
@@ -84,3 +85,41 @@ def test_every_pointer_reaches_its_page_and_section(path: Path) -> None:
 def test_the_example_configurations_speak_to_their_user(path: Path) -> None:
     """No "added:" (once: a key beyond a first design, which means nothing to a user)."""
     assert not re.search(r"#.*\badded\b", path.read_text(), re.IGNORECASE)
+
+
+def _shown_keys(text: str) -> dict[str, set[str]]:
+    """Each top-level key a configuration shows (``key:`` or commented, ``# key:``),
+    with the keys shown under it (at any depth, commented or not, list items too)."""
+    shown: dict[str, set[str]] = {}
+    current = None
+    for line in text.splitlines():
+        top = re.match(r"(?:# )?(\w+):", line)
+        if top:
+            current = top[1]
+            shown.setdefault(current, set())
+        elif current and (inner := re.match(r"\s*#?\s*(?:-\s+)?(\w+):", line)):
+            shown[current].add(inner[1])
+    return shown
+
+
+def _models(kind: object) -> list[type]:
+    """The pydantic models inside a type (through Optional, list, Annotated), and
+    those inside their fields, at any depth."""
+    from pydantic import BaseModel
+    if isinstance(kind, type) and issubclass(kind, BaseModel):
+        return [kind, *(m for f in kind.model_fields.values() for m in _models(f.annotation))]
+    return [m for arg in typing.get_args(kind) for m in _models(arg)]
+
+
+def test_nodes_yaml_shows_every_key_of_the_configuration() -> None:
+    """getting-started.md says config/nodes.yaml shows every key with its default
+    (commented where the section is off by default): every section and every key of
+    the configuration's model is in it (issue 43: no metrics, live, mqtt, health)."""
+    from gateway.daemon.config import GatewayConfig
+    shown = _shown_keys((REPO / "config" / "nodes.yaml").read_text())
+    missing = [f"{section}.{key}" if section in shown else section
+               for section, field in GatewayConfig.model_fields.items()
+               for key in ([name for model in _models(field.annotation)
+                            for name in model.model_fields] or [""])
+               if section not in shown or (key and key not in shown[section])]
+    assert sorted(set(missing)) == []
