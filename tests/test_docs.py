@@ -101,3 +101,21 @@ def test_the_map_of_the_tree_names_every_module_and_nothing_gone(directory: str)
     there = {p.name for p in (REPO / directory).glob("*.py") if p.name != "__init__.py"}
     assert not there - named, f"{directory}: not in the map: {sorted(there - named)}"
     assert not named - there, f"{directory}: in the map but gone: {sorted(named - there)}"
+
+
+def test_the_scan_configuration_runs_beside_the_demo() -> None:
+    """getting-started's scan.yaml is run while the demo may still run: none of its
+    endpoints is one the demo holds (issue 43: it had none of its own, so it took the
+    demo's 5555 and 5556)."""
+    from gateway.daemon.config import GatewayConfig, load_config
+    text = (DOCS / "getting-started.md").read_text()
+    block = next(b for b in re.findall(r"```yaml\n(.*?)```", text, re.DOTALL)
+                 if "nodes: []" in b)
+    scan = GatewayConfig.model_validate(yaml.safe_load(block))
+    demo = load_config(REPO / "config" / "demo.yaml")
+
+    def held(config: GatewayConfig) -> set[str]:
+        ports = {config.publish.endpoint, config.control.endpoint}
+        ports |= {section.endpoint for section in (config.metrics, config.live) if section}
+        return {endpoint.rsplit(":", 1)[1] for endpoint in ports}
+    assert held(scan) & held(demo) == set()
