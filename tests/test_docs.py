@@ -119,3 +119,20 @@ def test_the_scan_configuration_runs_beside_the_demo() -> None:
         ports |= {section.endpoint for section in (config.metrics, config.live) if section}
         return {endpoint.rsplit(":", 1)[1] for endpoint in ports}
     assert held(scan) & held(demo) == set()
+
+
+def test_the_reload_recipe_runs_on_a_pty_not_the_demo() -> None:
+    """configuration.md invites a reload: its recipe's gateway opens gx2-sim's pty,
+    not ``sim://``, which refuses every node change (issue 43), and the file it
+    writes validates, with endpoints the demo does not hold."""
+    from gateway.daemon.config import GatewayConfig
+    text = (DOCS / "configuration.md").read_text()
+    recipe = next(b for b in re.findall(r"```sh\n(.*?)```", text, re.DOTALL)
+                  if "reload" in b)
+    link = re.search(r"gx2-sim .*--link (\S+)", recipe)
+    written = re.search(r"<<'EOF'\n(.*?)^EOF", recipe, re.DOTALL | re.MULTILINE)
+    assert link and written, recipe
+    config = GatewayConfig.model_validate(yaml.safe_load(written[1]))
+    assert [s.port for s in config.stations] == [link[1]]
+    assert {config.publish.endpoint, config.control.endpoint}.isdisjoint(
+        {"tcp://127.0.0.1:5555", "tcp://127.0.0.1:5556"})
