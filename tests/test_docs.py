@@ -136,3 +136,17 @@ def test_the_reload_recipe_runs_on_a_pty_not_the_demo() -> None:
     assert [s.port for s in config.stations] == [link[1]]
     assert {config.publish.endpoint, config.control.endpoint}.isdisjoint(
         {"tcp://127.0.0.1:5555", "tcp://127.0.0.1:5556"})
+
+
+def test_labrecorder_says_liblsls_namespace_warning_is_harmless() -> None:
+    """Inside the network namespace labrecorder.md suggests, liblsl warns that it found
+    no local network interface: the page quotes the warning as liblsl has it, and says
+    it is harmless (issue 43: a user took it for the reason nothing resolved)."""
+    pylsl = pytest.importorskip("pylsl")
+    library = next(Path(pylsl.__file__).parent.rglob("liblsl*.so*"))
+    found = re.search(rb"No local network interface addresses[ -~]*", library.read_bytes())
+    assert found, library
+    page = " ".join((DOCS / "labrecorder.md").read_text().split())
+    assert found[0].decode() in page
+    said = page.split(found[0].decode())[1][:200]
+    assert "harmless" in said, said
