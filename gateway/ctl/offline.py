@@ -252,7 +252,8 @@ def run_plot(args: argparse.Namespace) -> int:
         found = records_of(paths, args.node, args.record, reading,
                            Reader(files, reading).entries(chosen[0]))
         image = picture(args.node, found.record, found.payloads, found.name, found.marks,
-                        found.counts, window=chosen[0].span is not None)
+                        found.counts, window=chosen[0].span is not None,
+                        shows=chosen[0].title)
     except (ValueError, RecordingError) as error:
         _report(reading)
         raise CtlError(str(error), Exit.USAGE) from None

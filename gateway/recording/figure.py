@@ -61,9 +61,37 @@ def figure_of(image: Picture) -> Figure:
     if labels:
         figure.draw_without_rendering()  # the layout (everything else in), whose
         bottom = top.get_window_extent().y0  # panel the labels are fitted into
+        _apart(labels, figure.dpi)
         for label in labels:
             _fit(label, bottom)
     return figure
+
+
+GAP_PX = 1.0
+"""Pixels between the labels of marks set side by side."""
+
+
+def _apart(labels: list[Any], dpi: float) -> None:
+    """The labels of marks closer than a label's width set side by side, in the marks'
+    order, each moved off its line only as far as the one before it needs (issue 43:
+    close marks' labels were drawn over each other). Those right of their line are
+    moved right, from the leftmost; those left of it, left, from the rightmost."""
+    points = 72 / dpi
+    right = sorted((label for label in labels if label.get_ha() == "left"),
+                   key=lambda label: label.xy[0])
+    left = sorted((label for label in labels if label.get_ha() == "right"),
+                  key=lambda label: label.xy[0], reverse=True)
+    for side, sign in ((right, 1), (left, -1)):
+        edge = None
+        for label in side:
+            box = label.get_window_extent()
+            if edge is not None:
+                overlap = edge - box.x0 if sign > 0 else box.x1 - edge
+                if overlap > -GAP_PX:
+                    x, y = label.xyann
+                    label.xyann = (x + sign * (overlap + GAP_PX) * points, y)
+                    box = label.get_window_extent()
+            edge = box.x1 if sign > 0 else box.x0
 
 
 ELLIPSIS = "\u2026"

@@ -167,12 +167,13 @@ def count(payloads: list[dict]) -> Counts:
 
 def picture(node: int, record: str, payloads: list[dict], name: str | None,
             marks: list[Mark] | None = None, counts: Counts | None = None,
-            window: bool = False) -> Picture:
+            window: bool = False, shows: str = "") -> Picture:
     """The panels, title and marks for ``payloads`` (one node's records of one kind),
     whose losses are ``counts`` (by default counted from the payloads alone). The marks
     drawn are those within the samples' time, or, for a ``window`` of the recordings
     (the marks given being the window's), all of them: a trial's closing mark comes
-    after its last sample."""
+    after its last sample. ``shows``: which trial or window it is, said in the title
+    (issue 43: a folder of plotted trials could not be told apart)."""
     counts = counts or count(payloads)
     clock = "time" if any(isinstance(p.get("time"), (int, float)) for p in payloads) \
         else "device_time"
@@ -196,8 +197,8 @@ def picture(node: int, record: str, payloads: list[dict], name: str | None,
         summary.add(row, period=period or None)
     who = f"{name} ({node})" if name else f"node {node}"
     rate = f"{1 / period:.1f} Hz" if period else "rate unknown"
-    title = (f"{who}: {record}, {rate}, {len(rows):,} records\n"
-             f"{summary.line(' · ')}")
+    title = "\n".join([f"{who}: {record}, {rate}, {len(rows):,} records",
+                       *([shows] if shows else []), summary.line(" · ")])
     when = timetext.at(timetext.nanoseconds(start)) if clock == "time" else "the node's timer"
     shown = [(mark.time - start, mark.text) for mark in marks or ()
              if clock == "time" and (window or x[0] <= mark.time - start <= x[-1])]

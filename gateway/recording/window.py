@@ -13,7 +13,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import datetime
 
-from gateway.common.timetext import ISO, at
+from gateway.common.timetext import ISO, UTC, at
 from gateway.common.topics import parse
 
 from .catalogue import Described, Marked, span_of
@@ -60,6 +60,9 @@ class Window:
     records: frozenset[str] = frozenset()
     label: str = ""
     """A trial's name (``trial-1_2026-11-25T10-00-00Z``); empty for a single window."""
+    title: str = ""
+    """What it is, for a person (a plot's title): ``trial 2 of 3: mark 'start' to mark
+    'stop', 2026-11-25 10:40:00.000 to 10:41:00.000 UTC``; empty for all of the files."""
 
     def keeps(self, topic: str) -> bool:
         where = parse(topic)
@@ -190,6 +193,16 @@ def unclosed(between: tuple[str, str], files: list[Described]) -> str:
             "it: not a trial")
 
 
+def _span_text(start: int | None, stop: int | None) -> str:
+    """A window's span as every time is shown: ``2026-11-25 10:40:00.000 to
+    10:41:00.000 UTC`` (the day once if it is the same), an open end said so."""
+    first = at(start) if start is not None else "the start"
+    last = at(stop) if stop is not None else "the end"
+    if start is not None and stop is not None and first[:10] == last[:10]:
+        last = last[11:]
+    return f"{first.removesuffix(UTC) if stop is not None else first} to {last}"
+
+
 def _label(number: int, span: Span) -> str:
     return f"trial-{number}_{at(span[0], ISO.replace(':', '-'), digits=0, zone='Z')}"
 
@@ -215,7 +228,10 @@ def windows(asked: Asked, files: list[Described]) -> list[Window]:
                 raise WindowError(f"{name_trial} {asked.trial}: there are {len(found)} "
                                   f"trial{'s' * (len(found) != 1)} (1 is the first)")
             numbered = [numbered[asked.trial - 1]]
-        return [Window(span, nodes, records, _label(n, span)) for n, span in numbered]
+        a, b = asked.between
+        return [Window(span, nodes, records, _label(n, span),
+                       f"trial {n} of {len(found)}: mark {a!r} to mark {b!r}, "
+                       f"{_span_text(span[0], span[1] - 1)}") for n, span in numbered]
     if asked.trial is not None:
         raise WindowError(f"{name_trial} picks one of the trials of {name_between}")
     if not (asked.start or asked.stop):
@@ -232,7 +248,8 @@ def windows(asked: Asked, files: list[Described]) -> list[Window]:
         raise WindowError(f"the window {when(start) if asked.start else '(start)'} to "
                           f"{when(stop) if asked.stop else '(end)'} is outside every file: "
                           f"{held}")
-    return [Window((start, stop), nodes, records)]
+    return [Window((start, stop), nodes, records, title="window " + _span_text(
+        start if asked.start else None, stop if asked.stop else None))]
 
 
 def touched(files: list[Described], window: Window) -> list[Described]:

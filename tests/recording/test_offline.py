@@ -519,3 +519,19 @@ def test_a_mark_whose_time_no_float_holds_exports_at_its_recorded_time(tmp_path)
         (row,) = list(csv.DictReader(table))
     assert row["text"] == "start" and float(row["host_time"]) == T0 + 0.5
     assert math.isfinite(float(row["time"]))
+
+
+def test_close_marks_labels_are_set_side_by_side_not_over_each_other():
+    """Marks closer than a label's width (a knock just after a trial's start): their
+    labels apart, in the marks' order, on both halves of the plot (issue 43: drawn
+    over each other)."""
+    texts = [(1.0, "start"), (1.01, "knock"), (1.02, "again"),
+             (4.0, "halt"), (4.01, "stop")]
+    _, labels = panels_with_marks(texts)
+    assert [text for text, _, _ in labels] == [text for _, text in texts]
+    for side in (labels[:3], labels[3:]):
+        extents = sorted((extent for _, extent, _ in side), key=lambda e: e.x0)
+        for one, other in itertools.pairwise(extents):
+            assert one.x1 <= other.x0, (one, other)
+    assert labels[0][1].x0 < labels[1][1].x0 < labels[2][1].x0  # in the marks' order
+    assert labels[3][1].x0 < labels[4][1].x0

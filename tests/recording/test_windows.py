@@ -363,7 +363,11 @@ def test_plot_of_a_trial_has_its_marks_and_only_its_losses(tmp_path: Path,
         title, described = pdf_info(out, "Title"), pdf_info(out, "Subject")
     # 10 s of samples (and the one with the stop mark), less the one the radio lost
     # in it; the three lost before it are not this window's
+    # which trial it is, in its title too (issue 43: a folder of trials' plots could
+    # not be told apart by their titles)
     assert title == (f"node 11: accel_angrate, {RATE:.1f} Hz, {10 * RATE:,} records · "
+                     "trial 1 of 1: mark 'start' to mark 'stop', 2026-11-18 11:06:50.000 "
+                     "to 11:07:00.000 UTC · "
                      f"radio: 1 lost ({1 / (10 * RATE + 1):.2%}) · gateway: 0 lost (0.00%)")
     assert described == "marks: start at 0.002 s, knock at 5.202 s, stop at 10.002 s"
 
@@ -375,3 +379,17 @@ def test_plot_to_another_format_is_one_line_and_exit_2(recordings: Path,
     assert ran.stderr.strip() == (f"gx2ctl: --out {tmp_path / 'trial.svg'}: a plot is "
                                   "written as .png or .pdf (chosen by the name's ending)")
     assert not (tmp_path / "trial.svg").exists()
+
+
+def test_plot_of_a_window_says_which_in_its_title(tmp_path: Path) -> None:
+    """A window of --from and --to is said in the title, an open end as such."""
+    from PIL import Image
+    path = make_file(tmp_path / "gx2-a.mcap", 0, 10)
+    for bounds, said in ((["--from", "2", "--to", "5"],
+                          "window 2026-11-18 11:06:42.000 to 11:06:45.000 UTC"),
+                         (["--from", "start"], "window 2026-11-18 11:06:45.000 UTC to the end")):
+        out = tmp_path / "window.png"
+        ran = gx2ctl("plot", str(path), "11", *bounds, "--out", str(out))
+        assert ran.status == 0, ran.stderr
+        assert Image.open(out).text["Title"].split(" · ")[1] == said
+        out.unlink()
