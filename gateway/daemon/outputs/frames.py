@@ -21,7 +21,7 @@ from aspp.records import ORIENTED
 from gateway.common.topics import frame_topic
 from gateway.recording.files import OutOfRange, message_times, ns
 
-from . import Message
+from .message import Message
 
 PARENT_FRAME = "world"
 """The frame every node's frame hangs from: the GX2's earth frame (x north, y east, z
