@@ -155,3 +155,27 @@ def test_paths_and_windows_that_cannot_be_read_say_why_in_a_line(recordings: Pat
     with pytest.raises(WindowError, match=r"--from knock: no such mark \(marks: 'start', "
                                           r"'stop', 'event'\)"):
         Recording(recordings, start="knock")
+
+
+def test_a_file_of_before_the_matrixs_derived_fields_gives_them_and_its_nan(
+        tmp_path: Path) -> None:
+    """A file written before records with a matrix carried roll, pitch, yaw and the
+    quaternion, one of its matrices NaN (null in the file): each record as the gateway
+    publishes it now (gateway.common.payloads), the derived fields derived, NaN from
+    the NaN matrix, and the file's nulls NaN."""
+    turned = [[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]  # yaw of 90 degrees
+    old = [{"node": 76, "record": "orientation", "command": 0xC5, "seq": seq,
+            "host_time": T0 + seq / 100, "time": T0 + seq / 100 - 0.002,
+            "device_time": seq / 100, "lqi": 200, "rssi": -50, "timer": seq * 1966,
+            "orientation": [[math.nan] * 3] * 3 if seq == 2 else turned}
+           for seq in range(1, 4)]
+    path = write(tmp_path / "old.mcap", old)
+    got = list(Recording(path))
+    assert [m.seq for m in got] == [1, 2, 3]
+    assert got[0]["yaw"] == pytest.approx(math.pi / 2) and got[0]["roll"] == 0.0
+    assert got[0]["quaternion"] == pytest.approx([math.sqrt(0.5), 0, 0, math.sqrt(0.5)])
+    nan = got[1]
+    assert all(math.isnan(v) for v in (nan["roll"], nan["pitch"], nan["yaw"],
+                                       *nan["quaternion"], *nan["orientation"][0]))
+    assert got[0].time == T0 + 0.01 - 0.002  # (the bookkeeping as it was)
+

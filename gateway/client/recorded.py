@@ -12,8 +12,9 @@ from the gateway's MCAP files, so an analysis script is the same live and offlin
 The window arguments are gx2ctl's (``start``/``stop`` for ``--from``/``--to``,
 ``between_marks``, ``trial``), read by :mod:`gateway.recording.window`: only the files
 and chunks the window touches are read, a message met twice (a file given twice,
-overlapping files) is yielded once. A recording holds NaN as null; a record's fields
-are given back their NaN, as the gateway published them. Damage is read past as
+overlapping files) is yielded once. A recording holds NaN as null; a record is given
+back as the gateway published it (:mod:`gateway.common.payloads`): its fields' NaN, and
+a matrix's roll, pitch, yaw and quaternion where an older file lacks them. Damage is read past as
 ``gx2ctl export`` reads it: ``reading`` says what was skipped.
 """
 
@@ -25,6 +26,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from gateway.common.payloads import as_published
 from gateway.common.topics import parse
 from gateway.recording.catalogue import catalogue
 from gateway.recording.files import MARK, STATUS, RecordingError, usable_files
@@ -32,7 +34,7 @@ from gateway.recording.reader import Entry, Mark, read_all
 from gateway.recording.reports import Reading
 from gateway.recording.window import Asked, Reader, Window, touched, windows
 
-from .messages import Event, Malformed, Numbering, Status, nan_for_null
+from .messages import Event, Malformed, Numbering, Status
 
 if TYPE_CHECKING:
     import pandas
@@ -107,7 +109,7 @@ class Recording:
             return None  # marks, the serial channels
         node, record = where
         try:
-            payload = nan_for_null(entry.payload())
+            payload = as_published(entry.payload())
             return self._numbering.message(self.source, node, record, payload, topic,
                                            not self.records or record in self.records)
         except (RecordingError, Malformed) as problem:

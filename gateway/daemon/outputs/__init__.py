@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import zmq
 
+from gateway.common.payloads import as_published
 from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC, parse, topic
 
 from ..errors import StartupError
@@ -258,10 +259,13 @@ class Outputs:
 
     def replayed(self, name: str, payload: dict[str, Any]) -> bool:
         """A message of a recording, published again on its topic as it was recorded (a
-        node's record counted as one published on that node's topic)."""
+        node's record counted as one published on that node's topic), a record as the
+        gateway published it (:func:`~gateway.common.payloads.as_published`: its NaN
+        back from the file's nulls, a matrix's derived fields where the file lacks
+        them), for every output alike."""
         found = parse(name)
         if found is not None:
-            return self.publish(*found, payload)
+            return self.publish(*found, as_published(payload))
         return self._give(name.encode(), payload)
 
     def _give(self, name: bytes, payload: dict[str, Any]) -> bool:
