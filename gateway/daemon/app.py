@@ -43,6 +43,7 @@ from .health import SAMPLE_PERIOD, Health
 from .operations import Operations
 from .outputs import Needs, Output, Outputs, build, close_built
 from .outputs.frames import Frames
+from .outputs.guard import Guard
 from .reload import Reloader
 from .sd_notify import Notifier
 from .station.replay import ReplayLink
@@ -83,10 +84,12 @@ class Gateway:
             self._auth.start()
             self._auth.configure_curve_callback("*", self.allow_list)
         built: dict[str, Output] = {}
+        guard = Guard()
         try:
-            built = build(Needs(config, self._context, server, self._recording_metadata))
+            built = build(Needs(config, self._context, server, self._recording_metadata,
+                                guard))
             self.outputs = Outputs(built, Frames({node.address: node.name
-                                                  for node in config.all_nodes}))
+                                                  for node in config.all_nodes}), guard)
             replays = ReplayReaders()  # (a recording of several stations: read once)
             self.stations = Stations(
                 Station(station, self.outputs,

@@ -7,7 +7,9 @@ The frame is the node's sensor frame in the earth frame (north, east, down), nam
 PARENT_FRAME: the child frame is the node's name (``gx2-<address>`` for a node without
 one), its rotation the record's orientation (:mod:`aspp.orientation`), its translation
 none, its timestamp the sample's ``time``. Which records give one is decided once a
-node and record (:meth:`Frames.maker`); a record without one pays nothing more.
+node and record (:meth:`Frames.maker`); a record without one pays nothing more. A
+record with no orientation to give (a NaN matrix, a replayed record without its
+fields) gives no frame, and is published all the same.
 """
 
 from __future__ import annotations
@@ -75,12 +77,12 @@ class Frames:
             time no timestamp holds: a foreign recording replayed)."""
             try:
                 w, x, y, z = rotation(payload)
+                if not math.isfinite(w + x + y + z):
+                    return None
                 times = message_times(payload)
                 stamp = ns(times[1])
             except (KeyError, TypeError, ValueError, OutOfRange):
                 return None  # (a replayed record without its fields, or with text in them)
-            if not math.isfinite(w + x + y + z):
-                return None
             frame = {"timestamp": {"sec": stamp // 1_000_000_000,
                                    "nsec": stamp % 1_000_000_000},
                      "parent_frame_id": PARENT_FRAME, "child_frame_id": child,

@@ -126,3 +126,54 @@ def test_the_frame_goes_to_the_live_view_and_recorder_never_to_zeromq() -> None:
             b"gx2/77/orientation", b"gx2/77/frame", b"gx2/77/accel_angrate"]
     assert live.messages[1] is record.messages[1]  # (one message, its JSON made once)
     assert outputs.published() == {77: {"orientation": 1, "accel_angrate": 1}}
+
+
+def test_a_replayed_nan_quaternion_gives_no_frame_and_the_record_is_published() -> None:
+    """A recording holds NaN as null: a matrix record's quaternion replayed as four
+    nulls (and its matrix as nine) gives no frame, and is published all the same, as
+    the gateway published it (NaN again), to every output; the next record's frame is
+    made as ever."""
+    publication, live = Publication(), Takes()
+    outputs = Outputs({"zeromq": publication, "live": live}, Frames({77: None}))
+    orientation, _ = both_at_once(1.0)
+    recorded = {**orientation, "orientation": [[None] * 3] * 3, "quaternion": [None] * 4,
+                "roll": None, "pitch": None, "yaw": None}
+    assert outputs.replayed("gx2/77/orientation", recorded)
+    assert outputs.replayed("gx2/77/orientation", {
+        **orientation, "orientation": [list(row) for row in orientation["orientation"]],
+        "quaternion": list(orientation["quaternion"])})
+    assert publication.sent == [b"gx2/77/orientation"] * 2
+    assert [m.topic for m in live.messages] == [
+        b"gx2/77/orientation", b"gx2/77/orientation", b"gx2/77/frame"]
+    nan = live.messages[0].payload
+    assert all(math.isnan(v) for v in (*nan["quaternion"], nan["roll"], nan["orientation"][1][2]))
+    assert outputs.take_failures == {}
+
+
+def test_a_frame_that_cannot_be_made_is_counted_and_the_record_goes_on(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """Making a frame is guarded as a take is: a maker that raises (a bug) is counted
+    under ``frames`` (status, metrics, the gateway's WARN), said once, and the record
+    still reaches every output and ZeroMQ."""
+    publication, live = Publication(), Takes()
+    frames = Frames({77: None})
+
+    def broken(node: int, record: str) -> Any:
+        def make(payload: dict[str, Any]) -> Message | None:
+            raise RuntimeError("a bug in the frame")
+        return make
+    frames.maker = broken  # type: ignore[method-assign]
+    outputs = Outputs({"zeromq": publication, "live": live}, frames)
+    orientation, _ = both_at_once(1.0)
+    for _ in range(3):
+        assert outputs.publish(77, "orientation", dict(orientation))
+    assert publication.sent == [b"gx2/77/orientation"] * 3
+    assert [m.topic for m in live.messages] == [b"gx2/77/orientation"] * 3
+    assert outputs.take_failures == {"frames": 3}
+    assert outputs.guard_status() == {"live": {"take_failures": 0},
+                                      "frames": {"take_failures": 3}}
+    said = [r.getMessage() for r in caplog.records if "frame" in r.getMessage()]
+    assert said == ["output frames failed to make the frame of a record: RuntimeError: a "
+                    "bug in the frame (counted; not logged again for this output and "
+                    "error)"]
+
