@@ -206,3 +206,13 @@ def test_to_pandas_times_are_exact_beside_an_untimed_reply(tmp_path: Path) -> No
     assert untimed.time is pd.NaT and untimed.device_time is pd.NaT
     assert untimed.host_time.value == nanoseconds(reply["host_time"])
 
+
+def test_records_the_recordings_do_not_hold_are_refused_as_nodes_are(tmp_path: Path
+                                                                    ) -> None:
+    path = write(tmp_path / "run.mcap", [payload(1, 1), payload(2, 2)])
+    holds = r"\(they hold node 76: accel_angrate_mag\)"
+    with pytest.raises(WindowError, match=rf"^--node 99: not in the recordings {holds}$"):
+        Recording(path, nodes=[99])
+    with pytest.raises(WindowError, match=rf"^--record eulr: not in the recordings {holds}$"):
+        Recording(path, records=["eulr"])
+    assert len(list(Recording(path, records=["accel_angrate_mag"]))) == 2

@@ -23,6 +23,7 @@ from __future__ import annotations
 import copy
 import logging
 from collections.abc import Iterable, Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -32,7 +33,7 @@ from gateway.recording.catalogue import catalogue
 from gateway.recording.files import MARK, STATUS, RecordingError, usable_files
 from gateway.recording.reader import Entry, Mark, read_all
 from gateway.recording.reports import Reading
-from gateway.recording.window import Asked, Reader, Window, touched, windows
+from gateway.recording.window import Asked, Reader, Window, check_held, touched, windows
 
 from .messages import Event, Malformed, Numbering, Status
 
@@ -50,7 +51,8 @@ class Recording:
     ``between_marks=(START, STOP)`` (every trial; ``trial=N`` the Nth, 1 the first).
 
     RecordingError if no path is a recording; WindowError (a ValueError) for a window
-    that cannot be taken; both say why in one line, as gx2ctl does. The files are those
+    that cannot be taken, or nodes or records the recordings do not hold (a typo:
+    ``records=["eulr"]``); both say why in one line, as gx2ctl does. The files are those
     found when it is made; iterating reads them again each time.
     """
 
@@ -68,6 +70,10 @@ class Recording:
         asked = Asked(start, stop, tuple(between_marks) if between_marks else None,
                       trial, tuple(self.nodes))
         self.files = catalogue(self.paths, whole=asked.marked)
+        # records the files do not hold are refused as nodes are (and as gx2ctl export
+        # refuses both); the windows keep every record of the nodes asked, so a node's
+        # seq is followed across the records left out, never taken for a gap
+        check_held(replace(asked, records=tuple(sorted(self.records))), self.files)
         self.windows: list[Window] = windows(asked, self.files)
         """One window, or one per trial (its ``label`` names it as export's folder)."""
         self.reading = Reading()
