@@ -37,6 +37,7 @@ from ..config import MQTT_SCHEMES, MqttConfig
 from ..station.nodes import State
 from . import Message, Needs, Output
 from .homeassistant import discovery
+from .sampler import Sampler
 
 log = logging.getLogger("gx2.mqtt")
 
@@ -60,25 +61,6 @@ OFFLINE_STATES = frozenset({State.UNKNOWN, State.UNREACHABLE, State.SILENT,
 WILL_QOS = 1
 """The last will and the availability messages: delivered at least once (the records
 and status are QoS 0)."""
-
-
-class Sampler:
-    """Which samples of a topic go out under ``rate_hz``: one once at least 95 % of
-    its period has passed in sample time since the last one sent (a 100 Hz stream at
-    10 Hz: every 10th sample, evenly, whatever the link's jitter did to arrival)."""
-
-    __slots__ = ("_due",)
-
-    def __init__(self) -> None:
-        self._due: dict[bytes, float] = {}
-
-    def due(self, topic: bytes, every_s: float, payload: Mapping[str, Any]) -> bool:
-        when = payload.get("time") or payload.get("host_time") or 0.0
-        last = self._due.get(topic)
-        if last is not None and last <= when < last + 0.95 * every_s:
-            return False
-        self._due[topic] = when
-        return True
 
 
 class MqttOutput(Output):

@@ -3,13 +3,19 @@ queue that stays bounded (dropped and counted) when nothing drains it."""
 
 from __future__ import annotations
 
+import itertools
 import logging
+import math
+import random
 import socket
+
+import pytest
 
 from gateway.common.topics import STATUS_TOPIC, topic
 from gateway.daemon.config import MqttConfig
 from gateway.daemon.outputs import Message, mqtt
-from gateway.daemon.outputs.mqtt import MqttOutput, Sampler
+from gateway.daemon.outputs.mqtt import MqttOutput
+from gateway.daemon.outputs.sampler import Sampler
 from tests.helpers.waiting import wait_for
 
 
@@ -91,3 +97,25 @@ def test_the_urls_scheme_is_case_insensitive() -> None:
     config = MqttConfig(url="MQTTS://Broker.example:8884", name="gw")
     assert config.url == "mqtts://Broker.example:8884"
     assert MqttOutput(config).client._ssl  # (TLS, as for mqtts://)
+
+
+@pytest.mark.parametrize("rate_hz", [1, 2, 5, 10, 3, 7])
+def test_rate_hz_is_never_exceeded_and_spaces_the_samples_evenly(rate_hz: float) -> None:
+    """A synthetic 100 Hz stream, its sample instants jittered by up to 0.2 ms, for a
+    minute: at most ``rate_hz`` records a second go out, over the minute and over any
+    second of it; each is the sample nearest its deadline, the deadlines a whole
+    period apart (1, 2, 5 and 10 Hz: every 100th, 50th, 20th, 10th sample exactly; 3
+    and 7 Hz: 33 or 34, 14 or 15 samples apart)."""
+    jitter = random.Random(rate_hz)
+    start, seconds = 1_700_000_000.0, 60
+    sampler = Sampler()
+    sent = [seq for seq in range(100 * seconds) if sampler.due(
+        b"t", 1.0 / rate_hz, {"time": start + seq / 100 + jitter.uniform(-2e-4, 2e-4)})]
+    assert rate_hz * seconds <= len(sent) <= rate_hz * seconds + 1
+    for first in range(0, 100 * seconds - 100, 7):  # every second's window (of samples)
+        assert sum(first <= seq < first + 100 for seq in sent) <= rate_hz + 1
+    assert (len(sent) - 1) / ((sent[-1] - sent[0]) / 100) <= rate_hz
+    steps = {b - a for a, b in itertools.pairwise(sent)}
+    period = 100 / rate_hz
+    assert steps <= {math.floor(period), math.ceil(period)}, steps
+
