@@ -88,8 +88,7 @@ class Gateway:
         try:
             built = build(Needs(config, self._context, server, self._recording_metadata,
                                 guard))
-            self.outputs = Outputs(built, Frames({node.address: node.name
-                                                  for node in config.all_nodes}), guard)
+            self.outputs = Outputs(built, Frames(self._name_of), guard)
             replays = ReplayReaders()  # (a recording of several stations: read once)
             self.stations = Stations(
                 Station(station, self.outputs,
@@ -140,6 +139,12 @@ class Gateway:
         skipped something it could not read."""
         self._reported = 0.0
         """time.monotonic() of the last status report."""
+
+    def _name_of(self, address: int) -> str | None:
+        """A node's name as its state says it now (a reload renames, adds and removes
+        nodes there): None for a node without one, or not configured."""
+        node = self.nodes.get(address)
+        return node.name if node is not None else None
 
     @property
     def station(self) -> Station:

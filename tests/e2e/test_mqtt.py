@@ -15,11 +15,12 @@ import urllib.request
 from pathlib import Path
 
 import pytest
+import yaml
 
 from gateway.common.jsontext import strict
 from gateway.sim.node import NodeSettings
 from tests.helpers.broker import MOSQUITTO, Broker, Listener, retained
-from tests.helpers.processes import script
+from tests.helpers.processes import gx2ctl, script
 from tests.helpers.waiting import wait_for
 
 pytestmark = pytest.mark.skipif(MOSQUITTO is None, reason="mosquitto is not installed "
@@ -240,6 +241,28 @@ def test_home_assistant_discovery_announces_each_nodes_sensors_again_when_it_res
 
         listener.client.publish("homeassistant/status", "online")  # Home Assistant restarted
         wait_for(lambda: len(listener.taken()) >= 16, 10, "the sensors announced again")
+    finally:
+        listener.close()
+
+
+def test_home_assistant_hears_the_names_a_reload_gives(simulator, gateway, broker) -> None:
+    """A reload that names node 76 and renames 77: each one's sensors announced again
+    with its device's new name (discovery announced a name only the first time)."""
+    mosquitto = broker()
+    listener = Listener(mosquitto, "homeassistant/sensor/+/config")
+    try:
+        gw = mqtt_gateway(simulator, gateway, mosquitto.url, homeassistant=True)
+
+        def devices() -> set[str]:
+            return {json.loads(payload)["device"]["name"]
+                    for _, payload, _ in listener.taken() if payload}
+        wait_for(lambda: devices() == {"GX2 node 76", "GX2 node 77"}, 10, "the sensors")
+        gw.path.write_text(yaml.safe_dump({**gw.config, "nodes": [
+            {**NODES[0], "name": "left-wing"}, {**NODES[1], "name": "tail"}]}))
+        done = gx2ctl("--control", gw.control_endpoint, "reload")
+        assert done.status == 0, done
+        wait_for(lambda: {"GX2 node 76 (left-wing)", "GX2 node 77 (tail)"} <= devices(),
+                 10, "the sensors announced with the new names")
     finally:
         listener.close()
 

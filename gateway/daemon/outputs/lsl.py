@@ -41,7 +41,7 @@ from ..config import LslConfig
 from ..errors import StartupError
 from . import Message, Needs, Output
 from .guard import Guard, Guarded
-from .lslinfo import describe
+from .lslinfo import describe, node_name
 
 log = logging.getLogger("gx2.lsl")
 
@@ -127,9 +127,11 @@ class Stream:
     """One node's record as one LSL outlet, and how a payload becomes its sample."""
 
     def __init__(self, pylsl: ModuleType, name: str, info: Any,
-                 picks: list[tuple[str, int]], rate: float) -> None:
+                 picks: list[tuple[str, int]], rate: float, named: str = "") -> None:
         self.name = name
         self.rate = rate
+        self.node_name = named
+        """The node's name its desc says (``gx2/name``): a new stream when it changes."""
         self.picks = picks
         """(field, index) of each channel: index -1 for a scalar field."""
         self.outlet = pylsl.StreamOutlet(info, max_buffered=MAX_BUFFERED_S)
@@ -258,10 +260,7 @@ class LslOutput(Output):
         now = time.monotonic()
         for key, items in batches.items():
             stream = self._streams.get(key)
-            if stream is not None and self._rate(key) not in (None, stream.rate):
-                # its node's rate changed (gx2ctl rate), or a record first seen polled
-                # is now streamed: a stream's nominal rate is fixed, so a new one is
-                # made, with the same name and source_id (LabRecorder re-finds it)
+            if stream is not None and self._outdated(key, stream):
                 del self._streams[key]
                 stream = None
             if stream is not None:
@@ -286,6 +285,15 @@ class LslOutput(Output):
         nodes = self._report.get("nodes") or ()
         return next((n for n in nodes if n.get("node") == node), None)
 
+    def _outdated(self, key: tuple[int, str], stream: Stream) -> bool:
+        """Its node's rate changed (gx2ctl rate), a record first seen polled is now
+        streamed, or a reload renamed the node: a stream's nominal rate and desc are
+        fixed, so a new one is made, with the same name and source_id (LabRecorder
+        re-finds it)."""
+        node = self._node_status(key[0])
+        return (self._rate(key) not in (None, stream.rate)
+                or (node is not None and node_name(node) != stream.node_name))
+
     def _rate(self, key: tuple[int, str]) -> float | None:
         """The stream's nominal rate, once a report says the record is its node's
         stream (None until then)."""
@@ -297,10 +305,11 @@ class LslOutput(Output):
     def _open(self, key: tuple[int, str], payload: Mapping[str, Any], rate: float) -> bool:
         try:
             station = payload.get("station", "")
-            name, info, picks = describe(self.pylsl, self.prefix, payload,
-                                         self._node_status(key[0]), rate, self.host,
-                                         self.latency_ms.get(station))
-            self._streams[key] = Stream(self.pylsl, name, info, picks, rate)
+            node = self._node_status(key[0])
+            name, info, picks = describe(self.pylsl, self.prefix, payload, node, rate,
+                                         self.host, self.latency_ms.get(station))
+            self._streams[key] = Stream(self.pylsl, name, info, picks, rate,
+                                        node_name(node))
         except Exception as error:  # (liblsl's own refusal: said once)
             self._failed_once(key, f"cannot make its outlet: {error}")
             return False

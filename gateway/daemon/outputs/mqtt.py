@@ -156,16 +156,19 @@ class MqttOutput(Output):
 
     def report(self, status: Mapping[str, Any]) -> None:
         """Each node's availability, said (retained) when it changes; a node a reload
-        removed is said ``offline`` once, and forgotten."""
+        removed is said ``offline`` once, and forgotten; a node's sensors announced to
+        Home Assistant when it first appears and whenever its name changes."""
         reported: set[int] = set()
         for node in status.get("nodes") or ():
             address, state = as_map(node).get("node"), as_map(node).get("state")
             if not isinstance(address, int):
                 continue
             reported.add(address)
-            if address not in self._names:
-                name = as_map(node).get("name")
-                self._names[address] = name if isinstance(name, str) else None
+            name = as_map(node).get("name")
+            name = name if isinstance(name, str) else None
+            if address not in self._names or self._names[address] != name:
+                # (a node first seen, or named or renamed by a reload: announced again)
+                self._names[address] = name
                 self._announce(address)
             self._say(address, "offline" if state in OFFLINE_STATES else "online")
         for address in set(self._availability) - reported:

@@ -243,3 +243,23 @@ def test_a_sample_with_a_nan_is_pushed_and_one_that_cannot_be_made_is_dropped_al
     lines = [r.getMessage() for r in caplog.records if "output lsl" in r.getMessage()]
     assert len(lines) == 1 and "failed to make a sample of gx2-76-euler" in lines[0], lines
 
+
+def test_a_node_renamed_by_a_reload_gets_its_stream_made_anew_with_its_name() -> None:
+    """A stream's desc says its node's name (``gx2/name``) and cannot change: a reload
+    that renames the node makes a new stream, with the same name and source_id."""
+    pylsl = FakePylsl()
+    lsl = LslOutput(LslConfig(), {"station1": 3.0}, pylsl)  # type: ignore[arg-type]
+    lsl.report(report(512))
+    lsl.take(euler(1))
+    lsl._push_queued()
+    renamed = report(512)
+    renamed["nodes"][0]["name"] = "right"
+    lsl.report(renamed)
+    lsl.take(euler(2))
+    lsl._push_queued()
+    lsl.take(euler(3))
+    lsl._push_queued()
+    named = [dict(dict(o.info.desc().children)["gx2"].children)["name"] for o in pylsl.outlets]
+    assert named == ["left", "right"]
+    assert len({(o.info.name, o.info.source) for o in pylsl.outlets}) == 1
+    assert [o.chunks for o in pylsl.outlets] == [[3], [3, 3]]

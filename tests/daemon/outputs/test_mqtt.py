@@ -4,6 +4,7 @@ queue that stays bounded (dropped and counted) when nothing drains it."""
 from __future__ import annotations
 
 import itertools
+import json
 import logging
 import math
 import random
@@ -118,4 +119,26 @@ def test_rate_hz_is_never_exceeded_and_spaces_the_samples_evenly(rate_hz: float)
     steps = {b - a for a, b in itertools.pairwise(sent)}
     period = 100 / rate_hz
     assert steps <= {math.floor(period), math.ceil(period)}, steps
+
+
+def test_home_assistant_hears_a_name_a_reload_gives_and_changes() -> None:
+    """Discovery announces a node's device name when it first appears and again
+    whenever a report says another (a reload named or renamed it), never otherwise."""
+    output = MqttOutput(MqttConfig(url="mqtt://127.0.0.1:1", name="gw", homeassistant=True))
+
+    def announced() -> list[str]:
+        names = [json.loads(payload)["device"]["name"] for topic, payload, _ in output._queue
+                 if topic.endswith("/config") and payload]
+        output._queue.clear()
+        return sorted(set(names))
+    output.report({"nodes": [{"node": 76, "state": "streaming", "name": None}]})
+    assert announced() == ["GX2 node 76"]
+    output.report({"nodes": [{"node": 76, "state": "streaming", "name": None}]})
+    assert announced() == []
+    output.report({"nodes": [{"node": 76, "state": "streaming", "name": "left-wing"},
+                             {"node": 77, "state": "streaming", "name": "tail"}]})
+    assert announced() == ["GX2 node 76 (left-wing)", "GX2 node 77 (tail)"]
+    output.report({"nodes": [{"node": 76, "state": "streaming", "name": "right-wing"},
+                             {"node": 77, "state": "streaming", "name": "tail"}]})
+    assert announced() == ["GX2 node 76 (right-wing)"]
 
