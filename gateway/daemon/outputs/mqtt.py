@@ -98,6 +98,9 @@ class MqttOutput(Output):
         """Whether the broker answered this attempt's CONNECT (a CONNACK, even a
         refusal): a connection closed before that is a handshake that failed."""
         self.client = self._client()
+        cleartext = config.cleartext()
+        if cleartext:
+            log.warning("%s", cleartext)
         self._drainer = threading.Thread(target=self._drain, name="gx2-mqtt", daemon=True)
 
     def _client(self) -> Client:

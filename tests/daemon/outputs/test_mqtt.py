@@ -142,3 +142,16 @@ def test_home_assistant_hears_a_name_a_reload_gives_and_changes() -> None:
                              {"node": 77, "state": "streaming", "name": "tail"}]})
     assert announced() == ["GX2 node 76 (right-wing)"]
 
+
+def test_a_password_sent_in_the_clear_to_another_host_is_said_at_start(
+        caplog: pytest.LogCaptureFixture) -> None:
+    with caplog.at_level(logging.WARNING, "gx2.mqtt"):
+        MqttOutput(MqttConfig(url="mqtt://broker.example:1883", name="gw", username="lab",
+                              password="S3cretPassw0rd"))
+        MqttOutput(MqttConfig(url="mqtts://broker.example", name="gw", username="lab",
+                              password="S3cretPassw0rd"))
+        MqttOutput(MqttConfig(url="mqtt://127.0.0.1", name="gw", username="lab",
+                              password="S3cretPassw0rd"))
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 1 and "unencrypted" in said[0] and "broker.example" in said[0]
+    assert "S3cretPassw0rd" not in caplog.text
