@@ -6,6 +6,7 @@ Strict: an unknown key is an error, so a typo never passes silently.
 
 from __future__ import annotations
 
+import ipaddress
 import math
 import os
 import re
@@ -247,10 +248,35 @@ def shown_url(url: str) -> str:
     return urlunsplit(parts._replace(netloc="***@" + parts.netloc.rpartition("@")[2]))
 
 
+def check_host(host: str) -> str | None:
+    """Why the resolver would refuse ``host`` (a name or an IP address; "has ...", "is
+    ..."), as
+    ``getaddrinfo`` encodes it (IDNA: labels of 1 to 63 characters, 253 in all), or
+    None. A name it refuses raises in the connection's thread, not as a failure to
+    connect (paho's thread died of it, unseen)."""
+    try:
+        ipaddress.ip_address(host)
+        return None
+    except ValueError:
+        pass
+    labels = host.removesuffix(".").split(".")
+    if any(not label for label in labels):
+        return "has an empty label (two dots in a row, or a dot first)"
+    if any(len(label) > 63 for label in labels):
+        return "has a label longer than 63 characters"
+    try:
+        encoded = host.encode("idna")
+    except UnicodeError as error:
+        return f"is not a name the resolver takes ({error})"
+    if len(encoded.removesuffix(b".")) > 253:
+        return "is longer than 253 characters"
+    return None
+
+
 def check_mqtt_url(url: str) -> str:
     """``mqtt://HOST[:PORT]`` or ``mqtts://HOST[:PORT]``, its scheme in lower case
-    (schemes are case-insensitive: ``MQTTS://`` is TLS too); ValueError (one line, never
-    the url's user or password) if not."""
+    (schemes are case-insensitive: ``MQTTS://`` is TLS too), its host one the resolver
+    takes; ValueError (one line, never the url's user or password) if not."""
     parts, shown = urlsplit(url), shown_url(url)
     if parts.scheme not in MQTT_SCHEMES:
         raise ValueError(f"{shown!r}: the scheme is {parts.scheme or 'missing'!r}; "
@@ -264,6 +290,9 @@ def check_mqtt_url(url: str) -> str:
         raise ValueError(f"{shown!r}: give mqtt://HOST:PORT (no path, query, fragment or "
                          "user: the user and password are mqtt.username and "
                          "mqtt.password)")
+    problem = check_host(parts.hostname)
+    if problem:
+        raise ValueError(f"{shown!r}: the host {parts.hostname!r} {problem}")
     return parts.scheme + url[len(parts.scheme):]
 
 

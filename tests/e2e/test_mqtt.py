@@ -306,6 +306,9 @@ def test_mqtts_connects_to_a_broker_its_ca_vouches_for_and_no_other(
     ("mqtt://", "give mqtt://HOST:PORT"),
     ("mqtt://127.0.0.1:1883#frag", "no path, query, fragment"),
     ("mqtt://127.0.0.1:1883?", "no path, query, fragment"),
+    # hosts the resolver refuses (it raised in paho's thread, which died unseen)
+    ("mqtt://broker..lab:1883", "the host 'broker..lab' has an empty label"),
+    (f"mqtt://{'b' * 64}.lab", "has a label longer than 63 characters"),
 ])
 def test_check_says_a_bad_url_in_one_line(tmp_path: Path, url: str, said: str) -> None:
     config = tmp_path / "nodes.yaml"

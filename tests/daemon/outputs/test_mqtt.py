@@ -1,5 +1,6 @@
-"""The MQTT output's own choices, without a broker: what rate_hz lets through, and a
-queue that stays bounded (dropped and counted) when nothing drains it."""
+"""The MQTT output's own choices, without a broker: what rate_hz lets through, a
+queue that stays bounded (dropped and counted) when nothing drains it, Home
+Assistant's names, paho's thread kept alive, a password in the clear said."""
 
 from __future__ import annotations
 
@@ -9,12 +10,15 @@ import logging
 import math
 import random
 import socket
+import threading
+from typing import Any
 
 import pytest
 
 from gateway.common.topics import STATUS_TOPIC, topic
 from gateway.daemon.config import MqttConfig
 from gateway.daemon.outputs import Message, mqtt
+from gateway.daemon.outputs.guard import Guard
 from gateway.daemon.outputs.mqtt import MqttOutput
 from gateway.daemon.outputs.sampler import Sampler
 from tests.helpers.waiting import wait_for
@@ -141,6 +145,37 @@ def test_home_assistant_hears_a_name_a_reload_gives_and_changes() -> None:
     output.report({"nodes": [{"node": 76, "state": "streaming", "name": "right-wing"},
                              {"node": 77, "state": "streaming", "name": "tail"}]})
     assert announced() == ["GX2 node 76 (right-wing)"]
+
+
+def test_what_raises_in_paho_s_thread_is_said_once_and_it_goes_on_retrying(
+        monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    """A host the resolver refuses raises UnicodeError (a ValueError) where paho
+    connects, which paho does not catch: its network thread died of it, unseen (mqtt.error
+    null, every record "broker away"). Contained: the reason in status, counted by the
+    outputs' guard, said once, and paho's thread still there, trying again."""
+    monkeypatch.setattr(mqtt, "RECONNECT_S", (1, 1))
+    tries = []
+
+    def refused(address: Any, *args: Any, **kwargs: Any) -> Any:
+        tries.append(address)
+        raise UnicodeError("encoding with 'idna' codec failed (UnicodeError: label empty "
+                           "or too long)")
+    monkeypatch.setattr(socket, "create_connection", refused)
+    guard = Guard()
+    output = MqttOutput(MqttConfig(url="mqtt://127.0.0.1:1", name="gw"), guard.of("mqtt"))
+    with caplog.at_level(logging.WARNING):
+        output.start()
+        try:
+            error = wait_for(lambda: output.status()["error"], 10, "the reason")
+            wait_for(lambda: len(tries) >= 3, 10, "paho trying again")
+            alive = [t.name for t in threading.enumerate() if t.name.startswith("paho")]
+        finally:
+            output.close(2)
+    assert "UnicodeError" in error and "label empty" in error, error
+    assert alive, "paho's thread died"
+    assert guard.failures["mqtt"] >= 3
+    said = [r.getMessage() for r in caplog.records if "UnicodeError" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("output mqtt failed in paho's thread"), said
 
 
 def test_a_password_sent_in_the_clear_to_another_host_is_said_at_start(
