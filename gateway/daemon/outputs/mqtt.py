@@ -223,9 +223,13 @@ class MqttOutput(Output):
             name = as_map(node).get("name")
             name = name if isinstance(name, str) else None
             if address not in self._names or self._names[address] != name:
-                # (a node first seen, or named or renamed by a reload: announced again)
+                # (a node first seen, or named or renamed by a reload: announced again;
+                # while not connected, by the connection, which announces every node:
+                # queued here too, the announcements were sent twice when it came
+                # within a batch)
                 self._names[address] = name
-                self._announce(address)
+                if self.connected:
+                    self._announce(address)
             self._say(address, "offline" if state in OFFLINE_STATES else "online")
         for address in set(self._availability) - reported:
             self._say(address, "offline")

@@ -129,6 +129,7 @@ def test_home_assistant_hears_a_name_a_reload_gives_and_changes() -> None:
     """Discovery announces a node's device name when it first appears and again
     whenever a report says another (a reload named or renamed it), never otherwise."""
     output = MqttOutput(MqttConfig(url="mqtt://127.0.0.1:1", name="gw", homeassistant=True))
+    output.connected = True  # (while not, the connection announces every node)
 
     def announced() -> list[str]:
         names = [json.loads(payload)["device"]["name"] for topic, payload, _ in output._queue
