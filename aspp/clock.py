@@ -177,6 +177,22 @@ records."""
 DRIFT_ERROR = FLOOR_NOISE / (WINDOW / 4)
 """How far from the crystal's true drift a line that saw its floor may be (above)."""
 
+# What a line held over capacity may drift from (held_error). DRIFT_ERROR is the
+# allowance of a line that has seen its floor only somewhere in the window; a line that
+# was seeing its floor all along when held (within FLOOR_FRESH of the hold) has a drift
+# measured far closer. Against the truth, over the sweep's runs whose every stream saw
+# its floor in each 10 s (bench/sweep.py, 200 seeds of each line model, 120 s a run),
+# no stream's error moved more than 0.051 ms in its run on gx2-sim's line, and 0.23 ms
+# on the FIFO's: 1.9 ppm at most. HELD_DRIFT_ERROR allows 5; and the crystal may follow
+# its temperature meanwhile at DRIFT_RATE, which is what the fit allows a settled drift
+# (so 0.5 ms is reached after about 60 s held). Against the truth in the fault soak
+# (bench/faultsoak.py), where DRIFT_ERROR said a held node's time may be off after 15 s
+# and 98% of that WARN's time fell on samples within 0.2 ms: docs/performance.md.
+HELD_DRIFT_ERROR = 5e-6
+FLOOR_FRESH = 10.0
+"""Device seconds within which a line saw its floor for its drift to count as measured
+when it is held."""
+
 Point = tuple[float, float]
 
 
@@ -237,6 +253,7 @@ class NodeClock:
         "_given",
         "_held_at",
         "_held_first",
+        "_held_fresh",
         "_held_last",
         "_last",
         "_locked_since",
@@ -260,6 +277,8 @@ class NodeClock:
         self._held_at = self._held_last = self._held_first = 0.0
         """Device time of the newest packet when the line was last held, and of the
         newest since."""
+        self._held_fresh = False
+        """Whether the line held had seen its floor within FLOOR_FRESH (held_error)."""
         self._start_over()
         self._given: tuple[float, float] | None = None
         """The last (device, host) time given: times are strictly increasing (until a
@@ -296,6 +315,8 @@ class NodeClock:
         self._state = after(self._state, event)
         if event is HOLD:
             self._held_at = self._held_last = self._last
+            self._held_fresh = (self._fitted >= SETTLE_SPAN and self._floor_seen
+                                and self._last - self._floor_at <= FLOOR_FRESH)
             if self._fitted < SETTLE_SPAN:  # (no line yet: _last is 0, nothing moves)
                 self._offset += self._drift * self._last  # the same line where it is now
                 self._drift = self._fitted = 0.0
@@ -481,16 +502,19 @@ class NodeClock:
 
     def held_error(self) -> float | None:
         """How far ``time`` may have gone from the line kept since the hold (seconds):
-        its drift's uncertainty times the device seconds held (a drift not settled was
-        dropped for the nominal rate: any a crystal can have); inf with no line of this
-        power-up to keep (HELD_FRESH: placed at the arrivals, late by the queue); None
-        unless held."""
+        its drift's uncertainty times the device seconds held (HELD_DRIFT_ERROR, with
+        the crystal's own wander, for a line seeing its floor when held; DRIFT_ERROR for
+        one that had not lately; a drift not settled was dropped for the nominal rate:
+        any a crystal can have); inf with no line of this power-up to keep (HELD_FRESH:
+        placed at the arrivals, late by the queue); None unless held."""
         if self._state is HELD_FRESH:
             return math.inf
         if self._state not in HELD_STATES:
             return None
-        rate = DRIFT_ERROR if self._fitted >= SETTLE_SPAN else MAX_DRIFT
-        return rate * max(self._held_last - self._held_at, 0.0)
+        held = max(self._held_last - self._held_at, 0.0)
+        if self._held_fresh:
+            return HELD_DRIFT_ERROR * held + DRIFT_RATE * held * held / 2
+        return (DRIFT_ERROR if self._fitted >= SETTLE_SPAN else MAX_DRIFT) * held
 
     @property
     def floor_age(self) -> float | None:

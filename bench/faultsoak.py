@@ -59,7 +59,9 @@ from __future__ import annotations
 import argparse
 import bisect
 import os
+import pickle
 import random
+import re
 import shutil
 import signal
 import statistics
@@ -114,6 +116,8 @@ OFF, GOOD = 0.5e-3, 0.2e-3
 """A sample more than OFF from its node's median is off; WARN time whose samples are
 all within GOOD was needless."""
 HONEST_SHARE, NEEDLESS_SHARE = 0.95, 0.05
+UNWARNED_LISTED = 10
+"""How many off samples with no WARN the report lists (--unwarned)."""
 WARN_NEAR = 1.0
 """Seconds around a sample's arrival in which a poll's WARN covers it."""
 LATE_NEAR = 0.5
@@ -721,6 +725,8 @@ class Honesty:
     warn_good_seconds: float
     late_given: int
     late_violations: list[str]
+    by_reason: dict[str, list[float]] = field(default_factory=dict)
+    """WARN seconds and those on good samples, by the clock or line reason said."""
 
 
 def warned_off(result: Result, medians: dict[int, float],
@@ -766,6 +772,7 @@ def honesty(result: Result, medians: dict[int, float]) -> Honesty:
     off, off_warned = warned_off(result, medians, every)
     warn_s = good_s = 0.0
     late_given, violations = 0, []
+    by_reason: dict[str, list[float]] = {}
     for node in ADDRESSES:
         errors, arrival = result.samples.error[node], result.samples.arrival[node]
         for a, b in pairwise(polls):
@@ -774,8 +781,14 @@ def honesty(result: Result, medians: dict[int, float]) -> Honesty:
                 continue
             lo, hi = bisect.bisect_left(arrival, a.at), bisect.bisect_right(arrival, b.at)
             warn_s += b.at - a.at
-            if all(abs(errors[i] - medians[node]) <= GOOD for i in range(lo, hi)):
+            good = all(abs(errors[i] - medians[node]) <= GOOD for i in range(lo, hi))
+            if good:
                 good_s += b.at - a.at
+            for reason in {reason_kind(r) for r in state.reasons
+                           if "clock" in r or "line" in r}:
+                seconds = by_reason.setdefault(reason, [0.0, 0.0])
+                seconds[0] += b.at - a.at
+                seconds[1] += (b.at - a.at) * good
         for poll in polls:
             state = poll.nodes.get(node)
             if state is None or state.late_ms is None:
@@ -787,7 +800,12 @@ def honesty(result: Result, medians: dict[int, float]) -> Honesty:
             if worst > state.late_ms * 1e-3 + LATE_TOLERANCE:
                 violations.append(f"node {node} at {poll.at - result.started:.1f} s: late_ms "
                                   f"{state.late_ms:.2f}, truly {worst * 1e3:.2f}")
-    return Honesty(off, off_warned, warn_s, good_s, late_given, violations)
+    return Honesty(off, off_warned, warn_s, good_s, late_given, violations, by_reason)
+
+
+def reason_kind(reason: str) -> str:
+    """A reason without its figures: what the WARN time is counted by."""
+    return re.sub(r"[-+]?\d[\d.,]*", "N", reason.split(":")[0])
 
 
 @dataclass
@@ -854,8 +872,12 @@ def analyse(result: Result) -> Report:
         f"records without truth {result.samples.untrue}",
         f"RSS {rss0 / 1024:.1f} -> {rss1 / 1024:.1f} MiB, open fds {fds0} -> {fds1}",
     ]
+    lines += [f"  WARN {warn:.0f} s, {good / warn if warn else 0:.0%} on good samples: {kind}"
+              for kind, (warn, good) in sorted(honest.by_reason.items(),
+                                                key=lambda item: -item[1][0])]
     lines += [f"  late_ms not a bound: {v}" for v in honest.late_violations[:10]]
-    lines += [f"  off, no clock/line WARN: {v}" for v in unwarned(result, medians)[:10]]
+    lines += [f"  off, no clock/line WARN: {v}"
+              for v in unwarned(result, medians)[:UNWARNED_LISTED]]
     lines += [f"  an operator's op failed: {op}" for op in result.ops_failed[:10]]
     slow = [f for f in result.faults if f.recovered is None or f.recovered > result.bound]
     lines += [f"  not recovered within {result.bound:.0f} s: {f.kind} {f.detail} at "
@@ -911,10 +933,24 @@ def main() -> int:
     parser.add_argument("--health-window", type=float, default=20.0,
                         help="the gateway's health.window_s (the recovery bound's base)")
     parser.add_argument("--keep", action="store_true", help="keep the work directory")
+    parser.add_argument("--save", type=Path, help="pickle the run here (for --load)")
+    parser.add_argument("--load", type=Path, help="analyse a run saved with --save")
+    parser.add_argument("--unwarned", type=int, default=10,
+                        help="how many off samples with no WARN to list")
     args = parser.parse_args()
-    print(f"fault soak: {args.minutes:g} min, seed {args.seed}, pid {os.getpid()}", flush=True)
-    result = run(args.minutes * 60, args.seed, kinds=tuple(args.kinds),
-                 window_s=args.health_window, keep=args.keep)
+    if args.load:
+        result = pickle.loads(args.load.read_bytes())
+    else:
+        print(f"fault soak: {args.minutes:g} min, seed {args.seed}, pid {os.getpid()}",
+              flush=True)
+        result = run(args.minutes * 60, args.seed, kinds=tuple(args.kinds),
+                     window_s=args.health_window, keep=args.keep)
+        if args.save:
+            for fault in result.faults:
+                fault.undo = None  # (a closure over the run's processes)
+            args.save.write_bytes(pickle.dumps(result))
+    global UNWARNED_LISTED
+    UNWARNED_LISTED = args.unwarned
     report = analyse(result)
     print_report(result, report)
     if args.keep:

@@ -11,10 +11,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pandas as pd
 import pytest
 from mcap.reader import make_reader
 
 from gateway.client import Message, Recording, RecordingError, WindowError, to_pandas
+from gateway.recording.columns import nanoseconds
 from gateway.recording.writer import RecordingWriter
 from tests.helpers.recorded import MARKS, T0, hourly_files
 
@@ -155,3 +157,62 @@ def test_paths_and_windows_that_cannot_be_read_say_why_in_a_line(recordings: Pat
     with pytest.raises(WindowError, match=r"--from knock: no such mark \(marks: 'start', "
                                           r"'stop', 'event'\)"):
         Recording(recordings, start="knock")
+
+
+def test_a_file_of_before_the_matrixs_derived_fields_gives_them_and_its_nan(
+        tmp_path: Path) -> None:
+    """A file written before records with a matrix carried roll, pitch, yaw and the
+    quaternion, one of its matrices NaN (null in the file): each record as the gateway
+    publishes it now (gateway.common.payloads), the derived fields derived, NaN from
+    the NaN matrix, and the file's nulls NaN."""
+    turned = [[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]  # yaw of 90 degrees
+    old = [{"node": 76, "record": "orientation", "command": 0xC5, "seq": seq,
+            "host_time": T0 + seq / 100, "time": T0 + seq / 100 - 0.002,
+            "device_time": seq / 100, "lqi": 200, "rssi": -50, "timer": seq * 1966,
+            "orientation": [[math.nan] * 3] * 3 if seq == 2 else turned}
+           for seq in range(1, 4)]
+    path = write(tmp_path / "old.mcap", old)
+    got = list(Recording(path))
+    assert [m.seq for m in got] == [1, 2, 3]
+    assert got[0]["yaw"] == pytest.approx(math.pi / 2) and got[0]["roll"] == 0.0
+    assert got[0]["quaternion"] == pytest.approx([math.sqrt(0.5), 0, 0, math.sqrt(0.5)])
+    nan = got[1]
+    assert all(math.isnan(v) for v in (nan["roll"], nan["pitch"], nan["yaw"],
+                                       *nan["quaternion"], *nan["orientation"][0]))
+    assert got[0].time == T0 + 0.01 - 0.002  # (the bookkeeping as it was)
+
+
+def test_to_pandas_times_are_exact_beside_an_untimed_reply(tmp_path: Path) -> None:
+    """An untimed reply on a node's topic (eeprom_read: no ``time``) among timed
+    records: every timed row's ``time`` is the nanoseconds its message wrote, exactly,
+    and the untimed one's NaT (a column of nanoseconds with a None in it went through
+    float64: off by up to 128 ns)."""
+    euler = [{"node": 76, "record": "euler", "command": 0xCE, "seq": seq,
+              "host_time": T0 + seq / 100 + 0.004, "time": T0 + seq / 100 + 0.000123457,
+              "device_time": seq / 100 + 1e-9, "lqi": 200, "rssi": -50, "roll": 0.1,
+              "pitch": 0.2, "yaw": 0.3, "timer": seq * 1966} for seq in range(1, 101)]
+    reply = {"node": 76, "record": "eeprom_read", "command": 0xE5, "seq": 101,
+             "host_time": T0 + 1.5, "lqi": 200, "rssi": -50, "address": 0xFCA2,
+             "value": 512}
+    frame = Recording(write(tmp_path / "run.mcap", [*euler[:50], reply, *euler[50:]]
+                            )).to_pandas()
+    timed = frame[frame["record"] == "euler"]
+    assert [t.value for t in timed["time"]] == [nanoseconds(p["time"]) for p in euler]
+    assert [t.value for t in timed["host_time"]] == [nanoseconds(p["host_time"])
+                                                     for p in euler]
+    assert [d.value for d in timed["device_time"]] == [nanoseconds(p["device_time"])
+                                                       for p in euler]
+    (untimed,) = frame[frame["record"] == "eeprom_read"].itertuples()
+    assert untimed.time is pd.NaT and untimed.device_time is pd.NaT
+    assert untimed.host_time.value == nanoseconds(reply["host_time"])
+
+
+def test_records_the_recordings_do_not_hold_are_refused_as_nodes_are(tmp_path: Path
+                                                                    ) -> None:
+    path = write(tmp_path / "run.mcap", [payload(1, 1), payload(2, 2)])
+    holds = r"\(they hold node 76: accel_angrate_mag\)"
+    with pytest.raises(WindowError, match=rf"^--node 99: not in the recordings {holds}$"):
+        Recording(path, nodes=[99])
+    with pytest.raises(WindowError, match=rf"^--record eulr: not in the recordings {holds}$"):
+        Recording(path, records=["eulr"])
+    assert len(list(Recording(path, records=["accel_angrate_mag"]))) == 2

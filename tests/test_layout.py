@@ -41,7 +41,7 @@ def test_every_panel_is_laid_out_and_each_is_one_the_layout_configures() -> None
 
 def test_the_3d_panel_shows_the_demos_frames_and_one_of_them_moves() -> None:
     config = demo()
-    frames = Frames({n["address"]: n.get("name") for n in config["nodes"]})
+    frames = Frames({n["address"]: n.get("name") for n in config["nodes"]}.get)
     moving = [n for n in config["nodes"] if frames.maker(n["address"], n["stream"])]
     assert moving, "the demo streams no orientation: the 3D panel would stand still"
     (scene,) = (c for p, c in json.loads(LAYOUT.read_text())["configById"].items()

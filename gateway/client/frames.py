@@ -1,7 +1,13 @@
 """Records as a pandas DataFrame, the same live and offline: a row per record, the
 columns ``gx2ctl export`` gives (vectors as ``accel_x``.., matrices as
 ``orientation_11``..), ``time`` and ``host_time`` as UTC timestamps (to the
-nanosecond the message wrote), ``device_time`` a duration. pandas is optional."""
+nanosecond the message wrote; NaT where a record has none, as an untimed reply),
+``device_time`` a duration. pandas is optional.
+
+The instants are whole nanoseconds from start to end, never a float: a column of
+nanoseconds holding one None (an untimed record's ``time``) would be made float64 by
+pandas before it became timestamps, and a UNIX time in nanoseconds as a double is off
+by up to 128 ns."""
 
 from __future__ import annotations
 
@@ -21,6 +27,11 @@ INSTALL_PANDAS = "pip install 'gx2-gateway[pandas]'"
 LEADING = ("gateway", "node", "record", "seq", "gap", "restarted", "time", "host_time",
            "device_time", "lqi", "rssi")
 """The columns every row has, before the record's fields."""
+INSTANTS = {"time": "datetime64[ns]", "host_time": "datetime64[ns]",
+            "device_time": "timedelta64[ns]"}
+"""The columns of nanoseconds, and what they become."""
+NOT_A_TIME = -(2 ** 63)
+"""numpy's NaT as an int64: a record without the time."""
 
 
 def _pandas() -> Any:
@@ -36,25 +47,33 @@ def to_pandas(events: Iterable[Event]) -> pandas.DataFrame:
     what a Subscriber gave; heartbeats are left out), in their order. MissingExtra,
     saying how to install it, without pandas."""
     pd = _pandas()
+    import numpy as np
+
     layouts: dict[str, list[tuple[str, str, int]]] = {}
     rows = []
+    instants: dict[str, list[int]] = {name: [] for name in INSTANTS}
     for event in events:
         if not isinstance(event, Message):
             continue
         layout = layouts.get(event.record)
         if layout is None:
             layout = layouts[event.record] = field_columns(event.record, event.payload)
+        for name, value in (("time", event.time),
+                            ("host_time", event.payload.get("host_time")),
+                            ("device_time", event.device_time)):
+            found = nanoseconds(value)
+            instants[name].append(NOT_A_TIME if found is None else found)
         row = {"gateway": event.gateway, "node": event.node, "record": event.record,
                "seq": event.seq, "gap": event.gap, "restarted": event.restarted,
-               "time": nanoseconds(event.time),
-               "host_time": nanoseconds(event.payload.get("host_time")),
-               "device_time": nanoseconds(event.device_time), "lqi": event.lqi,
-               "rssi": event.rssi}
+               "time": None, "host_time": None, "device_time": None, "lqi": event.lqi,
+               "rssi": event.rssi}  # (the instants in their places, set below)
         for column, name, index in layout:
             row[column] = element(event.payload.get(name), index)
         rows.append(row)
     frame = pd.DataFrame(rows, columns=None if rows else list(LEADING))
-    for name in ("time", "host_time"):
-        frame[name] = pd.to_datetime(frame[name], unit="ns", utc=True)
-    frame["device_time"] = pd.to_timedelta(frame["device_time"], unit="ns")
+    for name, kind in INSTANTS.items():
+        exact = np.array(instants[name], dtype=np.int64).view(kind)
+        frame[name] = pd.Series(exact, index=frame.index)
+    frame["time"] = frame["time"].dt.tz_localize("UTC")
+    frame["host_time"] = frame["host_time"].dt.tz_localize("UTC")
     return frame

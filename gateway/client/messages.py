@@ -4,16 +4,12 @@ a :class:`Status` per heartbeat, and the bookkeeping that gives each message its
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from gateway.common.jsontext import json_line
-
-BOOKKEEPING = frozenset(("node", "record", "command", "seq", "host_time", "time",
-                         "device_time", "lqi", "rssi"))
-"""Keys every record carries besides its own fields."""
+from gateway.common.payloads import BOOKKEEPING
 
 
 class Malformed(Exception):
@@ -145,20 +141,3 @@ def number(value: Any) -> float | None:
 
 def integer(value: Any) -> int | None:
     return value if isinstance(value, int) and not isinstance(value, bool) else None
-
-
-def nan_for_null(payload: dict[str, Any]) -> dict[str, Any]:
-    """A recorded record's payload as it was published: its own fields' nulls back to
-    NaN (a recording's JSON holds NaN as null), in lists too (a vector, a matrix)."""
-    for name, value in payload.items():
-        if name not in BOOKKEEPING:
-            payload[name] = _nan(value)
-    return payload
-
-
-def _nan(value: Any) -> Any:
-    if value is None:
-        return math.nan
-    if isinstance(value, list):
-        return [_nan(item) for item in value]
-    return value

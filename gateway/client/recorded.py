@@ -12,8 +12,9 @@ from the gateway's MCAP files, so an analysis script is the same live and offlin
 The window arguments are gx2ctl's (``start``/``stop`` for ``--from``/``--to``,
 ``between_marks``, ``trial``), read by :mod:`gateway.recording.window`: only the files
 and chunks the window touches are read, a message met twice (a file given twice,
-overlapping files) is yielded once. A recording holds NaN as null; a record's fields
-are given back their NaN, as the gateway published them. Damage is read past as
+overlapping files) is yielded once. A recording holds NaN as null; a record is given
+back as the gateway published it (:mod:`gateway.common.payloads`): its fields' NaN, and
+a matrix's roll, pitch, yaw and quaternion where an older file lacks them. Damage is read past as
 ``gx2ctl export`` reads it: ``reading`` says what was skipped.
 """
 
@@ -22,17 +23,19 @@ from __future__ import annotations
 import copy
 import logging
 from collections.abc import Iterable, Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from gateway.common.payloads import as_published
 from gateway.common.topics import parse
 from gateway.recording.catalogue import catalogue
 from gateway.recording.files import MARK, STATUS, RecordingError, usable_files
 from gateway.recording.reader import Entry, Mark, read_all
 from gateway.recording.reports import Reading
-from gateway.recording.window import Asked, Reader, Window, touched, windows
+from gateway.recording.window import Asked, Reader, Window, check_held, touched, windows
 
-from .messages import Event, Malformed, Numbering, Status, nan_for_null
+from .messages import Event, Malformed, Numbering, Status
 
 if TYPE_CHECKING:
     import pandas
@@ -48,7 +51,8 @@ class Recording:
     ``between_marks=(START, STOP)`` (every trial; ``trial=N`` the Nth, 1 the first).
 
     RecordingError if no path is a recording; WindowError (a ValueError) for a window
-    that cannot be taken; both say why in one line, as gx2ctl does. The files are those
+    that cannot be taken, or nodes or records the recordings do not hold (a typo:
+    ``records=["eulr"]``); both say why in one line, as gx2ctl does. The files are those
     found when it is made; iterating reads them again each time.
     """
 
@@ -66,6 +70,10 @@ class Recording:
         asked = Asked(start, stop, tuple(between_marks) if between_marks else None,
                       trial, tuple(self.nodes))
         self.files = catalogue(self.paths, whole=asked.marked)
+        # records the files do not hold are refused as nodes are (and as gx2ctl export
+        # refuses both); the windows keep every record of the nodes asked, so a node's
+        # seq is followed across the records left out, never taken for a gap
+        check_held(replace(asked, records=tuple(sorted(self.records))), self.files)
         self.windows: list[Window] = windows(asked, self.files)
         """One window, or one per trial (its ``label`` names it as export's folder)."""
         self.reading = Reading()
@@ -107,7 +115,7 @@ class Recording:
             return None  # marks, the serial channels
         node, record = where
         try:
-            payload = nan_for_null(entry.payload())
+            payload = as_published(entry.payload())
             return self._numbering.message(self.source, node, record, payload, topic,
                                            not self.records or record in self.records)
         except (RecordingError, Malformed) as problem:

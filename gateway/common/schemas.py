@@ -190,7 +190,8 @@ def status_schema() -> Schema:
                 "bug, contained: every other output still got them)", ("take_failures",),
                 take_failures={"type": "integer", "minimum": 0}),
                 "description": "each output given the published messages beside ZeroMQ "
-                               "(live, recording, ...), by name"},
+                               "(live, recording, ...), by name, and frames (the nodes' "
+                               "frames made for them)"},
         },
         "required": ["gateway", "link", "nodes", "recording", "replay"],
         "additionalProperties": False,

@@ -43,6 +43,7 @@ from .health import SAMPLE_PERIOD, Health
 from .operations import Operations
 from .outputs import Needs, Output, Outputs, build, close_built
 from .outputs.frames import Frames
+from .outputs.guard import Guard
 from .reload import Reloader
 from .sd_notify import Notifier
 from .station.replay import ReplayLink
@@ -83,10 +84,11 @@ class Gateway:
             self._auth.start()
             self._auth.configure_curve_callback("*", self.allow_list)
         built: dict[str, Output] = {}
+        guard = Guard()
         try:
-            built = build(Needs(config, self._context, server, self._recording_metadata))
-            self.outputs = Outputs(built, Frames({node.address: node.name
-                                                  for node in config.all_nodes}))
+            built = build(Needs(config, self._context, server, self._recording_metadata,
+                                guard))
+            self.outputs = Outputs(built, Frames(self._name_of), guard)
             replays = ReplayReaders()  # (a recording of several stations: read once)
             self.stations = Stations(
                 Station(station, self.outputs,
@@ -137,6 +139,12 @@ class Gateway:
         skipped something it could not read."""
         self._reported = 0.0
         """time.monotonic() of the last status report."""
+
+    def _name_of(self, address: int) -> str | None:
+        """A node's name as its state says it now (a reload renames, adds and removes
+        nodes there): None for a node without one, or not configured."""
+        node = self.nodes.get(address)
+        return node.name if node is not None else None
 
     @property
     def station(self) -> Station:

@@ -21,7 +21,7 @@ from aspp.selftest import BIT_OFF, NEGATIVE_RATE_BIT, POSITIVE_BIT, Sample, judg
 from aspp.temperature import accel_celsius, gyro_celsius
 
 from .errors import GoesOn, NodeError, OpError
-from .operations import Operations, Result, handles
+from .opcontext import Operations, Result, handles
 from .station.nodes import Node
 from .station.scheduler import Priority
 

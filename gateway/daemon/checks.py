@@ -9,7 +9,9 @@ starts, is a warning, one line each (:func:`warnings`), and the check still pass
   gateway opens it when it is (it retries every second);
 - an endpoint another process holds: most often the running gateway this file is about
   to replace (``--check`` before ``systemctl restart``), which frees it as it stops.
-  A start while it is held fails (exit 1, "cannot bind").
+  A start while it is held fails (exit 1, "cannot bind");
+- an MQTT user and password that would go to another host unencrypted (``mqtt://``):
+  the start says it too, once.
 
 Nothing is left open and nothing is changed: an endpoint is tried by binding it and
 letting it go at once; an ``ipc://`` one by connecting to it, since ZeroMQ's bind would
@@ -40,7 +42,9 @@ IPC_PROBE_S = 0.5
 
 def warnings(config: GatewayConfig) -> list[str]:
     """One line each, ``key: what``, for what a start would meet but not fail on."""
-    return [*missing_devices(config), *held_endpoints(config)]
+    cleartext = config.mqtt.cleartext() if config.mqtt is not None else None
+    return [*missing_devices(config), *held_endpoints(config),
+            *([cleartext] if cleartext else [])]
 
 
 def missing_devices(config: GatewayConfig) -> list[str]:

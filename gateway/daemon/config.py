@@ -6,13 +6,14 @@ Strict: an unknown key is an error, so a typo never passes silently.
 
 from __future__ import annotations
 
+import ipaddress
 import math
 import os
 import re
 import socket
 from pathlib import Path
 from typing import Annotated, Any
-from urllib.parse import urlsplit
+from urllib.parse import urlsplit, urlunsplit
 
 from pydantic import (
     AfterValidator,
@@ -237,22 +238,61 @@ MQTT_LEVEL = r"^[^/+#\x00]+$"
 """One level of an MQTT topic: no separator, no wildcard."""
 
 
+def shown_url(url: str) -> str:
+    """``url`` as a message may show it: a user and password in it left out
+    (``mqtt://***@broker:1883``). No credential is ever written to a log line, an
+    error, a status field or a metric label."""
+    parts = urlsplit(url)
+    if "@" not in parts.netloc:
+        return url
+    return urlunsplit(parts._replace(netloc="***@" + parts.netloc.rpartition("@")[2]))
+
+
+def check_host(host: str) -> str | None:
+    """Why the resolver would refuse ``host`` (a name or an IP address; "has ...", "is
+    ..."), as
+    ``getaddrinfo`` encodes it (IDNA: labels of 1 to 63 characters, 253 in all), or
+    None. A name it refuses raises in the connection's thread, not as a failure to
+    connect (paho's thread died of it, unseen)."""
+    try:
+        ipaddress.ip_address(host)
+        return None
+    except ValueError:
+        pass
+    labels = host.removesuffix(".").split(".")
+    if any(not label for label in labels):
+        return "has an empty label (two dots in a row, or a dot first)"
+    if any(len(label) > 63 for label in labels):
+        return "has a label longer than 63 characters"
+    try:
+        encoded = host.encode("idna")
+    except UnicodeError as error:
+        return f"is not a name the resolver takes ({error})"
+    if len(encoded.removesuffix(b".")) > 253:
+        return "is longer than 253 characters"
+    return None
+
+
 def check_mqtt_url(url: str) -> str:
     """``mqtt://HOST[:PORT]`` or ``mqtts://HOST[:PORT]``, its scheme in lower case
-    (schemes are case-insensitive: ``MQTTS://`` is TLS too); ValueError (one line) if
-    not."""
-    parts = urlsplit(url)
+    (schemes are case-insensitive: ``MQTTS://`` is TLS too), its host one the resolver
+    takes; ValueError (one line, never the url's user or password) if not."""
+    parts, shown = urlsplit(url), shown_url(url)
     if parts.scheme not in MQTT_SCHEMES:
-        raise ValueError(f"{url!r}: the scheme is {parts.scheme or 'missing'!r}; "
+        raise ValueError(f"{shown!r}: the scheme is {parts.scheme or 'missing'!r}; "
                          "give mqtt://HOST:PORT or mqtts://HOST:PORT")
     try:
         port = parts.port
     except ValueError:
-        raise ValueError(f"{url!r}: the port is not a number in 1..65535") from None
+        raise ValueError(f"{shown!r}: the port is not a number in 1..65535") from None
     if not parts.hostname or port == 0 or parts.path not in ("", "/") or "?" in url \
             or "#" in url or parts.username is not None:
-        raise ValueError(f"{url!r}: give mqtt://HOST:PORT (no path, query, fragment or "
-                         "user: the user is mqtt.username)")
+        raise ValueError(f"{shown!r}: give mqtt://HOST:PORT (no path, query, fragment or "
+                         "user: the user and password are mqtt.username and "
+                         "mqtt.password)")
+    problem = check_host(parts.hostname)
+    if problem:
+        raise ValueError(f"{shown!r}: the host {parts.hostname!r} {problem}")
     return parts.scheme + url[len(parts.scheme):]
 
 
@@ -325,6 +365,19 @@ class MqttConfig(TlsPair):
                 raise ValueError(f"{where}{rate!r}: a number of Hz above 0 (leave it out "
                                  "to send every sample)")
         return value
+
+    def cleartext(self) -> str | None:
+        """The warning for a user and password sent in the clear (plain ``mqtt://`` to
+        a host that is not this machine: anyone on the way reads them), or None. Said
+        at start and by ``--check``, as the live view says a reachable endpoint."""
+        if self.username is None or urlsplit(self.url).scheme != "mqtt":
+            return None
+        host = urlsplit(self.url).hostname or ""
+        if host == "localhost" or is_loopback(f"tcp://{host}:0"):
+            return None
+        return (f"mqtt.password: mqtt.username and its password go to {host} "
+                "unencrypted (mqtt:// to another host): anyone on the way can read "
+                "them; use mqtts:// (TLS)")
 
     def every_s(self, record: str) -> float | None:
         """Least seconds of sample time between two records sent (None: every one)."""

@@ -197,8 +197,12 @@ def judge(node: Node, recent: Recent, now: float, limits: HealthConfig) -> Verdi
             expected * (1 - limits.rate_under_percent / 100) - 1 / recent.stream_seconds):
         reasons.append(f"rate {rate:.1f} Hz of {expected:.4g} in "
                        f"{recent.stream_seconds:.0f} s")
-    if settled and node.clock.points and node.clock.floor_age is None \
-            and not node.clock.held:  # (a line's first second: every start would flap)
+    if node.clock.points and node.clock.floor_age is None and not node.clock.held:
+        # (a line's first second, from its first packet: the line stands on those few
+        # packets, and whether one of them showed the floor is no proof: in the fault
+        # soak, nodes powered up together or released from a queue were 0.5 to 3.4 ms
+        # late in that second, "floor seen" by packets as late as the line; a start
+        # WARNs for that second, as a receiver says "no fix" until it has one)
         reasons.append("clock not locked")
     if expected is not None:
         # (what the clock says is true from its first packets: a node back from a reboot

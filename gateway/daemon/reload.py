@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 from .config import ConfigError, GatewayConfig, NodeEntry, StationConfig, load_config
 from .errors import Invalid, Refused
 from .station.ports import SIM_SCHEME
-from .station.replay import SCHEME as REPLAY_SCHEME
+from .station.replayurl import SCHEME as REPLAY_SCHEME
 
 if TYPE_CHECKING:
     from .health import Health

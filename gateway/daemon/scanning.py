@@ -39,7 +39,8 @@ from aspp.records import STREAMABLE, Record
 from aspp.timing import DEFAULT_DIVIDER, data_rate, sample_period, valid_divider
 
 from .errors import Invalid, LinkDown, NodeError
-from .operations import Operations, Result, StationParts, handles, identity_reads
+from .nodeops import identity_reads
+from .opcontext import Operations, Result, StationParts, handles
 from .requests import answer_within
 from .station.nodes import Delivery, State
 from .station.scheduler import Scheduler

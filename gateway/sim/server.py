@@ -31,6 +31,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
+from gateway.common.threadname import name_this_thread
+
 from .base_station import BaseStation, LineFaults, RadioLink
 from .node import NodeSettings, SimNode
 
@@ -246,6 +248,7 @@ class Simulator:
         # radio delay, so bench/timesync.py measured it, not the gateway's clock (issue
         # 21; tests/sim/test_line_timing.py). A handful of descriptors: select's limit
         # of 1024 is far away.
+        name_this_thread("gx2-sim")
         selector = selectors.SelectSelector()
         selector.register(self._wake_r, selectors.EVENT_READ)
         registered: tuple[int | None, int] | None = None  # (fd, the port's generation)

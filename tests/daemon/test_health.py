@@ -98,14 +98,15 @@ def test_a_stream_at_its_rate_with_little_loss_and_a_good_signal_is_ok() -> None
     assert verdict == (Level.OK, ())
 
 
-def test_a_stream_just_started_is_not_judged_by_its_rate_or_lock_yet() -> None:
-    """A line's first second is not locked at every start and every reboot: said only
-    once the stream settled (a WARN then at every start flapped every dashboard)."""
+def test_a_stream_just_started_is_not_judged_by_its_rate_yet_but_its_lock_is() -> None:
+    """A rate is judged once the stream settled; a line's first second is said not
+    locked from its first packet (its time stands on a few packets that may all have
+    waited: bench/faultsoak.py found such seconds 0.5 to 3.4 ms late and unsaid)."""
     node = streaming_node()
     node.clock.update(1.0, 1.0)
     assert node.clock.points and not node.clock.locked
     slow = recent(stream_seconds=5.0, stream_received=10)
-    assert judge(node, slow, settled(node) - 2, LIMITS) == (Level.OK, ())
+    assert judge(node, slow, settled(node) - 2, LIMITS) == (Level.WARN, ("clock not locked",))
     assert judge(node, slow, settled(node), LIMITS) == \
         (Level.WARN, ("rate 2.0 Hz of 100 in 5 s", "clock not locked"))
 
@@ -124,7 +125,7 @@ def test_a_rate_more_than_5_percent_under_the_expected_one_warns(received: int,
     assert judge(node, unjudged, settled(node), LIMITS).level is Level.OK
 
 
-def test_an_unlocked_clock_warns_once_the_stream_has_settled() -> None:
+def test_an_unlocked_clock_warns() -> None:
     node = streaming_node()
     node.clock.update(1.0, 1.0)
     assert judge(node, recent(), settled(node), LIMITS) == (Level.WARN, ("clock not locked",))

@@ -9,6 +9,7 @@ skipped. The rest needs no outlet: ``--check`` without liblsl, a gateway without
 
 from __future__ import annotations
 
+import math
 import socket
 import subprocess
 from pathlib import Path
@@ -16,6 +17,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from tests.helpers.lsl_replay_probe import LEAD, SAMPLES, STREAMS
 from tests.helpers.lslnet import namespace_refusal, run_probe
 from tests.helpers.ports import endpoint
 from tests.helpers.processes import script
@@ -68,6 +70,38 @@ def test_an_independent_inlet_finds_each_stream_with_its_metadata_and_the_sample
     assert status["dropped"] == 0 and status["pushed"] > 200, status
     assert status["skipped"] >= 2  # (each node's continuous_mode reply: no stream)
     assert found["status"]["outputs"]["lsl"] == {"take_failures": 0}
+
+
+def test_a_replay_with_nan_and_without_the_derived_fields_loses_no_sample(
+        tmp_path: Path) -> None:
+    """A recording replayed with ``lsl:`` (tests/helpers/lsl_replay_probe.py): an
+    Inertia-Link's NaN magnetometer (null in the file) and a file of before the matrix's
+    derived fields, some of its values null. Every sample reaches the inlet: NaN in the
+    channels the file holds null in, the roll, pitch, yaw and quaternion derived from
+    the matrix (a null dropped its whole 20 ms batch, and a missing roll every
+    sample: pushed 0)."""
+    refusal = namespace_refusal()
+    if refusal:
+        pytest.skip(f"no private network namespace for LSL: {refusal}")
+    found = run_probe("tests.helpers.lsl_replay_probe", {}, tmp_path, timeout=120)
+    assert found["exit"] == 0, found["log"]
+    mag, oriented = (found["samples"][name] for name in STREAMS)
+    assert len(mag) == len(oriented) == SAMPLES, (len(mag), len(oriented), found["lsl"])
+    status = found["lsl"]
+    assert status["pushed"] == 2 * (LEAD + SAMPLES) and status["dropped"] == 0, status
+    assert found["outputs"]["lsl"] == {"take_failures": 0}
+    labels = found["labels"]
+    assert labels[STREAMS[0]][6:] == ["mag_x", "mag_y", "mag_z"]
+    assert all(all(math.isnan(v) for v in sample[6:]) and sample[2] == pytest.approx(-1.0)
+               for sample in mag)
+    assert labels[STREAMS[1]][-7:] == ["roll", "pitch", "yaw", "quaternion_w",
+                                       "quaternion_x", "quaternion_y", "quaternion_z"]
+    nan_x = [math.isnan(sample[0]) for sample in oriented]
+    assert sum(nan_x) == SAMPLES // 5, sum(nan_x)  # (every fifth, null in the file)
+    for sample in oriented:
+        roll, pitch, yaw = sample[-7:-4]
+        assert (roll, pitch) == pytest.approx((0.2, -0.1), abs=1e-6)
+        assert -math.pi <= yaw <= math.pi and all(map(math.isfinite, sample[-4:]))
 
 
 def config_file(directory: Path, **sections: object) -> Path:

@@ -15,11 +15,12 @@ import urllib.request
 from pathlib import Path
 
 import pytest
+import yaml
 
 from gateway.common.jsontext import strict
 from gateway.sim.node import NodeSettings
 from tests.helpers.broker import MOSQUITTO, Broker, Listener, retained
-from tests.helpers.processes import script
+from tests.helpers.processes import gx2ctl, script
 from tests.helpers.waiting import wait_for
 
 pytestmark = pytest.mark.skipif(MOSQUITTO is None, reason="mosquitto is not installed "
@@ -244,6 +245,28 @@ def test_home_assistant_discovery_announces_each_nodes_sensors_again_when_it_res
         listener.close()
 
 
+def test_home_assistant_hears_the_names_a_reload_gives(simulator, gateway, broker) -> None:
+    """A reload that names node 76 and renames 77: each one's sensors announced again
+    with its device's new name (discovery announced a name only the first time)."""
+    mosquitto = broker()
+    listener = Listener(mosquitto, "homeassistant/sensor/+/config")
+    try:
+        gw = mqtt_gateway(simulator, gateway, mosquitto.url, homeassistant=True)
+
+        def devices() -> set[str]:
+            return {json.loads(payload)["device"]["name"]
+                    for _, payload, _ in listener.taken() if payload}
+        wait_for(lambda: devices() == {"GX2 node 76", "GX2 node 77"}, 10, "the sensors")
+        gw.path.write_text(yaml.safe_dump({**gw.config, "nodes": [
+            {**NODES[0], "name": "left-wing"}, {**NODES[1], "name": "tail"}]}))
+        done = gx2ctl("--control", gw.control_endpoint, "reload")
+        assert done.status == 0, done
+        wait_for(lambda: {"GX2 node 76 (left-wing)", "GX2 node 77 (tail)"} <= devices(),
+                 10, "the sensors announced with the new names")
+    finally:
+        listener.close()
+
+
 def certificate(directory: Path, name: str) -> tuple[Path, Path]:
     """A self-signed certificate for 127.0.0.1 and its key (openssl(1))."""
     openssl = shutil.which("openssl")
@@ -283,6 +306,9 @@ def test_mqtts_connects_to_a_broker_its_ca_vouches_for_and_no_other(
     ("mqtt://", "give mqtt://HOST:PORT"),
     ("mqtt://127.0.0.1:1883#frag", "no path, query, fragment"),
     ("mqtt://127.0.0.1:1883?", "no path, query, fragment"),
+    # hosts the resolver refuses (it raised in paho's thread, which died unseen)
+    ("mqtt://broker..lab:1883", "the host 'broker..lab' has an empty label"),
+    (f"mqtt://{'b' * 64}.lab", "has a label longer than 63 characters"),
 ])
 def test_check_says_a_bad_url_in_one_line(tmp_path: Path, url: str, said: str) -> None:
     config = tmp_path / "nodes.yaml"

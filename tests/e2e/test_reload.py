@@ -19,12 +19,14 @@ from tests.e2e.test_recording import node_records, recorded
 from tests.helpers.ports import free_port
 from tests.helpers.processes import Running, gx2ctl
 from tests.helpers.simulated import continuous, received
+from tests.helpers.viewer import Viewer
 from tests.helpers.waiting import wait_for
 
 DIVIDER = 512
 """100 Hz."""
 KEPT = {"address": 76, "stream": "accel_angrate"}
 """The node every reload here leaves alone."""
+SWING = Motion(roll=0.3, pitch=-0.2, yaw_rate=0.5, swing=0.4)
 
 
 def three_nodes(simulator):
@@ -222,3 +224,57 @@ def test_a_reload_of_a_file_that_cannot_be_read_never_freezes_the_gateway(
     assert "not read within" in refusals(gw)[-1] and "kept" in refusals(gw)[-1]
     assert addresses(gw) == {76}
     assert gw.terminate()[0] == 0, gw.log()
+
+
+def test_a_reload_that_names_renames_and_adds_is_seen_in_every_frame_and_the_status(
+        simulator, gateway, tmp_path):
+    """A reload renames node 76 and adds 77 with a name: the frames Foxglove draws
+    (live, and in the recording) are named as the nodes are from then on, never as at
+    their first record (a renamed node kept its old name, and one added by a reload was
+    ``gx2-77``); status and metrics say the new names."""
+    sim = simulator(NodeSettings(76, divider=DIVIDER, motion=SWING),
+                    NodeSettings(77, divider=DIVIDER, motion=SWING))
+    directory = tmp_path / "recordings"
+    left = {"address": 76, "name": "left-wing", "stream": "accel_angrate_orientation"}
+    gw = gateway(sim.path, [left], record={"directory": str(directory)},
+                 live={"endpoint": f"127.0.0.1:{free_port()}"}, metrics={})
+    gw.wait_streaming(76)
+    viewer = Viewer(f"ws://{gw.config['live']['endpoint']}")
+    try:
+        viewer.until(lambda v: "gx2/76/frame" in v.topics(), 10, "76's frame channel")
+        viewer.subscribe(viewer.topics()["gx2/76/frame"])
+        viewer.until(lambda v: len(v.messages) > 20, 10, "frames of 76")
+        rewrite(gw, nodes=[{**left, "name": "right-wing"},
+                           {"address": 77, "name": "tail", "stream": "euler"}])
+        done = gx2ctl("--control", gw.control_endpoint, "reload")
+        assert done.status == 0, done
+        gw.wait_streaming(77)
+        viewer.until(lambda v: "gx2/77/frame" in v.topics(), 10, "77's frame channel")
+        viewer.subscribe(viewer.topics()["gx2/77/frame"])
+        viewer.until(lambda v: any(m.topic == "gx2/77/frame" for m in v.messages)
+                     and v.messages[-1].payload["child_frame_id"] != "left-wing", 10,
+                     "frames of both after the reload")
+        viewer.read(0.3)
+    finally:
+        viewer.close()
+    named = [(m.topic, m.payload["child_frame_id"]) for m in viewer.messages]
+    assert ("gx2/76/frame", "left-wing") == named[0]
+    renamed_at = named.index(("gx2/76/frame", "right-wing"))
+    assert set(named[renamed_at:]) == {("gx2/76/frame", "right-wing"),
+                                       ("gx2/77/frame", "tail")}
+    status = gw.status()
+    assert {n["node"]: n["name"] for n in status["nodes"]} == {76: "right-wing", 77: "tail"}
+    metrics = wait_for(lambda: (m := _metrics(gw)) and 'name="tail"' in m and m, 5,
+                       "the metrics of the new names")
+    assert 'name="right-wing"' in metrics and 'name="left-wing"' not in metrics
+    assert gw.terminate()[0] == 0, gw.log()
+
+    frames: dict[str, list[str]] = {}
+    for topic, message, _ in recorded(directory):
+        if topic.endswith("/frame"):
+            frames.setdefault(topic, []).append(json.loads(message.data)["child_frame_id"])
+    seen = frames["gx2/76/frame"]
+    changed = seen.index("right-wing")
+    assert changed > 0 and set(seen[:changed]) == {"left-wing"}
+    assert set(seen[changed:]) == {"right-wing"}
+    assert frames["gx2/77/frame"] and set(frames["gx2/77/frame"]) == {"tail"}

@@ -170,3 +170,59 @@ def test_an_ipc_control_socket_is_for_its_owner_and_group(simulator, gateway, zm
     done = run("gx2ctl", "--control", f"ipc://{path}", "ping", "76")
     assert (done.returncode, done.stdout) == (0, "76 answered\n"), done
     assert gw.status()["gateway"]["control_endpoint"] == f"ipc://{path}"
+
+
+# --- MQTT credentials -------------------------------------------------------------------
+
+PASSWORD = "S3cretPassw0rd"
+
+
+@pytest.mark.parametrize("mqtt", [
+    {"url": f"mqtt://lab:{PASSWORD}@broker.lab:1883"},
+    {"url": f"mqtt://lab:{PASSWORD}@broker.lab:1883", "usrname": "lab"},  # and a bad key
+    {"url": f"mqtt://lab:{PASSWORD}@broker..lab:1883"},
+])
+def test_a_password_in_the_mqtt_url_is_never_printed_by_check(tmp_path: Path,
+                                                              mqtt: dict) -> None:
+    """The url's user and password are refused (they are mqtt.username and
+    mqtt.password) in one line that says neither: the url's repr, userinfo included,
+    was in the error."""
+    path = write_config(tmp_path / "n.yaml", f"tcp://127.0.0.1:{free_port()}", mqtt=mqtt)
+    line = one_line(run("gx2-gateway", "--config", str(path), "--check"), 2)
+    assert PASSWORD not in line and "//lab" not in line, line
+    assert "mqtt." in line, line
+
+
+def test_a_reload_refused_for_a_password_in_the_url_says_it_nowhere(gateway) -> None:
+    """``gx2ctl reload``'s answer and the gateway's log say why the file was refused,
+    never the password in it."""
+    gw = gateway("sim://", [{"address": 76, "stream": "accel_angrate"}])
+    gw.path.write_text(yaml.safe_dump({**gw.config, "mqtt": {
+        "url": f"mqtt://lab:{PASSWORD}@broker.lab:1883"}}))
+    done = run("gx2ctl", "--control", gw.control_endpoint, "reload")
+    assert done.returncode != 0 and "reload refused" in done.stderr, done
+    assert "mqtt.url" in done.stderr, done.stderr
+    assert PASSWORD not in done.stdout + done.stderr
+    wait_for(lambda: "reload refused" in gw.log(), 5, "the refusal logged")
+    assert PASSWORD not in gw.log()
+
+
+def test_credentials_sent_in_the_clear_to_another_host_are_one_warning_in_check(
+        tmp_path: Path) -> None:
+    """A user and password over plain mqtt:// to a host that is not this one: --check
+    passes, saying so in one warning line (as the start does); not over mqtts://, nor
+    to the loopback."""
+    said = []
+    for url, user in (("mqtt://broker.lab:1883", "lab"), ("mqtts://broker.lab", "lab"),
+                      ("mqtt://127.0.0.1:1883", "lab"), ("mqtt://broker.lab", None)):
+        mqtt = {"url": url, **({"username": user, "password": PASSWORD} if user else {})}
+        path = write_config(tmp_path / "n.yaml", f"tcp://127.0.0.1:{free_port()}",
+                            mqtt=mqtt)
+        done = run("gx2-gateway", "--config", str(path), "--check")
+        assert done.returncode == 0, done
+        assert PASSWORD not in done.stdout + done.stderr
+        said.append(done.stderr.splitlines())
+    (warning,), *others = said
+    assert warning.startswith("gx2-gateway: warning: ") and "unencrypted" in warning
+    assert "mqtts://" in warning and "broker.lab" in warning, warning
+    assert others == [[], [], []]

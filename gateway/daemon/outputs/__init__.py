@@ -24,15 +24,17 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import zmq
 
-from gateway.common.jsontext import compact_bytes
+from gateway.common.payloads import as_published
 from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC, parse, topic
 
 from ..errors import StartupError
+from .guard import Guard
+from .message import Message
 
 if TYPE_CHECKING:
     from gateway.common.curve import KeyPair
@@ -41,32 +43,6 @@ if TYPE_CHECKING:
     from .frames import Frames
 
 log = logging.getLogger("gx2.outputs")
-
-
-class Message:
-    """A published message as every output sees it: its topic, its payload (shared by
-    every output, never changed once published), and its JSON, made once, by the first
-    output that asks for it (the live view on the loop, when a viewer watches its
-    topic, or the recorder in its thread: the two may race for one message, and then
-    both make the same bytes)."""
-
-    __slots__ = ("_json", "payload", "times", "topic")
-
-    def __init__(self, topic: bytes, payload: dict[str, Any],
-                 times: tuple[float, float] | None = None) -> None:
-        self.topic = topic
-        self.payload = payload
-        self.times = times
-        """(logged, sampled) UNIX times where the payload does not say them as a
-        record's do (a node's frame); None: ``message_times(payload)``."""
-        self._json: bytes | None = None
-
-    def json(self) -> bytes:
-        """Its payload as strict, compact JSON (gateway.common.jsontext.compact_bytes)."""
-        data = self._json
-        if data is None:
-            data = self._json = compact_bytes(self.payload)
-        return data
 
 
 class Output:
@@ -108,6 +84,9 @@ class Needs:
     """The gateway's CURVE key pair, when it has one."""
     metadata: Callable[[], dict[str, str]]
     """What a recording says about the gateway that made it."""
+    guard: Guard = field(default_factory=Guard)
+    """The outputs' one guard (:mod:`.guard`): an output's thread reports what raised
+    in it there (``guard.of(name)``), as the fan-out does for a ``take``."""
 
 
 class Row(NamedTuple):
@@ -135,6 +114,9 @@ is configured, and only then is its module imported (prometheus-client takes 64 
 import and 1.8 MiB, foxglove-sdk more, pylsl loads liblsl)."""
 
 
+FRAMES = "frames"
+"""The guard's name for the frames made for records (:mod:`.frames`): no output of its
+own, given to those that take messages."""
 FAILED_START_CLOSE_S = 1.0
 """Seconds a failed start may spend closing the outputs it had already built (the
 metrics and live view servers each stop within 0.5 s)."""
@@ -194,22 +176,24 @@ class Outputs:
     as they are (it packs msgpack, no JSON): a gateway with no other output makes no
     :class:`Message` at all."""
 
-    def __init__(self, outputs: Mapping[str, Output], frames: Frames | None = None) -> None:
+    def __init__(self, outputs: Mapping[str, Output], frames: Frames | None = None,
+                 guard: Guard | None = None) -> None:
         self.by_name = dict(outputs)
         self._frames = frames
         """Which records give a node's frame (:mod:`.frames`); None: none does."""
+        self.guard = guard or Guard()
         self._publication: Any = self.by_name["zeromq"]
         """ZeroMQ's output (its send: the message's publication)."""
         publication = self._publication
         guarded = {name: output for name, output in self.by_name.items()
                    if output.takes_messages and output is not publication}
         self._takes = tuple(output.take for output in guarded.values())
-        self.guarded = tuple(guarded)
-        """The outputs given each message under the fan-out's guard, by name."""
-        self.take_failures: dict[str, int] = {}
-        """Output name -> messages its ``take`` raised on (a bug, contained: the other
-        outputs still got them)."""
-        self._logged: set[tuple[str, type[BaseException]]] = set()
+        self.guarded = tuple(guarded) + ((FRAMES,) if frames is not None and guarded else ())
+        """The outputs given each message under the fan-out's guard, by name (and
+        FRAMES, the frames made for them)."""
+        self.take_failures = self.guard.failures
+        """Output name -> messages its code raised on (a bug, contained: the other
+        outputs still got them), its ``take`` or its thread's (:mod:`.guard`)."""
         self._topics: dict[tuple[int, str], list[Any]] = {}
         """(node, record) -> [its topic, messages published on it, what makes its
         frame (None: it gives none)]."""
@@ -223,7 +207,8 @@ class Outputs:
     def guard_status(self) -> dict[str, dict[str, int]]:
         """Status's ``outputs``: each guarded output's ``take_failures``."""
         return {name: {"take_failures": self.take_failures.get(name, 0)}
-                for name in self.guarded}
+                for name in (*self.guarded, *(n for n in self.take_failures
+                                              if n not in self.guarded))}
 
     # -- the loop's side ----------------------------------------------------------------
 
@@ -257,8 +242,14 @@ class Outputs:
     def _give_frame(self, make: Callable[[dict[str, Any]], Message | None],
                     payload: dict[str, Any]) -> None:
         """A record's frame (:mod:`.frames`) to the outputs that take messages, not to
-        ZeroMQ (its subscribers' topics are the records')."""
-        frame = make(payload)
+        ZeroMQ (its subscribers' topics are the records'). Making it is guarded as a
+        ``take`` is: a frame that cannot be made is counted under FRAMES, and the
+        record is published all the same."""
+        try:
+            frame = make(payload)
+        except Exception as error:  # (a bug, contained)
+            self.guard.failed(FRAMES, "failed to make the frame of a record", error)
+            return
         if frame is None:
             return
         for take in self._takes:
@@ -284,10 +275,13 @@ class Outputs:
 
     def replayed(self, name: str, payload: dict[str, Any]) -> bool:
         """A message of a recording, published again on its topic as it was recorded (a
-        node's record counted as one published on that node's topic)."""
+        node's record counted as one published on that node's topic), a record as the
+        gateway published it (:func:`~gateway.common.payloads.as_published`: its NaN
+        back from the file's nulls, a matrix's derived fields where the file lacks
+        them), for every output alike."""
         found = parse(name)
         if found is not None:
-            return self.publish(*found, payload)
+            return self.publish(*found, as_published(payload))
         return self._give(name.encode(), payload)
 
     def _give(self, name: bytes, payload: dict[str, Any]) -> bool:
@@ -305,13 +299,8 @@ class Outputs:
         """An output's ``take`` raised (it must not): counted for that output, logged
         once a kind of error, and the message still goes to every other output."""
         name = getattr(getattr(take, "__self__", None), "name", "") or "?"
-        self.take_failures[name] = self.take_failures.get(name, 0) + 1
-        kind = (name, type(error))
-        if kind not in self._logged:
-            self._logged.add(kind)
-            log.error("output %s failed to take a message on %s: %s: %s (counted; not "
-                      "logged again for this output and error)", name,
-                      message.topic.decode(errors="replace"), type(error).__name__, error)
+        self.guard.failed(name, "failed to take a message on "
+                          f"{message.topic.decode(errors='replace')}", error)
 
     def report(self, status: Mapping[str, Any]) -> None:
         """The gateway's latest status report, to every output."""

@@ -5,9 +5,13 @@ subscribers' topics are the records').
 
 The frame is the node's sensor frame in the earth frame (north, east, down), named
 PARENT_FRAME: the child frame is the node's name (``gx2-<address>`` for a node without
-one), its rotation the record's orientation (:mod:`aspp.orientation`), its translation
-none, its timestamp the sample's ``time``. Which records give one is decided once a
-node and record (:meth:`Frames.maker`); a record without one pays nothing more.
+one) as the node's state says it now, so a reload that names, renames or adds a node
+is seen from its next record; its rotation the record's orientation
+(:mod:`aspp.orientation`), its translation none, its timestamp the sample's ``time``.
+Which records give one is decided once a node and record (:meth:`Frames.maker`); a
+record without one pays nothing more. A record with no orientation to give (a NaN
+matrix, a replayed record without its fields) gives no frame, and is published all
+the same.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ from aspp.records import ORIENTED
 from gateway.common.topics import frame_topic
 from gateway.recording.files import OutOfRange, message_times, ns
 
-from . import Message
+from .message import Message
 
 PARENT_FRAME = "world"
 """The frame every node's frame hangs from: the GX2's earth frame (x north, y east, z
@@ -54,9 +58,10 @@ def _of_euler(payload: Mapping[str, Any]) -> Quaternion:
 class Frames:
     """Each node's frame: its name, and which of its records give it."""
 
-    def __init__(self, names: Mapping[int, str | None]) -> None:
-        self._names = dict(names)
-        """Address -> configured name (None: unnamed)."""
+    def __init__(self, name_of: Callable[[int], str | None]) -> None:
+        self._name_of = name_of
+        """A node's configured name now (None: unnamed, or no such node), read for
+        each frame from the one place a reload changes (the nodes' states)."""
 
     def maker(self, node: int, record: str) -> MakeFrame | None:
         """What makes the frame of ``node``'s ``record``: None for a record with no
@@ -68,22 +73,23 @@ class Frames:
         else:
             return None
         topic = frame_topic(node)
-        child = child_frame(node, self._names.get(node))
+        name_of = self._name_of
 
         def make(payload: Mapping[str, Any]) -> Message | None:
             """The frame of one record; None when it has none to give (a NaN angle, a
             time no timestamp holds: a foreign recording replayed)."""
             try:
                 w, x, y, z = rotation(payload)
+                if not math.isfinite(w + x + y + z):
+                    return None
                 times = message_times(payload)
                 stamp = ns(times[1])
             except (KeyError, TypeError, ValueError, OutOfRange):
                 return None  # (a replayed record without its fields, or with text in them)
-            if not math.isfinite(w + x + y + z):
-                return None
             frame = {"timestamp": {"sec": stamp // 1_000_000_000,
                                    "nsec": stamp % 1_000_000_000},
-                     "parent_frame_id": PARENT_FRAME, "child_frame_id": child,
+                     "parent_frame_id": PARENT_FRAME,
+                     "child_frame_id": child_frame(node, name_of(node)),
                      "translation": _ORIGIN, "rotation": {"x": x, "y": y, "z": z, "w": w}}
             return Message(topic, frame, times)
         return make

@@ -11,8 +11,11 @@ invented: the stream has a gap there, as ``can_drop_samples`` says.
 
 ``take`` runs on the loop and only appends to a bounded deque (dropped and counted when
 it is full); a thread of its own makes the outlets and pushes into liblsl, whose own
-threads serve the inlets. Imported only when ``lsl:`` is configured, and pylsl only
-then (:func:`load_pylsl`).
+threads serve the inlets. A sample is made of each record alone: a field the record
+lacks or holds NaN in is NaN in its channel, and a record no sample can be made of (a
+foreign recording's text where a number goes) is dropped alone, counted and said
+through the outputs' guard (:mod:`.guard`), never its batch with it. Imported only
+when ``lsl:`` is configured, and pylsl only then (:func:`load_pylsl`).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import array
 import ctypes
 import importlib
 import logging
+import math
 import socket
 import statistics
 import threading
@@ -36,7 +40,8 @@ from aspp.timing import data_rate
 from ..config import LslConfig
 from ..errors import StartupError
 from . import Message, Needs, Output
-from .lslinfo import describe
+from .guard import Guard, Guarded
+from .lslinfo import describe, node_name
 
 log = logging.getLogger("gx2.lsl")
 
@@ -122,9 +127,11 @@ class Stream:
     """One node's record as one LSL outlet, and how a payload becomes its sample."""
 
     def __init__(self, pylsl: ModuleType, name: str, info: Any,
-                 picks: list[tuple[str, int]], rate: float) -> None:
+                 picks: list[tuple[str, int]], rate: float, named: str = "") -> None:
         self.name = name
         self.rate = rate
+        self.node_name = named
+        """The node's name its desc says (``gx2/name``): a new stream when it changes."""
         self.picks = picks
         """(field, index) of each channel: index -1 for a scalar field."""
         self.outlet = pylsl.StreamOutlet(info, max_buffered=MAX_BUFFERED_S)
@@ -133,24 +140,29 @@ class Stream:
         self._outlet_handle = self.outlet.obj
         self._push_chunk = self.outlet.do_push_chunk_n
 
-    def sample(self, payload: Mapping[str, Any], values: list[float]) -> None:
-        """Append the payload's channel values to ``values``."""
+    def sample(self, payload: Mapping[str, Any]) -> list[Any]:
+        """The payload's channel values: NaN for a field it lacks or holds null in (a
+        recording's NaN, which a replay gives back as NaN all the same)."""
+        values: list[Any] = []
         for field, index in self.picks:
-            value = payload[field]
-            if index < 0:
+            value = payload.get(field)
+            if value is None:
+                values.append(math.nan)
+            elif index < 0:
                 values.append(value)
             elif isinstance(value[0], (list, tuple)):  # a matrix, row-major
                 values.append(value[index // 3][index % 3])
             else:
                 values.append(value[index])
+        return values
 
-    def push(self, values: list[float], stamps: list[float]) -> None:
-        """Samples (their channel values one after the other) with their timestamps,
-        into liblsl in one call: its C API's ``lsl_push_chunk_ftnp`` on flat arrays,
-        as pylsl's own ``push_chunk`` ends, without the numpy conversion it goes
-        through first (the thread's CPU at a saturated line: 0.85% of a core through
-        ``push_chunk``, 0.53% this way; docs/performance.md, "LSL output")."""
-        floats, doubles = array.array("f", values), array.array("d", stamps)
+    def push(self, floats: array.array[float], stamps: list[float]) -> None:
+        """Samples (their channel values one after the other, float32) with their
+        timestamps, into liblsl in one call: its C API's ``lsl_push_chunk_ftnp`` on
+        flat arrays, as pylsl's own ``push_chunk`` ends, without the numpy conversion
+        it goes through first (the thread's CPU at a saturated line: 0.85% of a core
+        through ``push_chunk``, 0.53% this way; docs/performance.md, "LSL output")."""
+        doubles = array.array("d", stamps)
         error = self._push_chunk(self._outlet_handle,
                                  ctypes.c_void_p(floats.buffer_info()[0]),
                                  ctypes.c_long(len(floats)),
@@ -163,8 +175,10 @@ class LslOutput(Output):
     """``take`` on the loop; outlets and pushes in its thread."""
 
     def __init__(self, config: LslConfig, latency_ms: dict[str, float],
-                 pylsl: ModuleType) -> None:
+                 pylsl: ModuleType, guard: Guarded | None = None) -> None:
         self.pylsl = pylsl
+        self._guard = guard or Guard().of("lsl")
+        """Where a sample that cannot be made is counted and said (:mod:`.guard`)."""
         self.prefix = config.prefix
         self.capacity = config.queue
         self.latency_ms = latency_ms
@@ -188,8 +202,9 @@ class LslOutput(Output):
         sample: no timestamp could say when an untimed record was sampled, and one
         stamped with the host's clock would pass for a sample instant."""
         self.failed = 0
-        """Samples liblsl refused (an outlet that could not be made, a push that
-        raised), logged once a stream."""
+        """Samples dropped after the queue: liblsl refused them (an outlet that could
+        not be made, a push that raised; logged once a stream), or no sample could be
+        made of the record (counted and said by the guard)."""
         self._failed_streams: set[tuple[int, str]] = set()
         self.pushed = 0
         """Samples handed to liblsl (counted by the thread)."""
@@ -228,9 +243,10 @@ class LslOutput(Output):
     def _run(self) -> None:
         try:
             while not self._stop.wait(WAKE_S):
-                self._push_queued()
-        except Exception:  # (a bug: said, and the loop's side goes on counting drops)
-            log.exception("lsl: the outlet thread stopped")
+                try:
+                    self._push_queued()
+                except Exception as error:  # (a bug: contained, and it goes on)
+                    self._guard.failed("failed in its thread", error)
         finally:
             self._streams.clear()  # (each outlet is destroyed, its inlets told)
 
@@ -244,10 +260,7 @@ class LslOutput(Output):
         now = time.monotonic()
         for key, items in batches.items():
             stream = self._streams.get(key)
-            if stream is not None and self._rate(key) not in (None, stream.rate):
-                # its node's rate changed (gx2ctl rate), or a record first seen polled
-                # is now streamed: a stream's nominal rate is fixed, so a new one is
-                # made, with the same name and source_id (LabRecorder re-finds it)
+            if stream is not None and self._outdated(key, stream):
                 del self._streams[key]
                 stream = None
             if stream is not None:
@@ -272,6 +285,15 @@ class LslOutput(Output):
         nodes = self._report.get("nodes") or ()
         return next((n for n in nodes if n.get("node") == node), None)
 
+    def _outdated(self, key: tuple[int, str], stream: Stream) -> bool:
+        """Its node's rate changed (gx2ctl rate), a record first seen polled is now
+        streamed, or a reload renamed the node: a stream's nominal rate and desc are
+        fixed, so a new one is made, with the same name and source_id (LabRecorder
+        re-finds it)."""
+        node = self._node_status(key[0])
+        return (self._rate(key) not in (None, stream.rate)
+                or (node is not None and node_name(node) != stream.node_name))
+
     def _rate(self, key: tuple[int, str]) -> float | None:
         """The stream's nominal rate, once a report says the record is its node's
         stream (None until then)."""
@@ -283,10 +305,11 @@ class LslOutput(Output):
     def _open(self, key: tuple[int, str], payload: Mapping[str, Any], rate: float) -> bool:
         try:
             station = payload.get("station", "")
-            name, info, picks = describe(self.pylsl, self.prefix, payload,
-                                         self._node_status(key[0]), rate, self.host,
-                                         self.latency_ms.get(station))
-            self._streams[key] = Stream(self.pylsl, name, info, picks, rate)
+            node = self._node_status(key[0])
+            name, info, picks = describe(self.pylsl, self.prefix, payload, node, rate,
+                                         self.host, self.latency_ms.get(station))
+            self._streams[key] = Stream(self.pylsl, name, info, picks, rate,
+                                        node_name(node))
         except Exception as error:  # (liblsl's own refusal: said once)
             self._failed_once(key, f"cannot make its outlet: {error}")
             return False
@@ -294,16 +317,29 @@ class LslOutput(Output):
         return True
 
     def _push(self, key: tuple[int, str], items: list[tuple[Message, float]]) -> None:
+        """The samples of ``items`` into its stream, in one push: each made alone (a
+        record no sample can be made of is dropped alone, through the guard)."""
         stream = self._streams[key]
         stamp = self.clock.stamp
+        floats: array.array[float] = array.array("f")
+        stamps: list[float] = []
+        for message, offset in items:
+            payload = message.payload
+            try:
+                at = stamp(payload["time"], offset)
+                floats.fromlist(stream.sample(payload))  # (all of it, or nothing)
+            except Exception as error:  # (a record no sample can be made of: alone)
+                self.failed += 1
+                self._guard.failed(f"failed to make a sample of {stream.name}", error)
+                continue
+            stamps.append(at)
+        if not stamps:
+            return
         try:
-            values: list[float] = []
-            for message, _ in items:
-                stream.sample(message.payload, values)
-            stream.push(values, [stamp(m.payload["time"], offset) for m, offset in items])
-            self.pushed += len(items)
+            stream.push(floats, stamps)
+            self.pushed += len(stamps)
         except Exception as error:
-            self.failed += len(items)
+            self.failed += len(stamps)
             self._failed_once(key, f"a push failed: {type(error).__name__}: {error}")
 
     def _failed_once(self, key: tuple[int, str], why: str) -> None:
@@ -326,4 +362,4 @@ def make(needs: Needs) -> LslOutput:
     config = needs.config
     assert config.lsl is not None
     latency = {station.name or "": station.latency_ms for station in config.stations}
-    return LslOutput(config.lsl, latency, load_pylsl())
+    return LslOutput(config.lsl, latency, load_pylsl(), needs.guard.of("lsl"))

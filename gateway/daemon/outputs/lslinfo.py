@@ -76,6 +76,11 @@ def source_id(host: str, station: str, node: int, record: str) -> str:
     return f"{host}/{station}/{node}/{record}"
 
 
+def node_name(node_status: Mapping[str, Any] | None) -> str:
+    """A node's name as its stream's desc says it (``gx2/name``; empty for none)."""
+    return str((node_status or {}).get("name") or "")
+
+
 def describe(pylsl: ModuleType, prefix: str, payload: Mapping[str, Any],
              node_status: Mapping[str, Any] | None, rate: float, host: str,
              latency_ms: float | None) -> tuple[str, Any, list[tuple[str, int]]]:
@@ -115,7 +120,7 @@ def describe(pylsl: ModuleType, prefix: str, payload: Mapping[str, Any],
         sync.append_child_value("latency_ms", str(latency_ms))
     gx2 = desc.append_child("gx2")
     gx2.append_child_value("node", str(node))
-    gx2.append_child_value("name", str((node_status or {}).get("name") or ""))
+    gx2.append_child_value("name", node_name(node_status))
     gx2.append_child_value("station", str(station))
     gx2.append_child_value("record", record)
     if spec is not None:

@@ -11,7 +11,10 @@ broker that is slow, down or unreachable costs the queue (``mqtt.queue`` message
 at most as many more inside paho: a batch is handed over once paho has written the
 last): what does not fit, or comes while the broker is away, is dropped and counted,
 never waited for; paho reconnects with a backoff (RECONNECT_S) and the retained
-messages are sent again on each connection.
+messages are sent again on each connection. What raises in paho's thread (our
+callbacks, or paho's own connecting: a host name the resolver refuses) is contained
+by the outputs' guard (:mod:`.guard`): counted, said once, the reason in ``error``,
+and the thread goes on retrying; it never dies unseen.
 
 Imported only when ``mqtt:`` is configured, as live.py is.
 """
@@ -20,12 +23,13 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import functools
 import logging
 import ssl
 import sys
 import threading
-from collections.abc import Mapping
-from typing import Any
+from collections.abc import Callable, Mapping
+from typing import Any, TypeVar
 from urllib.parse import urlsplit
 
 from paho.mqtt.client import CallbackAPIVersion, Client, MQTTErrorCode
@@ -36,7 +40,9 @@ from gateway.common.topics import MARK_TOPIC, STATUS_TOPIC, parse
 from ..config import MQTT_SCHEMES, MqttConfig
 from ..station.nodes import State
 from . import Message, Needs, Output
+from .guard import Guard, Guarded
 from .homeassistant import discovery
+from .sampler import Sampler
 
 log = logging.getLogger("gx2.mqtt")
 
@@ -62,28 +68,56 @@ WILL_QOS = 1
 and status are QoS 0)."""
 
 
-class Sampler:
-    """Which samples of a topic go out under ``rate_hz``: one once at least 95 % of
-    its period has passed in sample time since the last one sent (a 100 Hz stream at
-    10 Hz: every 10th sample, evenly, whatever the link's jitter did to arrival)."""
+F = TypeVar("F", bound=Callable[..., Any])
 
-    __slots__ = ("_due",)
 
-    def __init__(self) -> None:
-        self._due: dict[bytes, float] = {}
+def guarded(method: F) -> F:
+    """A callback of paho's thread, contained by the guard: what it raises is counted
+    and said once (paho would let it end its thread, and with it every reconnection)."""
+    @functools.wraps(method)
+    def call(self: MqttOutput, *args: Any) -> Any:
+        try:
+            return method(self, *args)
+        except Exception as error:  # (a bug, contained)
+            self._guard.failed(f"failed in paho's thread ({method.__name__})", error)
+            return None
+    return call  # type: ignore[return-value]
 
-    def due(self, topic: bytes, every_s: float, payload: Mapping[str, Any]) -> bool:
-        when = payload.get("time") or payload.get("host_time") or 0.0
-        last = self._due.get(topic)
-        if last is not None and last <= when < last + 0.95 * every_s:
-            return False
-        self._due[topic] = when
-        return True
+
+class GuardedClient(Client):
+    """paho's client whose network thread does not die of what it raises: paho 2's
+    ``loop_start`` runs ``_thread_main`` in it (``loop_forever`` until ``loop_stop``),
+    and a connection that fails with anything but an OSError (the resolver's
+    UnicodeError for a host it refuses) ended the thread there, with a traceback,
+    leaving the output "away" for good and unsaid. Here it is handed to ``failed`` and
+    the loop goes on, reconnecting with paho's own backoff. (``_thread_main`` and
+    ``_thread_terminate`` are paho's own names: tests/daemon/outputs/test_mqtt.py
+    fails if the thread stops being this one.)"""
+
+    def __init__(self, *args: Any, failed: Callable[[Exception], None],
+                 stopping: threading.Event, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._failed_in_thread = failed
+        self._stopping = stopping
+
+    def _thread_main(self) -> None:
+        try:
+            while not self._thread_terminate and not self._stopping.is_set():
+                try:
+                    self.loop_forever(retry_first_connection=True)
+                    return
+                except Exception as error:  # (contained: said, and tried again)
+                    self._failed_in_thread(error)
+                    self._stopping.wait(RECONNECT_S[0])
+        finally:
+            self._thread = None
 
 
 class MqttOutput(Output):
-    def __init__(self, config: MqttConfig) -> None:
+    def __init__(self, config: MqttConfig, guard: Guarded | None = None) -> None:
         self.config = config
+        self._guard = guard or Guard().of("mqtt")
+        """Where what raises in its threads is counted and said (:mod:`.guard`)."""
         self.base = f"{config.prefix}/{config.name}"
         self.url = config.url
         parts = urlsplit(config.url)
@@ -116,12 +150,16 @@ class MqttOutput(Output):
         """Whether the broker answered this attempt's CONNECT (a CONNACK, even a
         refusal): a connection closed before that is a handshake that failed."""
         self.client = self._client()
+        cleartext = config.cleartext()
+        if cleartext:
+            log.warning("%s", cleartext)
         self._drainer = threading.Thread(target=self._drain, name="gx2-mqtt", daemon=True)
 
     def _client(self) -> Client:
         config = self.config
-        client = Client(CallbackAPIVersion.VERSION2,
-                        client_id=config.client_id or f"gx2-gateway-{config.name}")
+        client = GuardedClient(CallbackAPIVersion.VERSION2,
+                               client_id=config.client_id or f"gx2-gateway-{config.name}",
+                               failed=self._connecting_failed, stopping=self._closing)
         if config.username is not None:
             client.username_pw_set(config.username, config.password)
         if urlsplit(config.url).scheme == "mqtts":
@@ -174,17 +212,24 @@ class MqttOutput(Output):
 
     def report(self, status: Mapping[str, Any]) -> None:
         """Each node's availability, said (retained) when it changes; a node a reload
-        removed is said ``offline`` once, and forgotten."""
+        removed is said ``offline`` once, and forgotten; a node's sensors announced to
+        Home Assistant when it first appears and whenever its name changes."""
         reported: set[int] = set()
         for node in status.get("nodes") or ():
             address, state = as_map(node).get("node"), as_map(node).get("state")
             if not isinstance(address, int):
                 continue
             reported.add(address)
-            if address not in self._names:
-                name = as_map(node).get("name")
-                self._names[address] = name if isinstance(name, str) else None
-                self._announce(address)
+            name = as_map(node).get("name")
+            name = name if isinstance(name, str) else None
+            if address not in self._names or self._names[address] != name:
+                # (a node first seen, or named or renamed by a reload: announced again;
+                # while not connected, by the connection, which announces every node:
+                # queued here too, the announcements were sent twice when it came
+                # within a batch)
+                self._names[address] = name
+                if self.connected:
+                    self._announce(address)
             self._say(address, "offline" if state in OFFLINE_STATES else "online")
         for address in set(self._availability) - reported:
             self._say(address, "offline")
@@ -218,6 +263,16 @@ class MqttOutput(Output):
         self._drainer.start()
 
     def _drain(self) -> None:
+        """:meth:`_drain_batches` until closed; what raises in it is contained by the
+        guard, and it goes on (a message dropped, never the thread)."""
+        while not self._closing.is_set():
+            try:
+                self._drain_batches()
+            except Exception as error:  # (a bug, contained)
+                self.dropped["offline"] += 1
+                self._guard.failed("failed to hand a message to paho", error)
+
+    def _drain_batches(self) -> None:
         """Hand the queue to paho while connected, drop it (counted) while not: woken
         by the first message after a pause, it lets BATCH_S of them gather, so that it
         and paho's thread wake some 20 times a second under a stream, not once a
@@ -242,9 +297,21 @@ class MqttOutput(Output):
                 else:
                     self.dropped["offline"] += 1
 
+    def _connecting_failed(self, error: Exception) -> None:
+        """paho's connecting raised what it does not handle itself (not an OSError):
+        the reason in ``error``, counted and said once by the guard (not again by
+        :meth:`_failed`: one line)."""
+        self.connected = False
+        self.error = f"cannot connect to {self._host}:{self._port}: " \
+                     f"{type(error).__name__}: {error}"
+        self._guard.failed(f"failed in paho's thread connecting to {self._host}:"
+                           f"{self._port} (retried with paho's backoff)", error)
+
+    @guarded
     def _on_pre_connect(self, client: Client, userdata: Any) -> None:
         self._answered = False
 
+    @guarded
     def _on_connect(self, client: Client, userdata: Any, flags: Any, reason: Any,
                     properties: Any) -> None:
         self._answered = True
@@ -264,12 +331,14 @@ class MqttOutput(Output):
                 self._announce(node)
         self._wake.set()
 
+    @guarded
     def _on_message(self, client: Client, userdata: Any, message: Any) -> None:
         """Home Assistant's status: ``online`` when it (re)starts: announce again."""
         if message.payload == b"online":
             for node in list(self._names):
                 self._announce(node)
 
+    @guarded
     def _on_connect_fail(self, client: Client, userdata: Any) -> None:
         # paho calls this inside its ``except OSError``: the error is the one handled
         error = sys.exc_info()[1]
@@ -277,6 +346,7 @@ class MqttOutput(Output):
                or str(error)) if error is not None else "no reason given"
         self._failed(f"cannot connect to {self._host}:{self._port}: {why}")
 
+    @guarded
     def _on_disconnect(self, client: Client, userdata: Any, flags: Any, reason: Any,
                        properties: Any) -> None:
         was = self.connected
@@ -321,5 +391,5 @@ class MqttOutput(Output):
 
 def make(needs: Needs) -> MqttOutput:
     assert needs.config.mqtt is not None
-    return MqttOutput(needs.config.mqtt)
+    return MqttOutput(needs.config.mqtt, needs.guard.of("mqtt"))
 

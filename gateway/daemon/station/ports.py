@@ -5,7 +5,7 @@ plain serial device.
 - a pyserial URL (``rfc2217://host:port``, ``socket://``, ``loop://``), for a base
   station behind a network serial server;
 - ``replay://PATH[?speed=N&exit=true]``: a recording played back
-  (:mod:`gateway.daemon.station.replay`);
+  (:mod:`gateway.daemon.station.replay`; its URL: :mod:`.replayurl`);
 - ``sim://[?faults]``: gx2-sim, run inside the gateway for the configured nodes behind
   a pty with a private path, so the daemon opens it exactly as it opens hardware. Query
   parameters select faults: ``sim://?data_loss=0.05&garbage=0.01&stop_loss=0.5``.
@@ -22,8 +22,8 @@ from pathlib import Path
 
 import serial
 
-from .replay import SCHEME as REPLAY_SCHEME
-from .replay import Replay
+from .replayurl import SCHEME as REPLAY_SCHEME
+from .replayurl import Replay
 
 SIM_SCHEME = "sim://"
 PLAIN_REASONS = {

@@ -23,7 +23,7 @@ from gateway.recording.reader import Entry, read
 from gateway.recording.reports import FileReport, Reading
 
 if TYPE_CHECKING:
-    from .replay import Replay
+    from .replayurl import Replay
 
 QUEUED = 256
 """Entries read ahead for one station, at most."""
@@ -40,7 +40,7 @@ class ReplayReader:
     def __init__(self, files: tuple[Path, ...], span: tuple[int, int] | None = None) -> None:
         self.files = files
         self.span = span
-        """The window played (:attr:`.replay.Replay.span`): only its chunks are read."""
+        """The window played (:attr:`.replayurl.Replay.span`): only its chunks are read."""
         self._players: dict[object, tuple[asyncio.Queue[Any], Callable[[Path], bool],
                                           Callable[[FileReport], None]]] = {}
         self._task: asyncio.Task[None] | None = None

@@ -22,6 +22,7 @@ from gateway.daemon import outputs as outputs_module
 from gateway.daemon.config import HealthConfig
 from gateway.daemon.health import Health
 from gateway.daemon.outputs import Message, Output, Outputs
+from gateway.daemon.outputs import message as message_module
 from gateway.daemon.outputs.metrics import StatusCollector
 
 
@@ -60,7 +61,7 @@ class Reports(Output):
 def test_each_message_is_one_for_every_output_and_its_json_made_once(
         monkeypatch: pytest.MonkeyPatch) -> None:
     made = []
-    monkeypatch.setattr(outputs_module, "compact_bytes",
+    monkeypatch.setattr(message_module, "compact_bytes",
                         lambda payload: made.append(payload) or compact_bytes(payload))
     first, second, reports = Writes(), Writes(), Reports()
     fan = Outputs({"zeromq": Publication(), "a": first, "b": second, "metrics": reports})

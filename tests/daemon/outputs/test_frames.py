@@ -49,7 +49,7 @@ def test_a_matrix_records_angles_are_its_euler_records_and_its_frame_the_same(t)
         assert orientation[angle] == pytest.approx(euler[angle], abs=2e-6), angle
     w, x, y, z = orientation["quaternion"]
     assert w >= 0 and w * w + x * x + y * y + z * z == pytest.approx(1.0, abs=1e-12)
-    frames = Frames({77: "right-wing"})
+    frames = Frames({77: "right-wing"}.get)
     of_matrix = frames.maker(77, "orientation")(orientation)  # type: ignore[misc]
     of_euler = frames.maker(77, "euler")(euler)  # type: ignore[misc]
     assert of_matrix is not None and of_euler is not None
@@ -73,7 +73,7 @@ def test_a_matrix_records_angles_are_its_euler_records_and_its_frame_the_same(t)
 
 
 def test_which_records_give_a_frame_and_its_name() -> None:
-    frames = Frames({76: None, 77: "tail"})
+    frames = Frames({76: None, 77: "tail"}.get)
     for record in ("orientation", "accel_angrate_orientation",
                    "accel_angrate_mag_orientation", "euler", "euler_angrate"):
         assert frames.maker(76, record) is not None, record
@@ -115,7 +115,7 @@ class Takes(Output):
 def test_the_frame_goes_to_the_live_view_and_recorder_never_to_zeromq() -> None:
     publication, live, record = Publication(), Takes(), Takes()
     outputs = Outputs({"zeromq": publication, "live": live, "recording": record},
-                      Frames({77: None}))
+                      Frames({77: None}.get))
     orientation, _ = both_at_once(1.0)
     plain = {"accel": (0, 0, -1), "ang_rate": (0, 0, 0), "host_time": UNIX, "time": UNIX}
     assert outputs.publish(77, "orientation", orientation)
@@ -126,3 +126,67 @@ def test_the_frame_goes_to_the_live_view_and_recorder_never_to_zeromq() -> None:
             b"gx2/77/orientation", b"gx2/77/frame", b"gx2/77/accel_angrate"]
     assert live.messages[1] is record.messages[1]  # (one message, its JSON made once)
     assert outputs.published() == {77: {"orientation": 1, "accel_angrate": 1}}
+
+
+def test_a_replayed_nan_quaternion_gives_no_frame_and_the_record_is_published() -> None:
+    """A recording holds NaN as null: a matrix record's quaternion replayed as four
+    nulls (and its matrix as nine) gives no frame, and is published all the same, as
+    the gateway published it (NaN again), to every output; the next record's frame is
+    made as ever."""
+    publication, live = Publication(), Takes()
+    outputs = Outputs({"zeromq": publication, "live": live}, Frames({77: None}.get))
+    orientation, _ = both_at_once(1.0)
+    recorded = {**orientation, "orientation": [[None] * 3] * 3, "quaternion": [None] * 4,
+                "roll": None, "pitch": None, "yaw": None}
+    assert outputs.replayed("gx2/77/orientation", recorded)
+    assert outputs.replayed("gx2/77/orientation", {
+        **orientation, "orientation": [list(row) for row in orientation["orientation"]],
+        "quaternion": list(orientation["quaternion"])})
+    assert publication.sent == [b"gx2/77/orientation"] * 2
+    assert [m.topic for m in live.messages] == [
+        b"gx2/77/orientation", b"gx2/77/orientation", b"gx2/77/frame"]
+    nan = live.messages[0].payload
+    assert all(math.isnan(v) for v in (*nan["quaternion"], nan["roll"], nan["orientation"][1][2]))
+    assert outputs.take_failures == {}
+
+
+def test_a_frame_that_cannot_be_made_is_counted_and_the_record_goes_on(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """Making a frame is guarded as a take is: a maker that raises (a bug) is counted
+    under ``frames`` (status, metrics, the gateway's WARN), said once, and the record
+    still reaches every output and ZeroMQ."""
+    publication, live = Publication(), Takes()
+    frames = Frames({77: None}.get)
+
+    def broken(node: int, record: str) -> Any:
+        def make(payload: dict[str, Any]) -> Message | None:
+            raise RuntimeError("a bug in the frame")
+        return make
+    frames.maker = broken  # type: ignore[method-assign]
+    outputs = Outputs({"zeromq": publication, "live": live}, frames)
+    orientation, _ = both_at_once(1.0)
+    for _ in range(3):
+        assert outputs.publish(77, "orientation", dict(orientation))
+    assert publication.sent == [b"gx2/77/orientation"] * 3
+    assert [m.topic for m in live.messages] == [b"gx2/77/orientation"] * 3
+    assert outputs.take_failures == {"frames": 3}
+    assert outputs.guard_status() == {"live": {"take_failures": 0},
+                                      "frames": {"take_failures": 3}}
+    said = [r.getMessage() for r in caplog.records if "frame" in r.getMessage()]
+    assert said == ["output frames failed to make the frame of a record: RuntimeError: a "
+                    "bug in the frame (counted; not logged again for this output and "
+                    "error)"]
+
+
+def test_a_frame_is_named_as_its_node_is_now() -> None:
+    """The child frame's name is read for each frame from the nodes' states (a reload
+    names, renames or adds a node there), never fixed at the first record."""
+    names: dict[int, str | None] = {77: "left"}
+    make = Frames(names.get).maker(77, "orientation")
+    assert make is not None
+    orientation, _ = both_at_once(1.0)
+    assert make(orientation).payload["child_frame_id"] == "left"  # type: ignore[union-attr]
+    names[77] = "right"
+    assert make(orientation).payload["child_frame_id"] == "right"  # type: ignore[union-attr]
+    names[77] = None
+    assert make(orientation).payload["child_frame_id"] == "gx2-77"  # type: ignore[union-attr]

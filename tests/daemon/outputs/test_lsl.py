@@ -5,6 +5,8 @@ reply."""
 
 from __future__ import annotations
 
+import ctypes
+import math
 import time
 from types import SimpleNamespace
 from typing import Any
@@ -14,6 +16,7 @@ import pytest
 from aspp.records import BY_CODE, BY_NAME, STREAMABLE, derived
 from gateway.daemon.config import LslConfig
 from gateway.daemon.outputs import Message
+from gateway.daemon.outputs.guard import Guard
 from gateway.daemon.outputs.lsl import LslClock, LslOutput
 from gateway.daemon.outputs.lslinfo import CHANNEL_TYPES, STREAM_TYPES, channels, source_id
 
@@ -129,11 +132,13 @@ class FakePylsl:
         class StreamOutlet:
             def __init__(self, info: FakeInfo, max_buffered: int) -> None:
                 self.info, self.obj, self.chunks = info, object(), []
+                self.values: list[float] = []
                 fake.outlets.append(self)
 
             def do_push_chunk_n(self, handle: Any, data: Any, count: Any, stamps: Any,
                                 pushthrough: Any) -> int:
                 self.chunks.append(count.value)
+                self.values.extend((ctypes.c_float * count.value).from_address(data.value))
                 return 0
 
         self.StreamOutlet = StreamOutlet
@@ -206,3 +211,55 @@ def test_the_desc_says_the_clock_at_stream_start_and_no_drift_before_it_locks(
     (outlet,) = pylsl.outlets
     sync = synchronization(outlet)
     assert {key: value for key, value in sync.items() if key.startswith("clock")} == said
+
+
+def test_a_sample_with_a_nan_is_pushed_and_one_that_cannot_be_made_is_dropped_alone(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """A field a record holds NaN in, or lacks (a replayed file of before the matrix's
+    derived fields), is NaN in its channel; a record no sample can be made of (text
+    where a number goes) is dropped alone, through the outputs' guard (counted, said
+    once), and the batch's other samples are pushed, in one chunk."""
+    pylsl = FakePylsl()
+    guard = Guard()
+    lsl = LslOutput(LslConfig(), {"station1": 3.0}, pylsl, guard.of("lsl"))  # type: ignore[arg-type]
+    lsl.report(report(512))
+    good = [euler(seq) for seq in range(4)]
+    nan = Message(b"gx2/76/euler", {**good[1].payload, "roll": math.nan})
+    lacking = Message(b"gx2/76/euler", {k: v for k, v in good[2].payload.items()
+                                        if k != "yaw"})
+    texts = [Message(b"gx2/76/euler", {**good[3].payload, "pitch": "text"})
+             for _ in range(2)]
+    for message in (good[0], nan, texts[0], lacking, texts[1], good[3]):
+        lsl.take(message)
+    lsl._push_queued()
+    (outlet,) = pylsl.outlets
+    assert outlet.chunks == [4 * 3]  # four samples of three channels, in one push
+    pushed = [outlet.values[i:i + 3] for i in range(0, 12, 3)]
+    assert math.isnan(pushed[1][0]) and math.isnan(pushed[2][2])
+    assert sum(math.isnan(v) for v in outlet.values) == 2
+    said = lsl.status()
+    assert said["pushed"] == 4 and said["dropped"] == 2, said
+    assert guard.failures == {"lsl": 2}
+    lines = [r.getMessage() for r in caplog.records if "output lsl" in r.getMessage()]
+    assert len(lines) == 1 and "failed to make a sample of gx2-76-euler" in lines[0], lines
+
+
+def test_a_node_renamed_by_a_reload_gets_its_stream_made_anew_with_its_name() -> None:
+    """A stream's desc says its node's name (``gx2/name``) and cannot change: a reload
+    that renames the node makes a new stream, with the same name and source_id."""
+    pylsl = FakePylsl()
+    lsl = LslOutput(LslConfig(), {"station1": 3.0}, pylsl)  # type: ignore[arg-type]
+    lsl.report(report(512))
+    lsl.take(euler(1))
+    lsl._push_queued()
+    renamed = report(512)
+    renamed["nodes"][0]["name"] = "right"
+    lsl.report(renamed)
+    lsl.take(euler(2))
+    lsl._push_queued()
+    lsl.take(euler(3))
+    lsl._push_queued()
+    named = [dict(dict(o.info.desc().children)["gx2"].children)["name"] for o in pylsl.outlets]
+    assert named == ["left", "right"]
+    assert len({(o.info.name, o.info.source) for o in pylsl.outlets}) == 1
+    assert [o.chunks for o in pylsl.outlets] == [[3], [3, 3]]

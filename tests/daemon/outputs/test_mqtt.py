@@ -1,15 +1,26 @@
-"""The MQTT output's own choices, without a broker: what rate_hz lets through, and a
-queue that stays bounded (dropped and counted) when nothing drains it."""
+"""The MQTT output's own choices, without a broker: what rate_hz lets through, a
+queue that stays bounded (dropped and counted) when nothing drains it, Home
+Assistant's names, paho's thread kept alive, a password in the clear said."""
 
 from __future__ import annotations
 
+import itertools
+import json
 import logging
+import math
+import random
 import socket
+import threading
+from typing import Any
+
+import pytest
 
 from gateway.common.topics import STATUS_TOPIC, topic
 from gateway.daemon.config import MqttConfig
 from gateway.daemon.outputs import Message, mqtt
-from gateway.daemon.outputs.mqtt import MqttOutput, Sampler
+from gateway.daemon.outputs.guard import Guard
+from gateway.daemon.outputs.mqtt import MqttOutput
+from gateway.daemon.outputs.sampler import Sampler
 from tests.helpers.waiting import wait_for
 
 
@@ -91,3 +102,92 @@ def test_the_urls_scheme_is_case_insensitive() -> None:
     config = MqttConfig(url="MQTTS://Broker.example:8884", name="gw")
     assert config.url == "mqtts://Broker.example:8884"
     assert MqttOutput(config).client._ssl  # (TLS, as for mqtts://)
+
+
+@pytest.mark.parametrize("rate_hz", [1, 2, 5, 10, 3, 7])
+def test_rate_hz_is_never_exceeded_and_spaces_the_samples_evenly(rate_hz: float) -> None:
+    """A synthetic 100 Hz stream, its sample instants jittered by up to 0.2 ms, for a
+    minute: at most ``rate_hz`` records a second go out, over the minute and over any
+    second of it; each is the sample nearest its deadline, the deadlines a whole
+    period apart (1, 2, 5 and 10 Hz: every 100th, 50th, 20th, 10th sample exactly; 3
+    and 7 Hz: 33 or 34, 14 or 15 samples apart)."""
+    jitter = random.Random(rate_hz)
+    start, seconds = 1_700_000_000.0, 60
+    sampler = Sampler()
+    sent = [seq for seq in range(100 * seconds) if sampler.due(
+        b"t", 1.0 / rate_hz, {"time": start + seq / 100 + jitter.uniform(-2e-4, 2e-4)})]
+    assert rate_hz * seconds <= len(sent) <= rate_hz * seconds + 1
+    for first in range(0, 100 * seconds - 100, 7):  # every second's window (of samples)
+        assert sum(first <= seq < first + 100 for seq in sent) <= rate_hz + 1
+    assert (len(sent) - 1) / ((sent[-1] - sent[0]) / 100) <= rate_hz
+    steps = {b - a for a, b in itertools.pairwise(sent)}
+    period = 100 / rate_hz
+    assert steps <= {math.floor(period), math.ceil(period)}, steps
+
+
+def test_home_assistant_hears_a_name_a_reload_gives_and_changes() -> None:
+    """Discovery announces a node's device name when it first appears and again
+    whenever a report says another (a reload named or renamed it), never otherwise."""
+    output = MqttOutput(MqttConfig(url="mqtt://127.0.0.1:1", name="gw", homeassistant=True))
+    output.connected = True  # (while not, the connection announces every node)
+
+    def announced() -> list[str]:
+        names = [json.loads(payload)["device"]["name"] for topic, payload, _ in output._queue
+                 if topic.endswith("/config") and payload]
+        output._queue.clear()
+        return sorted(set(names))
+    output.report({"nodes": [{"node": 76, "state": "streaming", "name": None}]})
+    assert announced() == ["GX2 node 76"]
+    output.report({"nodes": [{"node": 76, "state": "streaming", "name": None}]})
+    assert announced() == []
+    output.report({"nodes": [{"node": 76, "state": "streaming", "name": "left-wing"},
+                             {"node": 77, "state": "streaming", "name": "tail"}]})
+    assert announced() == ["GX2 node 76 (left-wing)", "GX2 node 77 (tail)"]
+    output.report({"nodes": [{"node": 76, "state": "streaming", "name": "right-wing"},
+                             {"node": 77, "state": "streaming", "name": "tail"}]})
+    assert announced() == ["GX2 node 76 (right-wing)"]
+
+
+def test_what_raises_in_paho_s_thread_is_said_once_and_it_goes_on_retrying(
+        monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    """A host the resolver refuses raises UnicodeError (a ValueError) where paho
+    connects, which paho does not catch: its network thread died of it, unseen (mqtt.error
+    null, every record "broker away"). Contained: the reason in status, counted by the
+    outputs' guard, said once, and paho's thread still there, trying again."""
+    monkeypatch.setattr(mqtt, "RECONNECT_S", (1, 1))
+    tries = []
+
+    def refused(address: Any, *args: Any, **kwargs: Any) -> Any:
+        tries.append(address)
+        raise UnicodeError("encoding with 'idna' codec failed (UnicodeError: label empty "
+                           "or too long)")
+    monkeypatch.setattr(socket, "create_connection", refused)
+    guard = Guard()
+    output = MqttOutput(MqttConfig(url="mqtt://127.0.0.1:1", name="gw"), guard.of("mqtt"))
+    with caplog.at_level(logging.WARNING):
+        output.start()
+        try:
+            error = wait_for(lambda: output.status()["error"], 10, "the reason")
+            wait_for(lambda: len(tries) >= 3, 10, "paho trying again")
+            alive = [t.name for t in threading.enumerate() if t.name.startswith("paho")]
+        finally:
+            output.close(2)
+    assert "UnicodeError" in error and "label empty" in error, error
+    assert alive, "paho's thread died"
+    assert guard.failures["mqtt"] >= 3
+    said = [r.getMessage() for r in caplog.records if "UnicodeError" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("output mqtt failed in paho's thread"), said
+
+
+def test_a_password_sent_in_the_clear_to_another_host_is_said_at_start(
+        caplog: pytest.LogCaptureFixture) -> None:
+    with caplog.at_level(logging.WARNING, "gx2.mqtt"):
+        MqttOutput(MqttConfig(url="mqtt://broker.example:1883", name="gw", username="lab",
+                              password="S3cretPassw0rd"))
+        MqttOutput(MqttConfig(url="mqtts://broker.example", name="gw", username="lab",
+                              password="S3cretPassw0rd"))
+        MqttOutput(MqttConfig(url="mqtt://127.0.0.1", name="gw", username="lab",
+                              password="S3cretPassw0rd"))
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 1 and "unencrypted" in said[0] and "broker.example" in said[0]
+    assert "S3cretPassw0rd" not in caplog.text

@@ -10,8 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from gateway.daemon.station.replay import Replay, ReplayLink
+from gateway.daemon.station.replay import ReplayLink
 from gateway.daemon.station.replayread import ReplayReader
+from gateway.daemon.station.replayurl import Replay
 from gateway.recording import reader as recording_reader
 from gateway.recording.files import serial_channels
 from gateway.recording.writer import RecordingWriter
