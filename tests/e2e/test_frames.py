@@ -13,7 +13,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-import jsonschema
 import pytest
 from mcap.reader import make_reader
 
@@ -21,6 +20,7 @@ from gateway.sim.node import NodeSettings
 from gateway.sim.physics import Motion
 from tests.helpers.ports import free_port
 from tests.helpers.processes import gx2ctl
+from tests.helpers.schemas import validate
 from tests.helpers.viewer import Viewer
 from tests.helpers.waiting import wait_for
 
@@ -106,8 +106,8 @@ def test_a_foxglove_client_gets_each_nodes_frame_and_the_recording_keeps_it(
         if message.topic not in FRAMES:
             continue
         frame = message.payload
-        jsonschema.validate(frame, FOXGLOVE_FRAME_TRANSFORM)
-        jsonschema.validate(frame, json.loads(channels[message.topic]["schema"]))
+        validate(frame, FOXGLOVE_FRAME_TRANSFORM)
+        validate(frame, json.loads(channels[message.topic]["schema"]))
         assert frame["child_frame_id"] == FRAMES[message.topic]
         assert frame["parent_frame_id"] == "world"
         assert message.log_time == stamp(frame)  # at the sample's instant
@@ -132,7 +132,7 @@ def test_a_foxglove_client_gets_each_nodes_frame_and_the_recording_keeps_it(
             "foxglove.FrameTransform", "jsonschema", "json")
         for _, _, message in frames:
             frame = json.loads(message.data)
-            jsonschema.validate(frame, FOXGLOVE_FRAME_TRANSFORM)
+            validate(frame, FOXGLOVE_FRAME_TRANSFORM)
             assert message.publish_time == stamp(frame)
             assert frame["child_frame_id"] == FRAMES[topic]
     # one frame a record, each turned as its record at its instant

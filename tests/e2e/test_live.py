@@ -15,7 +15,6 @@ import subprocess
 import time
 from pathlib import Path
 
-import jsonschema
 import msgpack
 import pytest
 import zmq
@@ -24,6 +23,7 @@ from gateway.common.jsontext import strict
 from gateway.sim.node import NodeSettings
 from tests.helpers.ports import free_port
 from tests.helpers.processes import EXIT, STARVED, script
+from tests.helpers.schemas import validate
 from tests.helpers.viewer import Viewer
 
 NODES = [{"address": 76, "name": "left", "stream": "accel_angrate"},
@@ -66,7 +66,7 @@ def test_a_viewer_sees_each_nodes_channel_with_its_schema_and_the_streams_values
     compared = 0
     for message in viewer.messages:
         schema = json.loads(channels[message.topic]["schema"])
-        jsonschema.validate(message.payload, schema)
+        validate(message.payload, schema)
         if message.topic == "gx2/gateway/status":
             continue
         assert message.log_time == round(message.payload["time"] * 1e9)  # the sample's

@@ -15,10 +15,12 @@ from __future__ import annotations
 import contextlib
 import json
 import struct
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
 SUBPROTOCOL = "foxglove.sdk.v1"
@@ -85,7 +87,19 @@ class Viewer:
         self.connection.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
 
     def close(self) -> None:
-        self._open.close()
+        """The closing handshake, reading (and dropping) what the server still sends
+        meanwhile: a client whose queue is full reads nothing more off its socket, the
+        server's close frame included, and would wait out its close timeout (10 s)."""
+        closing = threading.Thread(target=self._open.close, daemon=True)
+        closing.start()
+        while closing.is_alive():
+            try:
+                self.connection.recv(timeout=0.05)
+            except TimeoutError:
+                continue
+            except (ConnectionClosed, RuntimeError):  # (closed; or recv racing the close)
+                break
+        closing.join()
 
     def _take(self, message: str | bytes) -> None:
         if isinstance(message, str):
