@@ -69,6 +69,10 @@ def test_the_promised_alerts_are_there() -> None:
     assert exprs["Gx2NodeWeakSignal"] == "gx2_node_rssi_dbm < -90"
     # (not gx2_gateway_health: the worst of all the gateway owns, a link down too)
     assert exprs["Gx2RecordingFailed"] == "gx2_recording_failing == 1"
+    # the gateway's ERROR, but for what has its own alert (issue 43 review: none was left)
+    assert exprs["Gx2GatewayError"] == (
+        "gx2_gateway_health == 2 unless on(instance, job) (gx2_link_up == 0) "
+        "unless on(instance, job) (gx2_recording_failing == 1)")
     assert exprs["Gx2NodeRadioLoss"].endswith("> 0.05")
     assert "gx2_node_lost_radio_total" in exprs["Gx2NodeRadioLoss"]
 

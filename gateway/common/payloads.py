@@ -10,8 +10,8 @@ matrix's roll, pitch, yaw and quaternion (:data:`aspp.records.DERIVED_FROM_MATRI
 has none of them. What reads it back as records gets the floats and the fields it
 would have got live: the nulls of a record's own fields NaN again, the derived fields
 derived from the matrix where the file lacks them (absent where there is no matrix to
-derive them from). The bookkeeping's nulls stay None: an untimed record's ``time`` is
-no NaN.
+derive them from, or none a float holds). The bookkeeping's nulls stay None: an
+untimed record's ``time`` is no NaN.
 """
 
 from __future__ import annotations
@@ -50,7 +50,8 @@ def _nan(value: Any) -> Any:
 def _derive(payload: dict[str, Any]) -> None:
     """The fields :meth:`Node.tally <gateway.daemon.station.nodes.Node.tally>` adds to a
     record with a matrix, where the payload lacks them; none if the matrix is not one
-    (a foreign file's)."""
+    or no float holds it (a foreign file's: ``10**400``), so that reading a record
+    never fails (a replay stopped there for good)."""
     # (imported here: gateway.client's live subscriber never pays for the record table)
     from aspp.orientation import euler_from_matrix, quaternion_from_matrix
     from aspp.records import DERIVED_FROM_MATRIX
@@ -64,6 +65,9 @@ def _derive(payload: dict[str, Any]) -> None:
                 for cell in row) for row in matrix)):
         return
     # (DERIVED_FROM_MATRIX's order: the three angles, then the quaternion)
-    values = (*euler_from_matrix(matrix), list(quaternion_from_matrix(matrix)))
+    try:
+        values = (*euler_from_matrix(matrix), list(quaternion_from_matrix(matrix)))
+    except (ArithmeticError, ValueError, TypeError):  # (an int no float holds)
+        return
     for field, value in zip(DERIVED_FROM_MATRIX, values, strict=True):
         payload.setdefault(field.name, value)

@@ -124,7 +124,8 @@ class Gateway:
                              recorder=self.recorder,
                              take_failures=self.outputs.take_failures,
                              heard=[(None if len(self.stations) == 1 else station.name,
-                                     station.reader.heard) for station in self.stations])
+                                     station.reader.heard) for station in self.stations],
+                             owned=lambda: status.owned(self))
         self.reloader: Reloader | None = None
         if path is not None:
             self.reloader = Reloader(path, lambda: self.config, self._reloaded,

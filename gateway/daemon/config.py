@@ -13,7 +13,7 @@ import re
 import socket
 from pathlib import Path
 from typing import Annotated, Any
-from urllib.parse import urlsplit, urlunsplit
+from urllib.parse import urlsplit
 
 from pydantic import (
     AfterValidator,
@@ -234,18 +234,23 @@ class LslConfig(Strict):
 
 MQTT_SCHEMES = {"mqtt": 1883, "mqtts": 8883}
 """The schemes of ``mqtt.url`` and each one's default port (mqtts: TLS)."""
+URL_SCHEME = r"[A-Za-z][A-Za-z0-9+.-]*"
+"""A url's scheme (RFC 3986): a user's name before a password's ``:`` is not one."""
 MQTT_LEVEL = r"^[^/+#\x00]+$"
 """One level of an MQTT topic: no separator, no wildcard."""
 
 
 def shown_url(url: str) -> str:
-    """``url`` as a message may show it: a user and password in it left out
-    (``mqtt://***@broker:1883``). No credential is ever written to a log line, an
-    error, a status field or a metric label."""
-    parts = urlsplit(url)
-    if "@" not in parts.netloc:
+    """``url`` as a message may show it: everything up to its last ``@`` left out
+    (``mqtt://***@broker:1883``), whatever ``urlsplit`` makes of it (a password holding
+    ``/``, ``?`` or ``#``, or a url without a scheme, put the ``@`` outside its netloc).
+    No credential is ever written to a log line, an error, a status field or a metric
+    label."""
+    if "@" not in url:
         return url
-    return urlunsplit(parts._replace(netloc="***@" + parts.netloc.rpartition("@")[2]))
+    scheme, sep, _ = url.partition("://")
+    head = scheme + sep if sep and re.fullmatch(URL_SCHEME, scheme) else ""
+    return head + "***@" + url.rpartition("@")[2]
 
 
 def check_host(host: str) -> str | None:
@@ -273,11 +278,18 @@ def check_host(host: str) -> str | None:
     return None
 
 
+URL_FORM = ("give mqtt://HOST:PORT (no path, query, fragment or user: the user and "
+            "password are mqtt.username and mqtt.password)")
+"""What ``check_mqtt_url`` asks for when the url holds more than a host and port."""
+
+
 def check_mqtt_url(url: str) -> str:
     """``mqtt://HOST[:PORT]`` or ``mqtts://HOST[:PORT]``, its scheme in lower case
     (schemes are case-insensitive: ``MQTTS://`` is TLS too), its host one the resolver
     takes; ValueError (one line, never the url's user or password) if not."""
     parts, shown = urlsplit(url), shown_url(url)
+    if "@" in url:  # first: what urlsplit makes of the rest is the password's doing
+        raise ValueError(f"{shown!r}: {URL_FORM}")
     if parts.scheme not in MQTT_SCHEMES:
         raise ValueError(f"{shown!r}: the scheme is {parts.scheme or 'missing'!r}; "
                          "give mqtt://HOST:PORT or mqtts://HOST:PORT")
@@ -286,10 +298,8 @@ def check_mqtt_url(url: str) -> str:
     except ValueError:
         raise ValueError(f"{shown!r}: the port is not a number in 1..65535") from None
     if not parts.hostname or port == 0 or parts.path not in ("", "/") or "?" in url \
-            or "#" in url or parts.username is not None:
-        raise ValueError(f"{shown!r}: give mqtt://HOST:PORT (no path, query, fragment or "
-                         "user: the user and password are mqtt.username and "
-                         "mqtt.password)")
+            or "#" in url:
+        raise ValueError(f"{shown!r}: {URL_FORM}")
     problem = check_host(parts.hostname)
     if problem:
         raise ValueError(f"{shown!r}: the host {parts.hostname!r} {problem}")

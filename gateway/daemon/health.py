@@ -18,7 +18,9 @@ hear of it (issue 20: a read-only directory and a full disk passed ``status --ch
 WARN while the recorder's queue overflowed within the window (the disk does not keep
 up), or while an output failed to take messages within it (a bug the fan-out contained:
 that output lost them, the others did not). ``gx2ctl status --check`` fails on each;
-``gx2_gateway_health`` carries it.
+``gx2_gateway_health`` carries it. What the gateway owns is folded in (:mod:`.owned`:
+a base station whose link is not up, an MQTT output that cannot reach its broker, each
+an ERROR), here, once: the verdict status shows is the one whose changes are logged.
 
 A base station has reasons of its own, in its map of status and among the gateway's
 (named by the station when there are several), each a WARN: its line over capacity, and
@@ -31,7 +33,7 @@ from __future__ import annotations
 import logging
 import statistics
 from collections import deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any, NamedTuple, Protocol
 
 from aspp.clock import FLOOR_NOISE
@@ -282,7 +284,8 @@ class Health:
                  lines: Iterable[tuple[str | None, LineLoad]] = (),
                  recorder: Recording | None = None,
                  take_failures: Mapping[str, int] | None = None,
-                 heard: Iterable[tuple[str | None, Heard]] = ()) -> None:
+                 heard: Iterable[tuple[str | None, Heard]] = (),
+                 owned: Callable[[], Sequence[str]] | None = None) -> None:
         self.limits = limits
         self.nodes = list(nodes)
         self._windows = {node.address: Window(limits.window_s) for node in self.nodes}
@@ -300,6 +303,9 @@ class Health:
         """Output name -> messages its take raised on (the fan-out's count, kept up to
         date by it)."""
         self._failures: deque[tuple[float, dict[str, int]]] = deque()
+        self.owned = owned
+        """Why what the gateway owns delivers nothing now (:func:`.owned.owned_reasons`
+        of its stations and outputs), each an ERROR of the gateway's."""
         self._gateway = Verdict(Level.OK, ())
 
     def sample(self, now: float) -> None:
@@ -347,7 +353,8 @@ class Health:
         return self._windows[node.address].recent(node, now)
 
     def gateway(self, now: float) -> Verdict:
-        """The gateway's own health at ``now`` (``time.monotonic()``)."""
+        """The gateway's health at ``now`` (``time.monotonic()``): its own, and what it
+        owns folded in."""
         recorder = self.recorder
         verdict = Verdict(Level.OK, ())
         if recorder is not None:
@@ -371,6 +378,9 @@ class Health:
         if full:
             verdict = Verdict(max(verdict.level, Level.WARN, key=LEVELS.index),
                               (*verdict.reasons, *full))
+        owned = self.owned() if self.owned is not None else ()
+        if owned:  # (the worst there is: every reason, the owned first)
+            verdict = Verdict(Level.ERROR, (*owned, *verdict.reasons))
         return verdict
 
     def gateway_status(self, now: float) -> dict[str, Any]:

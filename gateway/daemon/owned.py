@@ -1,6 +1,7 @@
-"""The gateway's health as the worst of what it owns: its own verdict (:mod:`.health`:
-its recorder, its outputs' takes, its lines), and, folded in here from the status
-report's maps, each base station's link and the MQTT output's broker.
+"""Why what the gateway owns delivers nothing, each an ERROR of the gateway's, folded
+into its own verdict by :class:`~.health.Health` (the one verdict status shows and whose
+changes are logged): from the status report's maps, each base station's link and the
+MQTT output's broker.
 
 Each is ERROR while it delivers nothing, as a node is: a base station whose link is
 not up (its port does not exist, was unplugged, cannot be opened: every node behind
@@ -12,8 +13,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from typing import Any
-
-from gateway.common.protocol import HealthLevel as Level
 
 
 def owned_reasons(stations: Sequence[Mapping[str, Any]],
@@ -33,13 +32,3 @@ def owned_reasons(stations: Sequence[Mapping[str, Any]],
         reasons.append(f"mqtt: {mqtt['error']}")
     return reasons
 
-
-def fold(gateway: Mapping[str, Any], stations: Sequence[Mapping[str, Any]],
-         outputs: Mapping[str, Mapping[str, Any] | None]) -> dict[str, Any]:
-    """The gateway's ``health`` and ``reasons`` (its own, from :mod:`.health`) with
-    those of what it owns folded in: ERROR if any of them is (the worst there is),
-    every reason, the owned first."""
-    owned = owned_reasons(stations, outputs)
-    if not owned:
-        return {"health": gateway["health"], "reasons": list(gateway["reasons"])}
-    return {"health": str(Level.ERROR), "reasons": [*owned, *gateway["reasons"]]}

@@ -12,7 +12,7 @@ from gateway.common.version import VERSION
 
 from .health import station_reasons
 from .outputs import OUTPUTS
-from .owned import fold
+from .owned import owned_reasons
 from .station.replay import ReplayLink
 
 if TYPE_CHECKING:
@@ -60,7 +60,7 @@ def report(gateway: Reported) -> dict[str, Any]:
                     "control_late": gateway.control.late,
                     "curve_denied": gateway.allow_list.denied if gateway.allow_list else 0,
                     "publish_curve": bool(config.curve and config.curve.publish),
-                    **fold(health.gateway_status(monotonic), stations, said)},
+                    **health.gateway_status(monotonic)},  # (owned: folded in)
         # each station's link is in ``stations``; ``link`` is the interface's for a
         # client of one base station (the first, in a gateway of several)
         "link": one_station_link(stations[0]),
@@ -72,6 +72,15 @@ def report(gateway: Reported) -> dict[str, Any]:
         "outputs": gateway.outputs.guard_status(),
         **said,
     }
+
+
+def owned(gateway: Reported) -> list[str]:
+    """Why what ``gateway`` owns delivers nothing now, from the maps status shows of
+    them (its :class:`~.health.Health` folds it into its verdict, and logs each
+    change)."""
+    mqtt = gateway.outputs.get("mqtt")
+    return owned_reasons([station_link(s, time.monotonic()) for s in gateway.stations],
+                         {"mqtt": None if mqtt is None else mqtt.status()})
 
 
 def outputs_status(outputs: Outputs) -> dict[str, dict[str, Any] | None]:

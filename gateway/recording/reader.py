@@ -262,7 +262,8 @@ class _Walk:
     # its marks: issue 43), a chunk waits for the message indexes written after it, one
     # a channel: it is read when one names a wanted channel or one not yet defined (its
     # topic is in the chunk), or when none follows it (another writer's file may have
-    # none); a chunk whose indexes name only other channels is passed over unread.
+    # none); a chunk whose indexes name only other channels is passed over unread, once a
+    # whole record of a known kind after them shows their list complete.
 
     def _undefer(self, at: int, after: int, end: int, opcode: int | None,
                  wanted: frozenset[str] | None) -> Iterator[Entry]:
@@ -276,7 +277,11 @@ class _Walk:
             if len(channel) == 2 and topic is not None and topic not in (wanted or ()):
                 self._deferred = (chunk, chunk_end, True)
                 return
-        elif indexed:  # its indexes named none wanted: passed over unread
+        elif indexed and opcode is not None and known_opcode(opcode) and after <= end:
+            # its indexes named none wanted, and their list is whole (a record whole and
+            # known follows it): passed over unread. At the end of the data, or before a
+            # record cut short or unknown, the list may be cut short (a writer killed
+            # while it flushed: the wanted channel's index never written): read it.
             self._deferred = None
             head = self._at(chunk + RECORD_HEAD.size, 16)
             if len(head) == 16:

@@ -6,14 +6,19 @@ from __future__ import annotations
 
 import csv
 import json
+import random
 import re
 import signal
+import time
 from pathlib import Path
 
+from mcap.opcode import Opcode
 from mcap.reader import make_reader
 
 from gateway.client import Recording
+from gateway.recording.files import MAGIC, RECORD_HEAD
 from gateway.recording.plot import picture, records_of
+from gateway.recording.reader import read
 from gateway.recording.reports import Reading
 from gateway.sim.node import NodeSettings
 from tests.helpers.processes import Running, gx2ctl
@@ -29,6 +34,16 @@ def marks_in(path: Path) -> list[dict]:
         return [json.loads(message.data) for _, channel, message
                 in make_reader(stream).iter_messages(log_time_order=False)
                 if channel.topic == MARK]
+
+
+def records_in(data: bytes) -> list[tuple[int, int, int]]:
+    """The top-level records of an MCAP file's data: (offset, opcode, end)."""
+    found, at = [], len(MAGIC)
+    while at + RECORD_HEAD.size <= len(data):
+        opcode, length = RECORD_HEAD.unpack_from(data, at)
+        found.append((at, opcode, at + RECORD_HEAD.size + length))
+        at = found[-1][2]
+    return found
 
 
 def test_marks_are_published_recorded_exported_and_drawn(simulator, gateway, tmp_path):
@@ -116,3 +131,64 @@ def test_a_mark_is_read_as_soon_as_mark_returns(simulator, gateway, tmp_path):
     table = gx2ctl("recordings", str(directory)).stdout
     assert table.count("  go\n") == 3 and table.count("  halt\n") == 3, table
     assert gw.terminate()[0] == 0, gw.log()
+
+
+def test_a_topic_read_of_a_recording_cut_anywhere_is_the_full_read_filtered(
+        simulator, gateway, tmp_path):
+    """A file without summary read for some topics (its marks) passes over a chunk whose
+    message indexes name only other channels; a writer killed while it flushed them cut
+    that list short, and the last mark (its index never written) was passed over:
+    ``Recording.marks()`` missed a killed gateway's last mark. Cut at many places, the
+    topic read of a real recording is its full read filtered."""
+    sim = simulator(NodeSettings(76), NodeSettings(77))
+    directory = tmp_path / "recordings"
+    gw = gateway(sim.path, NODES, record={"directory": str(directory)})
+    gw.wait_streaming(76, 77)
+    texts = ["one", "two", "three", "four"]
+    for text in texts:
+        time.sleep(0.3)  # (records between the marks: each mark's chunk holds them too)
+        gw.control.result("mark", text=text)
+    assert gw.terminate()[0] == 0, gw.log()
+    [recording] = directory.glob("*.mcap")
+    with recording.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    mark = next(c.id for c in summary.channels.values() if c.topic == MARK)
+    data = recording.read_bytes()
+    cut = tmp_path / "cut.mcap"
+
+    def topics_read(*topics: str) -> tuple[list, list]:
+        only = [(e.topic, e.log_time) for e in read(cut, Reading(), topics)]
+        full = [(e.topic, e.log_time) for e in read(cut, Reading()) if e.topic in topics]
+        return only, full
+
+    # killed after writing some of a mark's chunk's message indexes, not the mark's
+    records = records_in(data)
+    killed = []
+    for n, (_, opcode, _) in enumerate(records):
+        indexes = []
+        for at_index, index_opcode, index_end in records[n + 1:]:
+            if index_opcode != Opcode.MESSAGE_INDEX:
+                break
+            indexes.append((at_index, index_end, int.from_bytes(
+                data[at_index + RECORD_HEAD.size:at_index + RECORD_HEAD.size + 2],
+                "little")))
+        channels = [channel for _, _, channel in indexes]
+        if opcode == Opcode.CHUNK and mark in channels[1:]:
+            before = indexes[channels.index(mark) - 1]
+            killed += [before[1], before[1] + 5, before[0] + 5]  # (after, in, in the one before)
+    assert killed, "no mark's chunk with another channel's index before the mark's"
+    for end in killed:
+        cut.write_bytes(data[:end])
+        only, full = topics_read(MARK)
+        assert only == full and full, end
+        seen = [m.text for m in Recording(cut).marks()]
+        assert seen == texts[:len(seen)] and seen, (end, seen)
+    assert seen == texts  # (the last mark's chunk: its marks include the last one)
+    # cut anywhere
+    chosen = random.Random(43)
+    for end in sorted(chosen.sample(range(len(MAGIC) + 1, len(data)), 40)):
+        cut.write_bytes(data[:end])
+        for topics in ([MARK], ["gx2/77/euler"], [MARK, "gx2/76/accel_angrate"]):
+            only, full = topics_read(*topics)
+            assert only == full, (end, topics, len(only), len(full))

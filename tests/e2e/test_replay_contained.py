@@ -1,13 +1,17 @@
 """One output's trouble with a message stays its own: a replayed message msgpack cannot
 pack (an int over 64 bits) is refused by ZeroMQ alone, counted and logged once; the live
 view still shows it (its ``time``, no float, taken as absent) and everything after it;
-and the replay plays on to its end and exits as asked."""
+and the replay plays on to its end and exits as asked, a matrix no float holds
+included."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
+from mcap.reader import make_reader
+
+from aspp.orientation import matrix_from_euler
 from gateway.recording.writer import RecordingWriter
 from tests.helpers.ports import free_port
 from tests.helpers.viewer import Viewer
@@ -81,3 +85,38 @@ def test_a_message_zeromq_refuses_is_still_shown_live_and_the_replay_ends(
     log = gw.log()
     assert "output live failed" not in log and "Traceback" not in log, log
     assert log.count("msgpack cannot pack") == 1, log  # (ZeroMQ was given it too)
+
+
+def test_a_matrix_no_float_holds_is_replayed_as_read_and_the_replay_ends(
+        gateway, tmp_path):
+    """A foreign file's orientation record whose matrix holds 10**400 (no float holds
+    it: deriving its angles raised OverflowError outside any guard, and the replay
+    stopped there for good): every record is published, that one as it was read
+    without derived fields, the others with them, and the replay exits 0."""
+    topic = "gx2/77/orientation"
+    path = tmp_path / "bigint.mcap"
+    with path.open("wb") as output:
+        writer = RecordingWriter(output)
+        for seq in range(1, 301):
+            at = 1.7e9 + seq / 100
+            matrix = [list(row) for row in matrix_from_euler(0.2, -0.1, seq / 100)]
+            if seq == 100:
+                matrix = [[HUGE, 0, 0], [0, 1, 0], [0, 0, 1]]
+            writer.message(topic, {"orientation": matrix, "node": 77,
+                                   "record": "orientation", "seq": seq,
+                                   "host_time": at, "time": at})
+        writer.finish()
+    recordings = tmp_path / "recordings"
+    gw = gateway(f"replay://{path}?speed=0&delay=0.5&exit=true", [{"address": 77}],
+                 record={"directory": str(recordings)})
+    wait_for(lambda: gw.proc.poll() is not None, 20, "the replay to end (exit=true)")
+    assert gw.proc.returncode == 0, gw.log()
+    assert "Traceback" not in gw.log() and "OverflowError" not in gw.log(), gw.log()
+    (kept,) = recordings.glob("*.mcap")
+    with kept.open("rb") as stream:
+        got = {json.loads(message.data)["seq"]: json.loads(message.data)
+               for _, channel, message in make_reader(stream).iter_messages()
+               if channel.topic == topic}
+    assert sorted(got) == list(range(1, 301))
+    assert got[100]["orientation"][0][0] == HUGE and "roll" not in got[100], got[100]
+    assert all("roll" in got[seq] for seq in got if seq != 100)

@@ -175,35 +175,44 @@ def test_an_ipc_control_socket_is_for_its_owner_and_group(simulator, gateway, zm
 # --- MQTT credentials -------------------------------------------------------------------
 
 PASSWORD = "S3cretPassw0rd"
+URLS_WITH_A_PASSWORD = (f"mqtt://lab:{PASSWORD}#x@broker.lab:1883",
+                        f"mqtt://lab:S3c/{PASSWORD}@broker.lab:1883",
+                        f"mqtt://lab:S3c?{PASSWORD}@broker.lab:1883",
+                        f"lab:{PASSWORD}@broker.lab:1883")
+"""Urls whose ``@`` urlsplit puts outside the netloc: each was shown whole."""
 
 
 @pytest.mark.parametrize("mqtt", [
     {"url": f"mqtt://lab:{PASSWORD}@broker.lab:1883"},
     {"url": f"mqtt://lab:{PASSWORD}@broker.lab:1883", "usrname": "lab"},  # and a bad key
     {"url": f"mqtt://lab:{PASSWORD}@broker..lab:1883"},
+    *({"url": url} for url in URLS_WITH_A_PASSWORD),
 ])
 def test_a_password_in_the_mqtt_url_is_never_printed_by_check(tmp_path: Path,
                                                               mqtt: dict) -> None:
     """The url's user and password are refused (they are mqtt.username and
     mqtt.password) in one line that says neither: the url's repr, userinfo included,
-    was in the error."""
+    was in the error; so was a url whose password urlsplit does not see (a ``#``, ``/``
+    or ``?`` in it, no scheme: 'the scheme is lab')."""
     path = write_config(tmp_path / "n.yaml", f"tcp://127.0.0.1:{free_port()}", mqtt=mqtt)
     line = one_line(run("gx2-gateway", "--config", str(path), "--check"), 2)
-    assert PASSWORD not in line and "//lab" not in line, line
-    assert "mqtt." in line, line
+    assert PASSWORD not in line and "//lab" not in line and "'lab'" not in line, line
+    assert "mqtt." in line and "***@broker" in line, line
 
 
 def test_a_reload_refused_for_a_password_in_the_url_says_it_nowhere(gateway) -> None:
     """``gx2ctl reload``'s answer and the gateway's log say why the file was refused,
     never the password in it."""
     gw = gateway("sim://", [{"address": 76, "stream": "accel_angrate"}])
-    gw.path.write_text(yaml.safe_dump({**gw.config, "mqtt": {
-        "url": f"mqtt://lab:{PASSWORD}@broker.lab:1883"}}))
-    done = run("gx2ctl", "--control", gw.control_endpoint, "reload")
-    assert done.returncode != 0 and "reload refused" in done.stderr, done
-    assert "mqtt.url" in done.stderr, done.stderr
-    assert PASSWORD not in done.stdout + done.stderr
-    wait_for(lambda: "reload refused" in gw.log(), 5, "the refusal logged")
+    urls = (f"mqtt://lab:{PASSWORD}@broker.lab:1883", *URLS_WITH_A_PASSWORD)
+    for n, url in enumerate(urls, 1):
+        gw.path.write_text(yaml.safe_dump({**gw.config, "mqtt": {"url": url}}))
+        done = run("gx2ctl", "--control", gw.control_endpoint, "reload")
+        assert done.returncode != 0 and "reload refused" in done.stderr, done
+        assert "mqtt.url" in done.stderr, done.stderr
+        assert PASSWORD not in done.stdout + done.stderr, url
+        wait_for(lambda n=n: gw.log().count("reload refused") >= n, 5,
+                 "the refusal logged")
     assert PASSWORD not in gw.log()
 
 

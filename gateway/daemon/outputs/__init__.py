@@ -117,6 +117,9 @@ import and 1.8 MiB, foxglove-sdk more, pylsl loads liblsl)."""
 FRAMES = "frames"
 """The guard's name for the frames made for records (:mod:`.frames`): no output of its
 own, given to those that take messages."""
+REPLAYED = "replay"
+"""The guard's name for replayed records made again as the gateway published them
+(``Outputs.replayed``): no output of its own; in status once one failed."""
 FAILED_START_CLOSE_S = 1.0
 """Seconds a failed start may spend closing the outputs it had already built (the
 metrics and live view servers each stop within 0.5 s)."""
@@ -278,11 +281,18 @@ class Outputs:
         node's record counted as one published on that node's topic), a record as the
         gateway published it (:func:`~gateway.common.payloads.as_published`: its NaN
         back from the file's nulls, a matrix's derived fields where the file lacks
-        them), for every output alike."""
+        them), for every output alike. Making it so is guarded as a ``take`` is
+        (counted under REPLAYED): a payload it fails on is published as it was read,
+        and the replay goes on."""
         found = parse(name)
-        if found is not None:
-            return self.publish(*found, as_published(payload))
-        return self._give(name.encode(), payload)
+        if found is None:
+            return self._give(name.encode(), payload)
+        try:
+            payload = as_published(dict(payload))
+        except Exception as error:  # (a bug or a case unforeseen, contained)
+            self.guard.failed(REPLAYED, f"failed to read a record on {name} as published",
+                              error)
+        return self.publish(*found, payload)
 
     def _give(self, name: bytes, payload: dict[str, Any]) -> bool:
         if self._takes:

@@ -10,8 +10,8 @@ is seen from its next record; its rotation the record's orientation
 (:mod:`aspp.orientation`), its translation none, its timestamp the sample's ``time``.
 Which records give one is decided once a node and record (:meth:`Frames.maker`); a
 record without one pays nothing more. A record with no orientation to give (a NaN
-matrix, a replayed record without its fields) gives no frame, and is published all
-the same.
+matrix, a replayed record without its fields or with a matrix no float holds) gives no
+frame, and is published all the same.
 """
 
 from __future__ import annotations
@@ -84,8 +84,9 @@ class Frames:
                     return None
                 times = message_times(payload)
                 stamp = ns(times[1])
-            except (KeyError, TypeError, ValueError, OutOfRange):
-                return None  # (a replayed record without its fields, or with text in them)
+            except (KeyError, TypeError, ValueError, OverflowError, OutOfRange):
+                return None  # (a replayed record without its fields, or with text or an
+                #              int no float holds in them)
             frame = {"timestamp": {"sec": stamp // 1_000_000_000,
                                    "nsec": stamp % 1_000_000_000},
                      "parent_frame_id": PARENT_FRAME,

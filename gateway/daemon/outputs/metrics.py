@@ -138,10 +138,12 @@ def families(report: Mapping[str, Any]) -> Iterator[Metric]:
                         value=made - uptime)
     yield from _table(GATEWAY, [], [([], gateway)])
     if gateway.get("health") in HEALTH_VALUES:
-        yield GAUGE("gx2_gateway_health", "The gateway's own health: 0 OK, 1 WARN (its "
-                    "recorder's queue overflowed, a line over capacity, an output failed "
-                    "to take messages), 2 ERROR (its recorder cannot write); status gives "
-                    "the reasons", value=HEALTH_VALUES[gateway["health"]])
+        yield GAUGE("gx2_gateway_health", "The gateway's health, the worst of what it "
+                    "owns: 0 OK, 1 WARN (its recorder's queue overflowed, a line over "
+                    "capacity, an output failed to take messages, a node not configured "
+                    "streams), 2 ERROR (a base station's link not up, the MQTT broker "
+                    "unreachable, its recorder cannot write); status gives the reasons",
+                    value=HEALTH_VALUES[gateway["health"]])
     # a gateway of one base station: its link's series without labels, as ever; of
     # several, each station's series labelled with its name
     stations = [s for s in report.get("stations") or () if isinstance(s, Mapping)]
