@@ -14,7 +14,6 @@ partial.
 from __future__ import annotations
 
 import argparse
-import re
 import signal
 import sys
 from pathlib import Path
@@ -68,8 +67,9 @@ def add_commands(commands: Any) -> None:
                           default="csv", help="csv (default), parquet (needs "
                           "gx2-gateway[parquet]), or mat: MATLAB (needs gx2-gateway[mat])")
     exporter.add_argument("--force", action="store_true",
-                          help="replace the tables of an earlier export in DIR (without "
-                          "it, export refuses to, as record refuses an existing file)")
+                          help="remove the tables of an earlier export in DIR first, "
+                          "every one (without it, export refuses to write over them, as "
+                          "record refuses an existing file)")
     add_window_options(exporter)
     plotter = commands.add_parser(
         "plot", help="draw a node's recorded stream to a PNG or a PDF",
@@ -150,18 +150,25 @@ def _check_held(args: argparse.Namespace, files: list[Described]) -> None:
         raise CtlError(str(error), Exit.USAGE) from None
 
 
-def _refuse_to_replace(outs: list[Path], form: str) -> None:
-    """Exit 2, nothing written, if an earlier export's tables of this format are where
-    this one writes (issue 43: export replaced them without a word, where record
-    refuses an existing file); --force replaces them."""
-    from gateway.recording.export import MARKS
-    found = sorted(path for out in outs if out.is_dir() for path in out.iterdir()
-                   if path.suffix == f".{form}" and (
-                       path.stem == MARKS or re.fullmatch(r"\d+_.+", path.stem)))
-    if found:
+def _replace_earlier(outs: list[Path], form: str, force: bool) -> None:
+    """An earlier export's tables of this format where this one writes (only the names
+    export gives its tables: :func:`~gateway.recording.export.earlier_tables`): exit 2,
+    nothing written (issue 43: export replaced them without a word, where record
+    refuses an existing file); with ``force`` each is removed before anything is
+    written, so the directory never mixes two exports' tables (an earlier export of a
+    node not exported now was left beside the new ones)."""
+    from gateway.recording.export import earlier_tables
+    found = [path for out in outs for path in earlier_tables(out, form)]
+    if found and not force:
         more = f" (and {len(found) - 1} more tables)" if len(found) > 1 else ""
         raise CtlError(f"{found[0]} exists{more}: export to a new --out, or give --force "
                        "to replace an earlier export's tables", Exit.USAGE)
+    for path in found:
+        try:
+            path.unlink(missing_ok=True)
+        except OSError as error:
+            raise CtlError(f"{path}: cannot remove it: {error.strerror or error}",
+                           Exit.USAGE) from None
 
 
 def run_export(args: argparse.Namespace) -> int:
@@ -169,8 +176,8 @@ def run_export(args: argparse.Namespace) -> int:
     from gateway.recording.window import Reader, touched
     paths = _files(args.files)
     files, chosen = _windows(args, paths)
-    if not args.force:
-        _refuse_to_replace([Path(args.out) / window.label for window in chosen], args.form)
+    _replace_earlier([Path(args.out) / window.label for window in chosen], args.form,
+                     args.force)
     reading = Reading()
     reader = Reader(files, reading)
     found = tables = 0

@@ -61,6 +61,27 @@ MARKS = "marks"
 TEMPORARY = ".{name}.partial"
 
 
+def table_name(address: int, record: str, form: str) -> str:
+    """The name of a node's table of ``record`` in format ``form``."""
+    return f"{address}_{record}.{form}"
+
+
+def earlier_tables(out: Path, form: str) -> list[Path]:
+    """The tables of ``form`` an export writes that ``out`` holds already (an earlier
+    export's): ``<address>_<record>.<form>`` of a record this version knows, and
+    ``marks.<form>``; no other file (a user's ``2024_budget.csv`` is none of them)."""
+    def is_table(name: str) -> bool:
+        stem, dot, suffix = name.rpartition(".")
+        if not dot or suffix != form:
+            return False
+        address, _, record = stem.partition("_")
+        return stem == MARKS or (address.isascii() and address.isdigit()
+                                 and record in BY_NAME)
+    if not out.is_dir():
+        return []
+    return sorted(path for path in out.iterdir() if path.is_file() and is_table(path.name))
+
+
 def field_columns(record: str, payload: Mapping[str, Any]) -> list[tuple[str, str, int]]:
     """(column, field, index) for each field column of ``record``: the layout's order
     for a known record, the payload's own order for one this version does not know
@@ -237,7 +258,7 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
             open_table = tables.get(where)
             if open_table is None:
                 table = Table(*where, payload)
-                output = Output(out, f"{where[0]}_{where[1]}.{form}", form, table.columns,
+                output = Output(out, table_name(*where, form), form, table.columns,
                                 outputs)
                 open_table = tables[where] = (table, output)
             table, output = open_table

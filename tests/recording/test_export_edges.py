@@ -92,3 +92,28 @@ def test_an_earlier_exports_tables_are_replaced_only_with_force(tmp_path: Path) 
     forced = gx2ctl("export", str(path), "--out", str(out), "--force")
     assert forced.status == 0, forced
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_only_an_exports_own_tables_are_refused_and_force_removes_every_one(
+        tmp_path: Path) -> None:
+    """Files that are no export's table (a user's ``2024_budget.csv``: a number, ``_``
+    and a name that is no record) are no reason to refuse, and --force leaves them;
+    --force removes every table of an earlier export before writing, so that the
+    tables of a node not exported now are not left beside the new ones (issue 43
+    review: ``2024_budget.csv`` made export refuse, and ``12_euler.csv`` stayed)."""
+    path = foreign_file(tmp_path / "a.mcap", [
+        ("gx2/11/euler", EULER), ("gx2/12/euler", {**EULER, "node": 12})])
+    out = tmp_path / "out"
+    out.mkdir()
+    mine = {"2024_budget.csv": "mine", "11_notes.csv": "mine too", "marks.txt": "and this"}
+    for name, text in mine.items():
+        (out / name).write_text(text)
+    first = gx2ctl("export", str(path), "--out", str(out))
+    assert first.status == 0 and first.stderr == "", first
+    assert gx2ctl("export", str(path), "--out", str(out), "--format", "parquet").status == 0
+    one = gx2ctl("export", str(path), "--out", str(out), "--node", "11", "--force")
+    assert one.status == 0 and one.stderr == "", one
+    assert sorted(p.name for p in out.iterdir()) == sorted([
+        *mine, "11_euler.csv", "marks.csv",  # (12_euler.csv: the earlier export's, gone)
+        "11_euler.parquet", "12_euler.parquet", "marks.parquet"])  # (another format's)
+    assert {name: (out / name).read_text() for name in mine} == mine

@@ -134,6 +134,11 @@ class MqttOutput(Output):
         """Node -> what was last said of it (``online``/``offline``)."""
         self._names: dict[int, str | None] = {}
         """Node -> its name, for each node in the status reports."""
+        self._removed: set[int] = set()
+        """Nodes a reload removed since the last connection: their removal (``offline``,
+        an empty discovery config) is sent again by the next one, as the broker may
+        not have had it (queued while it was away, it was dropped: Home Assistant kept
+        a ghost of the node)."""
         self._discovery = config.homeassistant_prefix if config.homeassistant else None
         """Home Assistant's discovery prefix, None without discovery."""
         self.connected = False
@@ -220,6 +225,7 @@ class MqttOutput(Output):
             if not isinstance(address, int):
                 continue
             reported.add(address)
+            self._removed.discard(address)  # (added again by a reload)
             name = as_map(node).get("name")
             name = name if isinstance(name, str) else None
             if address not in self._names or self._names[address] != name:
@@ -232,17 +238,27 @@ class MqttOutput(Output):
                     self._announce(address)
             self._say(address, "offline" if state in OFFLINE_STATES else "online")
         for address in set(self._availability) - reported:
-            self._say(address, "offline")
             del self._availability[address]
-            self._announce(address, removed=True)
             self._names.pop(address, None)
+            self._removed.add(address)
+            for said, payload in self._removal(address):
+                self._put(said, payload, True)
 
-    def _announce(self, address: int, removed: bool = False) -> None:
-        """A node's sensors to Home Assistant's discovery (an empty config: removed)."""
+    def _announce(self, address: int) -> None:
+        """A node's sensors to Home Assistant's discovery."""
         if self._discovery is not None:
             for topic, config in discovery(self._discovery, self.base, self.config.name,
                                            address, self._names.get(address)):
-                self._put(topic, b"" if removed else config, True)
+                self._put(topic, config, True)
+
+    def _removal(self, address: int) -> list[tuple[str, bytes]]:
+        """What says a node is removed (each retained): ``offline``, and to Home
+        Assistant's discovery an empty config for each of its sensors."""
+        said = [(f"{self.base}/{address}/availability", b"offline")]
+        if self._discovery is not None:
+            said += [(topic, b"") for topic, _ in discovery(
+                self._discovery, self.base, self.config.name, address, None)]
+        return said
 
     def _say(self, address: int, said: str) -> None:
         if self._availability.get(address) != said:
@@ -325,6 +341,10 @@ class MqttOutput(Output):
         for node, said in list(self._availability.items()):
             client.publish(f"{self.base}/{node}/availability", said, qos=WILL_QOS,
                            retain=True)
+        for node in list(self._removed):
+            for topic, payload in self._removal(node):
+                client.publish(topic, payload, qos=WILL_QOS, retain=True)
+            self._removed.discard(node)
         if self._discovery is not None:
             client.subscribe(f"{self._discovery}/status")
             for node in list(self._names):

@@ -190,17 +190,23 @@ class Recorder(Output):
 
     async def kept(self, timeout: float = MARK_KEPT_S) -> bool:
         """Wait (on the loop) until every mark taken so far is on the disk, flushed
-        (or lost to a failing disk), at most ``timeout`` s; whether it came to that."""
+        (or lost to a failing disk), at most ``timeout`` s; whether it came to that.
+        A waiter that gave up is forgotten (on a slow disk they piled up, one a mark)."""
         loop = asyncio.get_running_loop()
         with self._marks_lock:
             if self._marks_done >= self._marks_taken:
                 return True
             future: asyncio.Future[None] = loop.create_future()
-            self._kept_waiters.append((self._marks_taken, future))
+            waiter = (self._marks_taken, future)
+            self._kept_waiters.append(waiter)
         try:
             await asyncio.wait_for(future, timeout)
         except TimeoutError:
             return False
+        finally:
+            with self._marks_lock:  # (the thread's _mark_done took it if it was done)
+                if waiter in self._kept_waiters:
+                    self._kept_waiters.remove(waiter)
         return True
 
     def _mark_done(self) -> None:

@@ -11,6 +11,7 @@ import math
 import random
 import socket
 import threading
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -19,6 +20,7 @@ from gateway.common.topics import STATUS_TOPIC, topic
 from gateway.daemon.config import MqttConfig
 from gateway.daemon.outputs import Message, mqtt
 from gateway.daemon.outputs.guard import Guard
+from gateway.daemon.outputs.homeassistant import discovery
 from gateway.daemon.outputs.mqtt import MqttOutput
 from gateway.daemon.outputs.sampler import Sampler
 from tests.helpers.waiting import wait_for
@@ -73,6 +75,55 @@ def test_availability_is_said_on_change_and_offline_for_a_node_removed() -> None
                     ("gx2/gw/77/availability", b"offline"),
                     ("gx2/gw/77/availability", b"online"),
                     ("gx2/gw/76/availability", b"offline")]
+
+
+class Broker:
+    """What paho's client is to the output's _on_connect: what it publishes, kept."""
+
+    def __init__(self) -> None:
+        self.published: list[tuple[str, bytes, bool]] = []
+
+    def publish(self, topic: str, payload: Any, qos: int = 0, retain: bool = False) -> None:
+        self.published.append((topic, payload.encode() if isinstance(payload, str)
+                                else payload, retain))
+
+    def subscribe(self, *args: Any, **kwargs: Any) -> None:
+        pass
+
+
+def connected(output: MqttOutput) -> list[tuple[str, bytes, bool]]:
+    """What a connection of ``output`` sends: published at once, and queued (the
+    discovery announcements) for the drainer."""
+    output._queue.clear()
+    broker = Broker()
+    output._on_connect(broker, None, None, SimpleNamespace(is_failure=False), None)
+    return [*broker.published, *output._queue]
+
+
+def test_a_node_removed_while_the_broker_is_away_is_removed_on_connect() -> None:
+    """A reload removes node 77 while the broker is away: its removal (``offline``, an
+    empty discovery config for each sensor), queued and dropped as offline, is sent by
+    the next connection, once; Home Assistant kept a ghost of the node (issue 43
+    review). A node removed and added again before the connection is not removed."""
+    output = MqttOutput(MqttConfig(url="mqtt://127.0.0.1:1", name="gw", homeassistant=True))
+    output.connected = True
+    output.report({"nodes": [{"node": 76, "state": "streaming"},
+                             {"node": 77, "state": "streaming"},
+                             {"node": 78, "state": "streaming"}]})
+    output.connected = False  # the broker goes away
+    output.report({"nodes": [{"node": 76, "state": "streaming"}]})  # a reload: 77, 78 go
+    output.report({"nodes": [{"node": 76, "state": "streaming"},
+                             {"node": 78, "state": "streaming"}]})  # 78 back
+    configs = [t for t, _ in discovery("homeassistant", "gx2/gw", "gw", 77, None)]
+    sent = connected(output)  # (what was queued meanwhile: dropped, offline)
+    about = [(t, payload) for t, payload, retain in sent if "77" in t and retain]
+    assert about == [("gx2/gw/77/availability", b"offline"),
+                     *((topic, b"") for topic in configs)], about
+    assert {t for t, payload, _ in sent if payload and t.endswith("/config")} == {
+        t for node in (76, 78) for t, _ in discovery("homeassistant", "gx2/gw", "gw", node,
+                                                     None)}
+    assert ("gx2/gw/78/availability", b"online", True) in sent
+    assert not [t for t, _, _ in connected(output) if "77" in t]  # (said once)
 
 
 def test_a_listener_that_never_answers_the_connect_is_said_once(monkeypatch, caplog) -> None:

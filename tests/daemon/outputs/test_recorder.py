@@ -3,6 +3,7 @@ rotates and finishes files, and what it cannot write is counted."""
 
 from __future__ import annotations
 
+import asyncio
 import errno
 import io
 import logging
@@ -10,14 +11,17 @@ import os
 import threading
 import time
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 from mcap.reader import NonSeekingReader, make_reader
 
+from gateway.common.topics import MARK_TOPIC
+from gateway.daemon.app import Gateway
 from gateway.daemon.config import RecordConfig
 from gateway.daemon.outputs import Message
 from gateway.daemon.outputs import recorder as recorder_module
-from gateway.daemon.outputs.recorder import Recorder
+from gateway.daemon.outputs.recorder import MARK_KEPT_S, Recorder
 from gateway.recording.files import file_name
 from tests.helpers.waiting import wait_for
 
@@ -112,6 +116,44 @@ def readable(path: Path) -> tuple[int, bool]:
         except Exception:
             return count, False
     return count, True
+
+
+def test_a_mark_the_disk_is_too_slow_for_is_answered_in_time_said_and_its_wait_forgotten(
+        tmp_path, caplog):
+    """A mark on a disk whose writes take 3 s: the gateway's mark waits MARK_KEPT_S for
+    it to be on the disk, then answers all the same with a warning; the wait given up
+    is forgotten (issue 43 review: each mark left its waiter behind for good)."""
+    caplog.set_level(logging.WARNING, "gx2.gateway")
+    disk = SlowDisk(3.0)
+    recorder = Recorder(RecordConfig(directory=str(tmp_path)), {}, create=disk.create)
+    disk.slow.set()
+    recorder.start()
+
+    def publish(payload: dict[str, Any]) -> bool:
+        recorder.take(Message(MARK_TOPIC, payload))
+        return True
+    gateway = SimpleNamespace(outputs=SimpleNamespace(mark=publish), recorder=recorder)
+
+    async def marks() -> list[tuple[bool, float, int]]:
+        done = []
+        for n in range(2):
+            start = time.monotonic()
+            answered = await Gateway._mark(gateway, {  # type: ignore[arg-type]
+                "text": f"m{n}", "time": time.time(), "host_time": time.time(),
+                "nodes": []})
+            done.append((answered, time.monotonic() - start, len(recorder._kept_waiters)))
+        return done
+    try:
+        done = asyncio.run(marks())
+    finally:
+        disk.released.set()
+        recorder.close()
+    for answered, took, waiting in done:
+        assert answered and MARK_KEPT_S <= took < MARK_KEPT_S + SLACK, done
+        assert waiting == 0, done
+    said = [r.message for r in caplog.records]
+    assert said == [f"mark 'm{n}': not on the recording's disk yet (the disk is slow or "
+                    "failing; recording.dropped counts what it loses)" for n in range(2)]
 
 
 def test_a_backlog_the_disk_cannot_take_in_time_is_cut_and_the_file_finished(tmp_path):
