@@ -134,3 +134,14 @@ def test_a_vector_turned_into_the_world_is_the_same_in_either_frames(
     ("2nd node", 5, "gx2_2nd_node"), ("--", 9, "gx2_9"), ("Hüfte links", 3, "H_fte_links")])
 def test_a_nodes_name_as_a_ros_name(name: str | None, address: int, token: str) -> None:
     assert ros_name(name, address) == token
+
+
+def test_gx2ctls_choices_are_the_librarys() -> None:
+    """gx2ctl's parser names the formats and frames without importing the exporter (its
+    start stays light): the same as the library's tables."""
+    from gateway.ctl import offline
+    from gateway.recording import export
+
+    assert offline.FORMATS == export.FORMATS
+    assert set(export.FORMATS) == {*export.WRITERS, *export.WHOLE}
+    assert offline.FRAMES == rep103.FRAMES
