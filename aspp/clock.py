@@ -96,7 +96,7 @@ EARLY_STEP = 0.1
 # still -161 ppm, ``time`` 10 ms early; issue 32, FIFO seed 67). It goes to the edge's
 # slope at the next fit, and is bounded from there. What this and the ideas measured
 # against it give over the line models' sweep (bench/sweep.py) is in
-# docs/performance.md, "Sample time over the sweep".
+# docs/performance-history.md, "Sample time over the sweep".
 SETTLE_SPAN = 10.0
 DRIFT_RATE = 0.1e-6
 FLOOR_NOISE = 0.5e-3
@@ -152,7 +152,7 @@ records."""
 #   (SETTLE_SPAN) holding the drift behind the edge's and a window not yet full (a
 #   drift at MAX_DRIFT it does not hold: it goes to the edge's at the next fit). That
 #   is an allowance, not a proof: a line younger than a window, or a drift the rate
-#   bound holds far from the edge's, may be further off (docs/performance.md, "Sample
+#   bound holds far from the edge's, may be further off (docs/performance-history.md, "Sample
 #   time over the sweep", measures what is left).
 #
 # So ``time`` may be late by up to |L - R| + DRIFT_ERROR * age + FLOOR_NOISE
@@ -187,7 +187,7 @@ DRIFT_ERROR = FLOOR_NOISE / (WINDOW / 4)
 # its temperature meanwhile at DRIFT_RATE, which is what the fit allows a settled drift
 # (so 0.5 ms is reached after about 60 s held). Against the truth in the fault soak
 # (bench/faultsoak.py), where DRIFT_ERROR said a held node's time may be off after 15 s
-# and 98% of that WARN's time fell on samples within 0.2 ms: docs/performance.md.
+# and 98% of that WARN's time fell on samples within 0.2 ms: docs/performance-history.md.
 HELD_DRIFT_ERROR = 5e-6
 FLOOR_FRESH = 10.0
 """Device seconds within which a line saw its floor for its drift to count as measured
@@ -457,7 +457,7 @@ class NodeClock:
             self._offset = min(y - self._drift * x for x, y in hull)
             return
         # (issue 32: keeping the drift while the line rested in the window's middle
-        # half, f9a36a2, broke ``time`` on a FIFO line: docs/performance.md)
+        # half, f9a36a2, broke ``time`` on a FIFO line: docs/performance-history.md)
         middle = (hull[0][0] + hull[-1][0]) / 2
         edge = min(max(bisect.bisect_left(hull, (middle,)), 1), len(hull) - 1)
         (x1, y1), (x2, y2) = hull[edge - 1], hull[edge]

@@ -100,7 +100,7 @@ class Model:
 VISIBLE_BIN = 10.0
 """Seconds of a stream in each of which its floor must show for the run to count as one
 the host could place (where every stream's did, the estimate holds the targets on
-gx2-sim's line: docs/performance.md)."""
+gx2-sim's line: docs/performance-history.md)."""
 VISIBLE_WITHIN = 0.1e-3
 """A packet shows its floor to the host when it did not wait behind another on the line
 and began there within this of its sample's instant plus the radio's floor."""

@@ -388,7 +388,7 @@ class MqttConfig(TlsPair):
 FLOOR_UNSEEN_S = 30.0
 """The default of health.floor_unseen_s: from 30 s unseen, ``time`` may be late by 1 ms
 (aspp.clock.DRIFT_ERROR), the worst error the sample time's targets allow
-(docs/performance.md)."""
+(docs/performance-history.md)."""
 
 
 class HealthConfig(Strict):

@@ -1,5 +1,5 @@
 """Sample time over the line models of bench/sweep.py, on a fixed handful of seeds (the
-full sweep is a bench: docs/performance.md, "Sample time over the sweep"). Each seed
+full sweep is a bench: docs/performance-history.md, "Sample time over the sweep"). Each seed
 is a whole gateway clock path (arrival from the read, TimerUnwrapper, NodeClock) fed
 90 s of simulated line; its figures are held to the issue's targets: ``time``'s p99
 spread <= 0.2 ms, the nodes' median errors within 0.15 ms, no node's error moving more

@@ -161,7 +161,7 @@ class Stream:
         timestamps, into liblsl in one call: its C API's ``lsl_push_chunk_ftnp`` on
         flat arrays, as pylsl's own ``push_chunk`` ends, without the numpy conversion
         it goes through first (the thread's CPU at a saturated line: 0.85% of a core
-        through ``push_chunk``, 0.53% this way; docs/performance.md, "LSL output")."""
+        through ``push_chunk``, 0.53% this way; docs/performance-history.md, "LSL output")."""
         doubles = array.array("d", stamps)
         error = self._push_chunk(self._outlet_handle,
                                  ctypes.c_void_p(floats.buffer_info()[0]),

@@ -6,7 +6,7 @@ Built on paho-mqtt 2, its network loop in a thread of its own, fed by a second t
 of ours from a bounded queue: ``take`` on the loop only decides whether the record is
 due (``rate_hz``) and appends it, 0.2 us of the loop's time a record against 11 us for
 paho's ``publish`` called on the loop and 126 us for aiomqtt, whose publishing and
-socket writes all run on the loop (bench/mqttclient.py, docs/performance.md). A
+socket writes all run on the loop (bench/mqttclient.py, docs/performance-history.md). A
 broker that is slow, down or unreachable costs the queue (``mqtt.queue`` messages, and
 at most as many more inside paho: a batch is handed over once paho has written the
 last): what does not fit, or comes while the broker is away, is dropped and counted,
@@ -51,7 +51,7 @@ RECONNECT_S = (1, 30)
 BATCH_S = 0.05
 """Seconds the records of a stream gather in the queue before the output's thread hands
 them to paho at once: a wake of each thread a record cost 0.3 ms of CPU each, three
-times the gateway's own work a record (bench/ab.py --mqtt, docs/performance.md). A
+times the gateway's own work a record (bench/ab.py --mqtt, docs/performance-history.md). A
 record waits this long at most on top of the network."""
 KEEPALIVE_S = 30
 """The broker notices a gateway gone silent (and sends its will) in 1.5 times this; paho
