@@ -9,8 +9,9 @@ Per node, named in ROS's terms (:func:`ros_name`):
 - ``sensor_msgs/msg/Imu`` on ``/gx2/<name>/imu`` for each record with an acceleration,
   an angular rate or an orientation (:data:`GIVES`): ``linear_acceleration`` in m/s^2,
   ``angular_velocity`` in rad/s, ``orientation`` from the record's matrix or Euler
-  angles; what the record lacks is unset (the message's defaults: zero, the identity),
-  its covariance's element 0 -1 (REP-145);
+  angles; what the record lacks, or has as NaN (any element of a vector or matrix), is
+  unset (the message's defaults: zero, the identity), its covariance's element 0 -1
+  (REP-145);
 - ``sensor_msgs/msg/MagneticField`` on ``/gx2/<name>/mag`` (tesla) for each record with
   a finite ``mag``;
 - ``tf2_msgs/msg/TFMessage`` on ``/tf``: the node's frame in the world frame, for each
@@ -254,7 +255,7 @@ class BagWriter:
                 linear_acceleration_covariance=self._unknown if accel else self._absent)
             self._write(f"/gx2/{name}/imu", IMU, imu, stamp)
         mag = _vector(payload, gives.mag)
-        if mag and rep103.finite(mag):
+        if mag:
             field_ = self._mag(header=header,
                                magnetic_field=self._vector(*rep103.magnetic_field(mag, frame)),
                                magnetic_field_covariance=self._unknown)
@@ -319,9 +320,10 @@ class BagWriter:
 
 
 def _vector(payload: Mapping[str, Any], name: str | None) -> list[float] | None:
+    """The field ``name`` as a vector; None (not in the message, REP-145's -1) if it is
+    not three finite numbers: a NaN (a null in the recording) is no reading."""
     value = payload.get(name) if name else None
-    if isinstance(value, list) and len(value) == 3 and all(
-            isinstance(v, (int, float)) for v in value):
+    if isinstance(value, list) and len(value) == 3 and rep103.finite(value):
         return value
     return None
 

@@ -1,0 +1,55 @@
+"""The ROS 2 bag's edges an outside review found (issue 47): a NaN reading, an earlier
+bag --force replaces when the export is stopped between finish's two renames, the
+library's ``export`` asked for ``ros2``, a node named as the world frame."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from gateway.recording.reports import Reading
+from gateway.recording.writer import RecordingWriter
+
+rosbag2 = pytest.importorskip("rosbags.rosbag2")
+typesys = pytest.importorskip("rosbags.typesys")
+
+from gateway.recording.rosbag import export_bag  # noqa: E402
+
+I3 = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]
+T0 = 1_795_000_000.5
+
+
+def recording(path: Path, *records: tuple[int, str, dict]) -> Path:
+    with path.open("wb") as output:
+        writer = RecordingWriter(output)
+        for i, (node, record, fields) in enumerate(records):
+            at = T0 + i / 10
+            writer.message(f"gx2/{node}/{record}", {
+                "node": node, "record": record, "seq": i + 1, "host_time": at,
+                "device_time": i / 10, "timer": i, "time": at, **fields})
+        writer.finish()
+    return path
+
+
+def read(bag: Path) -> list[tuple[str, object]]:
+    store = typesys.get_typestore(typesys.Stores.ROS2_JAZZY)
+    with rosbag2.Reader(bag) as reader:
+        return [(c.topic, store.deserialize_cdr(data, c.msgtype))
+                for c, _, data in reader.messages()]
+
+
+def test_a_nan_component_makes_the_vector_absent_not_a_reading(tmp_path: Path) -> None:
+    source = recording(tmp_path / "r.mcap", (76, "accel_angrate_orientation", {
+        "accel": [None, 0.0, -1.0], "ang_rate": [0.1, None, 0.0], "orientation": I3}))
+    bag = tmp_path / "bag"
+    export_bag([source], bag, Reading(), names={76: "n"})
+    (imu,) = [m for topic, m in read(bag) if topic == "/gx2/n/imu"]
+    for vector, covariance in ((imu.linear_acceleration, imu.linear_acceleration_covariance),
+                               (imu.angular_velocity, imu.angular_velocity_covariance)):
+        assert [vector.x, vector.y, vector.z] == [0.0, 0.0, 0.0]
+        assert all(math.isfinite(v) for v in (vector.x, vector.y, vector.z))
+        assert list(covariance) == [-1.0] + [0.0] * 8
+    # the orientation, whole, is there
+    assert list(imu.orientation_covariance) == [0.0] * 9
