@@ -305,17 +305,26 @@ class BagWriter:
         self._writer = None
         path = self.bag.path
         if path.exists():  # (an earlier bag, --force: check_target)
-            old = self._temporary / ".replaced"
-            path.rename(old)
+            path.rename(self._replaced)
         (self._temporary / path.name).rename(path)
         shutil.rmtree(self._temporary, ignore_errors=True)
         return self.bag
 
+    @property
+    def _replaced(self) -> Path:
+        """Where finish puts an earlier bag while the new one moves into its place."""
+        return self._temporary / ".replaced"
+
     def discard(self) -> None:
-        """Nothing left of the bag: its temporary directory goes (the writer first)."""
+        """Nothing left of the bag: its temporary directory goes (the writer first); an
+        earlier bag finish had moved aside, its place still empty, goes back."""
         if self._writer is not None:
             with contextlib.suppress(Exception):
                 self._writer.close()
+        path = self.bag.path
+        if self._replaced.exists() and not (path.exists() or path.is_symlink()):
+            with contextlib.suppress(OSError):
+                self._replaced.rename(path)
         shutil.rmtree(self._temporary, ignore_errors=True)
 
 

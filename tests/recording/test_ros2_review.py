@@ -53,3 +53,27 @@ def test_a_nan_component_makes_the_vector_absent_not_a_reading(tmp_path: Path) -
         assert list(covariance) == [-1.0] + [0.0] * 8
     # the orientation, whole, is there
     assert list(imu.orientation_covariance) == [0.0] * 9
+
+
+def test_stopped_between_finishs_renames_the_earlier_bag_survives(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    source = recording(tmp_path / "r.mcap", (76, "accel_angrate", {
+        "accel": [0.0, 0.0, -1.0], "ang_rate": [0.0, 0.0, 0.0]}))
+    bag = tmp_path / "bag"
+    export_bag([source], bag, Reading())
+    earlier = {p.name: p.read_bytes() for p in bag.iterdir()}
+    real, calls = Path.rename, []
+
+    def rename(self: Path, target: Path) -> Path:
+        calls.append(self)
+        if len(calls) == 2:  # Ctrl-C just after the earlier bag was moved aside
+            raise KeyboardInterrupt
+        return real(self, target)
+
+    monkeypatch.setattr(Path, "rename", rename)
+    with pytest.raises(KeyboardInterrupt):
+        export_bag([source], bag, Reading(), force=True)
+    monkeypatch.undo()
+    assert calls[0] == bag  # (the earlier bag was moved aside first)
+    assert {p.name: p.read_bytes() for p in bag.iterdir()} == earlier
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bag", "r.mcap"]
