@@ -213,7 +213,14 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
     scipy); on any error, or Ctrl-C, no table that was not whole is left. ``entries``: the
     messages to export (a window of the recordings, :mod:`.window`) in place of every
     message of ``paths``. ``tables_only``: NoTables, and nothing written, if there is
-    no table (only marks: the nodes asked are not in the recordings)."""
+    no table (only marks: the nodes asked are not in the recordings). ValueError, and
+    nothing written, for a format that is not a table's (``ros2`` writes a window
+    whole: WHOLE's function, :func:`.rosbag.export_bag`)."""
+    if form in WHOLE:
+        raise ValueError(f"export writes tables; format {form!r} writes a window whole: "
+                         f"call {WHOLE[form].__module__}.{WHOLE[form].__name__}")
+    if form not in WRITERS:
+        raise ValueError(f"no export format {form!r}: one of {', '.join(FORMATS)}")
     if form in EXTRAS:
         EXTRAS[form]()
     out.mkdir(parents=True, exist_ok=True)

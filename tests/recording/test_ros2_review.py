@@ -77,3 +77,14 @@ def test_stopped_between_finishs_renames_the_earlier_bag_survives(
     assert calls[0] == bag  # (the earlier bag was moved aside first)
     assert {p.name: p.read_bytes() for p in bag.iterdir()} == earlier
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bag", "r.mcap"]
+
+
+@pytest.mark.parametrize("form", ["ros2", "xlsx"])
+def test_the_librarys_export_refuses_a_format_not_a_tables_before_writing(
+        tmp_path: Path, form: str) -> None:
+    from gateway.recording.export import export
+    source = recording(tmp_path / "r.mcap", (76, "accel_angrate", {
+        "accel": [0.0, 0.0, -1.0], "ang_rate": [0.0, 0.0, 0.0]}))
+    with pytest.raises(ValueError, match="export_bag" if form == "ros2" else "csv, parquet"):
+        export([source], tmp_path / "out", Reading(), form=form)
+    assert not (tmp_path / "out").exists()
