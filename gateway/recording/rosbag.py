@@ -218,7 +218,9 @@ class BagWriter:
         name = self._nodes.get(address)
         if name is None:
             name = ros_name(self._names.get(address), address)
-            if name in self._nodes.values():  # (two names ROS would make one)
+            # (two names ROS would make one; or the world frame's, either frame's so a
+            # node's name does not hang on --frame: its /tf would be a loop on itself)
+            if name in self._nodes.values() or name in rep103.WORLD.values():
                 name = f"{name}_{address}"
             self._nodes[address] = name
         return name

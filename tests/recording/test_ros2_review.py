@@ -88,3 +88,17 @@ def test_the_librarys_export_refuses_a_format_not_a_tables_before_writing(
     with pytest.raises(ValueError, match="export_bag" if form == "ros2" else "csv, parquet"):
         export([source], tmp_path / "out", Reading(), form=form)
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("frame", ["enu", "ned"])
+def test_a_node_named_as_a_world_frame_gets_its_address(tmp_path: Path, frame: str) -> None:
+    source = recording(tmp_path / "r.mcap", (77, "orientation", {"orientation": I3}),
+                       (78, "orientation", {"orientation": I3}))
+    bag = tmp_path / "bag"
+    export_bag([source], bag, Reading(), frame=frame, names={77: "world", 78: "world-ned"})
+    moved = [m.transforms[0] for topic, m in read(bag) if topic == "/tf"]
+    assert [(t.header.frame_id, t.child_frame_id) for t in moved] == [
+        ("world" if frame == "enu" else "world_ned", name)
+        for name in ("world_77", "world_ned_78")]
+    assert {topic for topic, _ in read(bag)} == {
+        "/tf", "/gx2/world_77/imu", "/gx2/world_ned_78/imu"}
