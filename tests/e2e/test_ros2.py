@@ -341,9 +341,19 @@ def test_frame_ned_keeps_the_devices_frames(recorded) -> None:
             assert moved.header.frame_id == "world_ned"
             q = moved.transform.rotation
             record = records[76, stamp_ns(moved.header)]
-            # the record's own quaternion (the sensor in the NED world), w first
-            assert [q.w, q.x, q.y, q.z] == pytest.approx(
-                [float(v) for v in record["quaternion"]], abs=1e-9)
+            # the sensor in the NED world: the rotation taking body coordinates to the
+            # world's, M transposed (V_sensor = M . V_earth), by scipy, not by the
+            # aspp.orientation the exporter uses; q and -q are one rotation. (The device's
+            # matrix is single precision, not exactly orthonormal: scipy's nearest
+            # rotation and aspp's differ by some 1e-9; a transpose's error is ~0.1 and up)
+            m = [[float(v) for v in row] for row in record["orientation"]]
+            transposed = [[m[j][i] for j in range(3)] for i in range(3)]
+            x, y, z, w = Rotation.from_matrix(transposed).as_quat()
+            sign = 1 if q.w * w + q.x * x + q.y * y + q.z * z >= 0 else -1
+            assert [sign * v for v in (q.w, q.x, q.y, q.z)] == pytest.approx(
+                [w, x, y, z], abs=1e-6)
+            # and it turns the body's axes as M's rows say: body x is M's first row
+            assert turn(matrix(q), [1, 0, 0]) == pytest.approx(m[0], abs=1e-6)
         elif topic.endswith("/imu"):
             record = records[76, stamp_ns(message.header)]
             assert message.linear_acceleration.z == pytest.approx(
