@@ -181,18 +181,6 @@ class BagWriter:
         self._nodes: dict[int, str] = {}
         """Each node's ROS name, fixed by its first record in the bag."""
         self._connections: dict[str, Any] = {}
-        self._temporary = path.parent / TEMPORARY.format(name=path.name)
-        if self._temporary.exists():  # (a killed export's: the name is the export's own)
-            shutil.rmtree(self._temporary)
-        self._temporary.mkdir(parents=True)
-        self._writer = self.rosbag2.Writer(self._temporary / path.name, version=BAG_VERSION,
-                                           storage_plugin=self.rosbag2.StoragePlugin.MCAP)
-        self._writer.set_custom_data("gx2.frame", frame)
-        # each chunk of the MCAP file zstd-compressed, as rosbag2's own mcap presets do
-        # (a quarter of the size; every MCAP reader decompresses chunks)
-        self._writer.set_compression(self.rosbag2.CompressionMode.STORAGE,
-                                     self.rosbag2.CompressionFormat.ZSTD)
-        self._writer.open()
         t = self.types.types
         self._time, self._header = t["builtin_interfaces/msg/Time"], t["std_msgs/msg/Header"]
         self._quaternion = t["geometry_msgs/msg/Quaternion"]
@@ -205,6 +193,26 @@ class BagWriter:
         self._absent = numpy.array([-1.0] + [0.0] * 8)
         """The quantity is not in the message (element 0 -1, REP-145)."""
         self._world = rep103.WORLD[frame]
+        self._temporary = path.parent / TEMPORARY.format(name=path.name)
+        self._writer: Any = None
+        try:  # (a Ctrl-C while the bag is opened, its temporary made: nothing left)
+            if self._temporary.exists():  # (a killed export's: the name is its own)
+                shutil.rmtree(self._temporary)
+            self._temporary.mkdir(parents=True)
+            self._open(path, frame)
+        except BaseException:
+            self.discard()
+            raise
+
+    def _open(self, path: Path, frame: str) -> None:
+        self._writer = self.rosbag2.Writer(self._temporary / path.name, version=BAG_VERSION,
+                                           storage_plugin=self.rosbag2.StoragePlugin.MCAP)
+        self._writer.set_custom_data("gx2.frame", frame)
+        # each chunk of the MCAP file zstd-compressed, as rosbag2's own mcap presets do
+        # (a quarter of the size; every MCAP reader decompresses chunks)
+        self._writer.set_compression(self.rosbag2.CompressionMode.STORAGE,
+                                     self.rosbag2.CompressionFormat.ZSTD)
+        self._writer.open()
 
     def named(self, status: Mapping[str, Any]) -> None:
         """A status's names of its nodes (for nodes not yet in the bag)."""

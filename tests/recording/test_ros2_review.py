@@ -102,3 +102,19 @@ def test_a_node_named_as_a_world_frame_gets_its_address(tmp_path: Path, frame: s
         for name in ("world_77", "world_ned_78")]
     assert {topic for topic, _ in read(bag)} == {
         "/tf", "/gx2/world_77/imu", "/gx2/world_ned_78/imu"}
+
+
+def test_stopped_while_the_bag_is_opened_leaves_no_temporary(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """(test_ros2_interrupted's Ctrl-C, sent when the temporary appears, can land here:
+    it left ``.bag.partial`` now and then.)"""
+    source = recording(tmp_path / "r.mcap", (76, "accel_angrate", {
+        "accel": [0.0, 0.0, -1.0], "ang_rate": [0.0, 0.0, 0.0]}))
+
+    def interrupted(self: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(rosbag2.Writer, "open", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        export_bag([source], tmp_path / "bag", Reading())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.mcap"]
