@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """What each export format costs: seconds per million rows, CSV against Parquet
-against MATLAB .mat, and the .mat writer's memory.
+against MATLAB .mat against a ROS 2 bag, and the .mat writer's memory.
 
     .venv/bin/python bench/exportformats.py [--rows 200000] [--rounds 3]
 
@@ -8,8 +8,10 @@ One recording of ``--rows`` 0xCB records (accel_angrate_mag, 17 columns) of one 
 at 100 Hz, written through the recorder's writer; then, interleaved over ``--rounds``,
 ``export()`` of it in this process to each format (process start excluded; the best
 round kept). ``reading`` is the same loop with a writer that keeps nothing: what every
-format pays before its own writer. The .mat writer holds a table whole until scipy's
-``savemat`` takes it: its peak is measured by tracemalloc in a round of its own.
+format pays before its own writer (a ROS 2 bag: two messages a row, an Imu and a
+MagneticField, each built and serialized by rosbags). The .mat writer holds a table
+whole until scipy's ``savemat`` takes it: its peak is measured by tracemalloc in a
+round of its own.
 """
 
 from __future__ import annotations
@@ -26,10 +28,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from gateway.recording import export as exporting
 from gateway.recording.reports import Reading
+from gateway.recording.rosbag import export_bag
 from gateway.recording.writer import RecordingWriter
 
 T0 = 1_795_000_000.0
-FORMATS = ("csv", "parquet", "mat")
+FORMATS = ("csv", "parquet", "mat", "ros2")
 
 
 class Nothing(exporting.Writer):
@@ -54,7 +57,10 @@ def recording(path: Path, rows: int) -> Path:
 
 def once(source: Path, out: Path, form: str) -> float:
     started = time.perf_counter()
-    exporting.export([source], out, Reading(), form)
+    if form == "ros2":
+        export_bag([source], out, Reading())
+    else:
+        exporting.export([source], out, Reading(), form)
     return time.perf_counter() - started
 
 
@@ -67,11 +73,11 @@ def main() -> None:
         source = recording(Path(work) / "run.mcap", args.rows)
         exporting.WRITERS["reading"] = Nothing
         best: dict[str, float] = {}
-        for _ in range(args.rounds):
+        for round_ in range(args.rounds):
             for form in ("reading", *FORMATS):
-                took = once(source, Path(work) / form, form)
+                took = once(source, Path(work) / f"{form}-{round_}", form)
                 best[form] = min(best.get(form, took), took)
-        sizes = {form: sum(p.stat().st_size for p in (Path(work) / form).iterdir())
+        sizes = {form: sum(p.stat().st_size for p in (Path(work) / f"{form}-0").iterdir())
                  for form in FORMATS}
         tracemalloc.start()
         once(source, Path(work) / "mat-memory", "mat")

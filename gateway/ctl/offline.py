@@ -25,6 +25,12 @@ from gateway.common.protocol import Exit
 from . import PROG
 from .client import CtlError
 
+FORMATS = ("csv", "parquet", "mat", "ros2")
+"""export's formats (gateway.recording.export.FORMATS, which this module does not import
+before a command runs: gx2ctl's start stays light)."""
+FRAMES = ("enu", "ned")
+"""--frame's choices (gateway.recording.rep103.FRAMES)."""
+
 if TYPE_CHECKING:
     from gateway.recording.catalogue import Described
     from gateway.recording.reports import Reading
@@ -54,22 +60,33 @@ def add_window_options(parser: argparse.ArgumentParser, nodes: bool = True) -> N
 
 def add_commands(commands: Any) -> None:
     exporter = commands.add_parser(
-        "export", help="write one table per node and record from MCAP recordings",
+        "export", help="write one table per node and record from MCAP recordings, or a "
+        "ROS 2 bag",
         description="Write DIR/<address>_<record>.csv (or .parquet, .mat): a row per record, "
         "columns time, host_time, device_time, seq, lqi, rssi, then the record's fields "
         "(vectors as _x/_y/_z, matrices as _11.._33), and DIR/marks.csv (its header "
-        "alone if there are no marks). FILE may be a directory of recordings (read in "
-        "name order, which is time order). Exit 1 if something unreadable was skipped "
-        "(said on stderr).")
+        "alone if there are no marks). With --format ros2, DIR is a rosbag2 (metadata.yaml "
+        "and one .mcap): sensor_msgs/msg/Imu on /gx2/<node name>/imu, "
+        "sensor_msgs/msg/MagneticField on /gx2/<node name>/mag, tf2_msgs/msg/TFMessage "
+        "on /tf, in REP-103's frames unless --frame ned. FILE may be a directory of "
+        "recordings (read in name order, which is time order). Exit 1 if something "
+        "unreadable was skipped (said on stderr).")
     exporter.add_argument("files", nargs="+", metavar="FILE.mcap")
-    exporter.add_argument("--out", required=True, metavar="DIR", help="created if missing")
-    exporter.add_argument("--format", dest="form", choices=("csv", "parquet", "mat"),
+    exporter.add_argument("--out", required=True, metavar="DIR",
+                          help="created if missing (ros2: must not exist)")
+    exporter.add_argument("--format", dest="form", choices=FORMATS,
                           default="csv", help="csv (default), parquet (needs "
-                          "gx2-gateway[parquet]), or mat: MATLAB (needs gx2-gateway[mat])")
+                          "gx2-gateway[parquet]), mat: MATLAB (needs gx2-gateway[mat]), or "
+                          "ros2: a rosbag2 directory (needs gx2-gateway[ros2])")
+    exporter.add_argument("--frame", choices=FRAMES, default=None,
+                          help="ros2: enu (default): REP-103's ENU world and FLU body, "
+                          "converted from the device's; ned: the device's own NED world "
+                          "and sensor frame")
     exporter.add_argument("--force", action="store_true",
                           help="remove the tables of an earlier export in DIR first, "
                           "every one (without it, export refuses to write over them, as "
-                          "record refuses an existing file)")
+                          "record refuses an existing file); ros2: replace an earlier bag "
+                          "at DIR")
     add_window_options(exporter)
     plotter = commands.add_parser(
         "plot", help="draw a node's recorded stream to a PNG or a PDF",
@@ -174,8 +191,13 @@ def _replace_earlier(outs: list[Path], form: str, force: bool) -> None:
 def run_export(args: argparse.Namespace) -> int:
     from gateway.recording.reports import Reading
     from gateway.recording.window import Reader, touched
+    if args.frame is not None and args.form != "ros2":
+        raise CtlError(f"--frame is for --format ros2 (--format {args.form} keeps the "
+                       "device's frames, as recorded)", Exit.USAGE)
     paths = _files(args.files)
     files, chosen = _windows(args, paths)
+    if args.form == "ros2":
+        return _export_bags(args, paths, files, chosen)
     _replace_earlier([Path(args.out) / window.label for window in chosen], args.form,
                      args.force)
     reading = Reading()
@@ -202,6 +224,60 @@ def run_export(args: argparse.Namespace) -> int:
               f"{reader.duplicate_records:,} of them records (rows), the rest statuses, "
               "marks and serial reads (met twice: a file given twice, or files that "
               "overlap)")
+    return status
+
+
+def _export_bags(args: argparse.Namespace, paths: list[Path], files: list[Described],
+                 chosen: list[Window]) -> int:
+    """``--format ros2``: a bag a window (a trial's in its folder under ``--out``), a
+    line for each of its topics."""
+    from gateway.recording.export import EXTRAS, MissingExtra
+    from gateway.recording.files import RecordingError
+    from gateway.recording.reports import Reading
+    from gateway.recording.rosbag import BagError, NoMessages, check_target, export_bag
+    from gateway.recording.rosbag import configured_names as named
+    from gateway.recording.window import Reader, touched
+    outs = [Path(args.out) / window.label if window.label else Path(args.out)
+            for window in chosen]
+    try:
+        EXTRAS[args.form]()
+        for out in outs:  # (all refused before any is written)
+            check_target(out, args.force)
+    except (MissingExtra, BagError) as error:
+        raise CtlError(str(error), Exit.USAGE) from None
+    names = named(paths)
+    reading = Reading()
+    reader = Reader(files, reading)
+    bags = 0
+    for window, out in zip(chosen, outs, strict=True):
+        total = sum(d.bytes for d in touched(files, window))
+        try:
+            with ProgressBar(total, sys.stderr.isatty()) as bar:
+                bag = export_bag(paths, out, reading, args.frame or "enu", bar.advance,
+                                 reader.entries(window), names, args.force)
+        except NoMessages as error:
+            if len(chosen) == 1:
+                _report(reading)
+                if args.nodes or args.records:
+                    _check_held(args, files)  # (a node or record not there: that said)
+                raise CtlError(str(error), Exit.USAGE) from None
+            print(f"{PROG}: {out}: {error}", file=sys.stderr, flush=True)
+            continue
+        except (BagError, RecordingError) as error:
+            raise CtlError(str(error), Exit.USAGE) from None
+        except OSError as error:
+            raise CtlError(f"{out}: {error.strerror or error}", Exit.USAGE) from None
+        except KeyboardInterrupt:
+            raise CtlError(f"interrupted: nothing was left at {out}"
+                           + (f" ({bags} whole bags before it)" if bags else ""),
+                           128 + signal.SIGINT) from None
+        bags += 1
+        for topic, (kind, count) in bag.topics.items():
+            print(f"{out}  {topic}  {count:,} {kind}")
+    status = _report(reading)
+    if not bags:
+        raise CtlError(f"no bag written from {', '.join(args.files)}: no window gives a "
+                       "ROS 2 message", Exit.USAGE)
     return status
 
 

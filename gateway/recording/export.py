@@ -49,12 +49,16 @@ from .matfile import MatWriter, mat_modules
 from .parquetfile import MissingExtra, ParquetWriter, parquet_modules
 from .reader import Entry, Mark, read_all
 from .reports import Reading
+from .rosbag import Bag, export_bag, ros2_modules
 from .summary import Summary
 
 LEADING = ("time", "host_time", "device_time", "seq", "lost_before", "lqi", "rssi")
 LOST_BEFORE = LEADING.index("lost_before")
 BOOKKEEPING = frozenset((*LEADING, "node", "record", "command"))
-FORMATS = ("csv", "parquet", "mat")
+FORMATS = ("csv", "parquet", "mat", "ros2")
+"""Every format, each in a module of its own (:mod:`.parquetfile`, :mod:`.matfile`,
+:mod:`.rosbag`) registered below: a table format in WRITERS, a format that writes a
+window whole (a ROS 2 bag) in WHOLE."""
 AXES = ("x", "y", "z")
 MATRIX = tuple(f"{row}{column}" for row in (1, 2, 3) for column in (1, 2, 3))
 MARKS = "marks"
@@ -176,7 +180,12 @@ class CsvWriter(Writer):
 
 WRITERS: dict[str, Callable[[Path, list[Column]], Writer]] = {
     "csv": CsvWriter, "parquet": ParquetWriter, "mat": MatWriter}
-EXTRAS: dict[str, Callable[[], object]] = {"parquet": parquet_modules, "mat": mat_modules}
+WHOLE: dict[str, Callable[..., Bag]] = {"ros2": export_bag}
+"""The formats that write a window whole, not a table a node and record: each such
+function takes :func:`export`'s arguments and the format's own, and says what it
+wrote."""
+EXTRAS: dict[str, Callable[[], object]] = {"parquet": parquet_modules, "mat": mat_modules,
+                                           "ros2": ros2_modules}
 """What each format needs beyond the gateway's own dependencies: MissingExtra if absent."""
 
 
@@ -225,7 +234,14 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
     scipy); on any error, or Ctrl-C, no table that was not whole is left. ``entries``: the
     messages to export (a window of the recordings, :mod:`.window`) in place of every
     message of ``paths``. ``tables_only``: NoTables, and nothing written, if there is
-    no table (only marks: the nodes asked are not in the recordings)."""
+    no table (only marks: the nodes asked are not in the recordings). ValueError, and
+    nothing written, for a format that is not a table's (``ros2`` writes a window
+    whole: WHOLE's function, :func:`.rosbag.export_bag`)."""
+    if form in WHOLE:
+        raise ValueError(f"export writes tables; format {form!r} writes a window whole: "
+                         f"call {WHOLE[form].__module__}.{WHOLE[form].__name__}")
+    if form not in WRITERS:
+        raise ValueError(f"no export format {form!r}: one of {', '.join(FORMATS)}")
     if form in EXTRAS:
         EXTRAS[form]()
     out.mkdir(parents=True, exist_ok=True)

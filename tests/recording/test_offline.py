@@ -273,7 +273,8 @@ def test_errors_are_one_line_and_exit_2(recording, tmp_path):
 
 
 @pytest.mark.parametrize(("form", "module", "extra"), [("parquet", "pyarrow", "parquet"),
-                                                       ("mat", "scipy", "mat")])
+                                                       ("mat", "scipy", "mat"),
+                                                       ("ros2", "rosbags", "ros2")])
 def test_a_format_without_its_extra_says_how_to_install_it(recording, tmp_path, form,
                                                            module, extra):
     path, _ = recording
