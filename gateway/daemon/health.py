@@ -199,7 +199,8 @@ def judge(node: Node, recent: Recent, now: float, limits: HealthConfig) -> Verdi
             expected * (1 - limits.rate_under_percent / 100) - 1 / recent.stream_seconds):
         reasons.append(f"rate {rate:.1f} Hz of {expected:.4g} in "
                        f"{recent.stream_seconds:.0f} s")
-    if node.clock.points and node.clock.floor_age is None and not node.clock.held:
+    if expected is not None and node.clock.points and node.clock.floor_age is None \
+            and not node.clock.held:  # (a node polled, not streaming, has no line to lock)
         # (a line's first second, from its first packet: the line stands on those few
         # packets, and whether one of them showed the floor is no proof: in the fault
         # soak, nodes powered up together or released from a queue were 0.5 to 3.4 ms
