@@ -45,8 +45,10 @@ class Rows:
 
 @dataclass
 class Decided:
-    """Rows decided, in order: what :class:`.losses.Counted` holds, as arrays."""
+    """Rows decided, in order: what :class:`.losses.Counted` holds, as arrays (``items``:
+    which rows, numbered as given to :func:`add_many`)."""
 
+    items: list[np.ndarray] = field(default_factory=list)
     lost: list[np.ndarray] = field(default_factory=list)
     gateway: list[np.ndarray] = field(default_factory=list)
     unread: list[np.ndarray] = field(default_factory=list)
@@ -54,28 +56,32 @@ class Decided:
 
     def extend(self, counted: list[Counted[int]]) -> None:
         if counted:
+            self.items.append(np.array([c.item for c in counted], np.int64))
             self.lost.append(np.array([NONE if c.lost is None else c.lost for c in counted],
                                       np.int64))
             self.gateway.append(np.array([c.gateway for c in counted], np.int64))
             self.unread.append(np.array([c.unread for c in counted], np.int64))
             self.down.append(np.array([c.down for c in counted], np.int64))
 
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        """(items, lost, gateway, unread, down), emptied."""
         def joined(parts: list[np.ndarray]) -> np.ndarray:
-            return np.concatenate(parts) if parts else np.zeros(0, np.int64)
-        return (joined(self.lost), joined(self.gateway), joined(self.unread),
-                joined(self.down))
+            whole = np.concatenate(parts) if parts else np.zeros(0, np.int64)
+            parts.clear()
+            return whole
+        return (joined(self.items), joined(self.lost), joined(self.gateway),
+                joined(self.unread), joined(self.down))
 
 
-def add_many(stream: Stream[int], rows: Rows, decided: Decided) -> None:
-    """Add the batch's rows to ``stream``, the rows decided (in order) to ``decided``,
-    as its adds would decide them one by one."""
+def add_many(stream: Stream[int], rows: Rows, decided: Decided, first: int = 0) -> None:
+    """Add the batch's rows (numbered from ``first``) to ``stream``, the rows decided
+    (in order) to ``decided``, as its adds would decide them one by one."""
     device = rows.device
     if not len(device):
         return
     if not (np.all(np.isfinite(device)) and np.all(np.abs(device) < 2.0 ** 52
                                                    / TICKS_PER_SECOND)):
-        _by_rows(stream, rows, decided)  # (a row without device time is decided at once)
+        _by_rows(stream, rows, decided, first)  # (a row without device time is decided at once)
         return
     ticks = np.rint(device * TICKS_PER_SECOND).astype(np.int64)  # round(), half to even
     n = len(ticks)
@@ -102,9 +108,9 @@ def add_many(stream: Stream[int], rows: Rows, decided: Decided) -> None:
     valid = (step >= MIN_DIVIDER) & ~restarted
     distinct = np.unique(np.concatenate([np.array(stream._behind, np.int64), step[valid]]))
     if len(distinct) > DISTINCT:
-        _by_rows(stream, rows, decided)
+        _by_rows(stream, rows, decided, first)
         return
-    batch = _Batch(step, valid, np.where(
+    batch = _Batch(first, step, valid, np.where(
         both_seq & (seq > prev["seq"]),
         np.maximum(0, (seq - prev["seq"]) - (rows.count - prev["count"])), 0),
         prev["time"], rows.time, np.zeros(n, bool))
@@ -117,7 +123,7 @@ def add_many(stream: Stream[int], rows: Rows, decided: Decided) -> None:
             decided.extend(stream.flush())
             stream._behind.clear()
             stream._window.clear()
-            decided.extend([Counted(0, None, 0)])
+            decided.extend([Counted(first + low, None, 0)])
             stream._last = _last_of(rows, ticks, low)
             low += 1
         if low < high:
@@ -128,6 +134,7 @@ def add_many(stream: Stream[int], rows: Rows, decided: Decided) -> None:
 
 @dataclass
 class _Batch:
+    first: int
     step: np.ndarray
     valid: np.ndarray
     gateway: np.ndarray
@@ -198,6 +205,9 @@ def _segment(stream: Stream[int], batch: _Batch, low: int, high: int, final: boo
             span = spans[i] if i < len(carried) else _span(batch, low + i - len(carried))
             stream.period = int(period[i]) or None
             down[i] = stream._down(span, int(lost[i] - spent[i]))
+        decided.items.append(np.concatenate([
+            np.array([r.item for r in carried], np.int64),
+            np.arange(batch.first + low, batch.first + high)])[:decide])
         decided.lost.append(lost)
         decided.gateway.append(spent)
         decided.unread.append(np.where(unread, lost, 0))
@@ -209,9 +219,10 @@ def _segment(stream: Stream[int], batch: _Batch, low: int, high: int, final: boo
         stream._behind = deque([*stream._behind, *mine[counted].tolist()][-WINDOW:])
     pending: list[_Row[int]] = carried[decide:]
     for b in range(low + max(0, decide - len(carried)), high):
-        pending.append(_Row(0, int(batch.step[b]), None, int(batch.gateway[b]),
+        item = batch.first + b
+        pending.append(_Row(item, int(batch.step[b]), None, int(batch.gateway[b]),
                             bool(batch.unread[b]), _span(batch, b))
-                       if batch.valid[b] else _Row(0, None, 0, 0))
+                       if batch.valid[b] else _Row(item, None, 0, 0))
     stream._pending = deque(pending)
     window: dict[int, int] = {}
     for value in [*stream._behind, *(r.step for r in pending if r.step is not None)]:
@@ -224,16 +235,16 @@ def _span(batch: _Batch, b: int) -> tuple[float, float] | None:
     return None if before != before or at != at else (before, at)
 
 
-def _by_rows(stream: Stream[int], rows: Rows, decided: Decided) -> None:
+def _by_rows(stream: Stream[int], rows: Rows, decided: Decided, first: int) -> None:
     """The batch added row by row, as :class:`.losses.Stream` takes rows."""
-    for device, timer, seq, count, time in zip(
+    for item, (device, timer, seq, count, time) in enumerate(zip(
             rows.device.tolist(), rows.timer.tolist(), rows.seq.tolist(),
-            rows.count.tolist(), rows.time.tolist(), strict=True):
+            rows.count.tolist(), rows.time.tolist(), strict=True), first):
         payload = {"device_time": None if device != device else device,
                    "timer": None if timer == NONE else timer,
                    "seq": None if seq == NONE else seq,
                    "time": None if time != time else time}
-        decided.extend(stream.add(payload, 0, count))
+        decided.extend(stream.add(payload, item, count))
 
 
 def flush(stream: Stream[int], decided: Decided) -> None:

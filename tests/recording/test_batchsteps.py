@@ -25,8 +25,8 @@ def _stream(outages: Outages) -> Stream[int]:
 def recordings(draw: st.DrawFn) -> tuple[list[dict], list[int], list[str]]:
     """Rows of one stream, where batches end, and what happens between batches."""
     rows: list[dict] = []
-    device, timer, seq, count = 0.0, 0, 0, 0
-    for _ in range(draw(st.integers(1, 200))):
+    device, timer, seq = 0.0, 0, 0
+    for count in range(1, draw(st.integers(1, 200)) + 1):
         kind = draw(st.sampled_from(["step"] * 12 + ["lost", "short", "reboot", "seqgap",
                                                         "polled", "notimer"]))
         samples = draw(st.integers(2, 6)) if kind == "lost" else 1
@@ -35,13 +35,10 @@ def recordings(draw: st.DrawFn) -> tuple[list[dict], list[int], list[str]]:
             advance = 0.001
         elif kind == "polled":
             advance = draw(st.floats(0.01, 2.0))
-        if kind == "reboot":
-            timer = 0
-        else:
-            timer = (timer + round(advance * TICKS_PER_SECOND)) % (1 << 32)
+        ticks = round(advance * TICKS_PER_SECOND)
+        timer = 0 if kind == "reboot" else (timer + ticks) % (1 << 32)
         device += advance
         seq += 1 + (draw(st.integers(1, 3)) if kind == "seqgap" else 0)
-        count += 1
         rows.append({"device_time": round(device, 9),
                      "timer": None if kind == "notimer" else timer, "seq": seq,
                      "time": 1_795_000_000.0 + device, "count": count})
@@ -70,9 +67,9 @@ def test_batches_decide_as_rows_do(recording: tuple[list[dict], list[int], list[
     start = 0
     for cut, event in [*zip(cuts, events, strict=True), (len(rows), "")]:
         part = rows[start:cut]
-        for row in part:
-            expected += by_row.add(row, 0, row["count"])
-        add_many(by_batch, _rows(part), decided)
+        for number, row in enumerate(part, start):
+            expected += by_row.add(row, number, row["count"])
+        add_many(by_batch, _rows(part), decided, start)
         start = cut
         if event == "unread":
             by_row.unread()
@@ -83,7 +80,8 @@ def test_batches_decide_as_rows_do(recording: tuple[list[dict], list[int], list[
             by_batch.started(reply, part[-1]["count"])
     expected += by_row.flush()
     flush(by_batch, decided)
-    lost, gateway, unread, down = decided.arrays()
+    items, lost, gateway, unread, down = decided.arrays()
+    assert [c.item for c in expected] == items.tolist()
     assert [NONE if c.lost is None else c.lost for c in expected] == lost.tolist()
     assert [c.gateway for c in expected] == gateway.tolist()
     assert [c.unread for c in expected] == unread.tolist()
@@ -101,5 +99,5 @@ def test_a_lossy_stream_is_counted() -> None:
     stream: Stream[int] = Stream()
     add_many(stream, rows, decided)
     flush(stream, decided)
-    lost = decided.arrays()[0]
+    lost = decided.arrays()[1]
     assert lost[0] == NONE and lost[1:].sum() == 100 and stream.period == 512
