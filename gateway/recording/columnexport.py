@@ -90,6 +90,8 @@ def export_batches(paths: Iterable[Path], out: Path, reading: Reading, form: str
     outputs: list[Output] = []
     marks: Output | None = None
     done = [] if written is None else written
+    places: dict[str, tuple[int, str] | None] = {}
+    """Each topic's (node, record), parsed once."""
     try:
         for entry in read_all(paths, reading) if entries is None else entries:
             if progress is not None:
@@ -108,7 +110,8 @@ def export_batches(paths: Iterable[Path], out: Path, reading: Reading, form: str
                     marks = Output(out, f"{MARKS}.{form}", form, mark_columns(), outputs)
                 marks.add(mark_row(Mark.of(entry)))
                 continue
-            where = parse(topic)
+            where = places[topic] if topic in places else places.setdefault(
+                topic, parse(topic))
             if where is None:
                 continue
             node = where[0]
