@@ -100,6 +100,24 @@ def add_commands(commands: Any) -> None:
     # (SUPPRESS: given before the command, as in ``gx2ctl --json status``, it holds too)
     catalogue.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
                            help='one line: {"files": [{"path", "start", "end", ...}]}')
+    lister = commands.add_parser(
+        "trials", help="list the trials the marks define, with their fields and rows",
+        description="Each trial from a mark START to the next mark STOP (--between-marks, "
+        "default start stop), numbered as export's --trial numbers them, the one not yet "
+        "stopped last (its stop null): its start and stop, duration, its start mark's "
+        "fields (gx2ctl mark --field), the rows of each node and record in it, and the "
+        "files it spans. Default: as recordings. Exit 1 if something unreadable was "
+        "skipped, 2 if no file is a recording.")
+    lister.add_argument("paths", nargs="*", metavar="DIR | FILE.mcap")
+    lister.add_argument("--between-marks", dest="between", nargs=2, default=["start", "stop"],
+                        metavar=("START", "STOP"), help="the marks that start and stop a "
+                        "trial (default: start stop)")
+    lister.add_argument("--from", dest="start", metavar="WHEN",
+                        help="only the trials after this time (as export's --from)")
+    lister.add_argument("--to", dest="stop", metavar="WHEN",
+                        help="only the trials before this time (as export's --to)")
+    lister.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
+                        help='one line: {"trials": [{"trial", "start", "stop", ...}]}')
 
 
 def _files(given: list[str]) -> list[Path]:

@@ -15,8 +15,6 @@ from typing import IO, Any
 import zstandard
 from mcap.opcode import Opcode
 
-from gateway.common.reading import number
-
 from .files import (
     CHUNK_HEAD,
     FOOTER_BYTES,
@@ -31,6 +29,7 @@ from .files import (
     unreadable,
 )
 from .index import ChunkSpan, FileIndex, channel_of, parse
+from .marks import Mark  # noqa: F401  (where its users import it from)
 from .reports import FileReport, Loss, Reading
 
 # --- reading --------------------------------------------------------------------------------
@@ -70,36 +69,6 @@ class Entry:
         if not isinstance(value, dict):
             raise RecordingError(f"a message on {self.topic} is not a JSON object")
         return value
-
-
-@dataclass(frozen=True)
-class Mark:
-    """A mark (``gx2ctl mark``): what happened, when (UNIX s), to which nodes."""
-
-    time: float
-    host_time: float
-    nodes: tuple[int, ...]
-    text: str
-
-    @classmethod
-    def of(cls, entry: Entry) -> Mark:
-        """The mark an entry on MARK holds, its recorded times standing in for a
-        missing or non-numeric ``time`` or ``host_time``."""
-        payload = entry.payload()
-        host_time = _seconds(payload.get("host_time"), entry.log_time / 1e9)
-        nodes = payload.get("nodes")
-        return cls(_seconds(payload.get("time"), entry.publish_time / 1e9), host_time,
-                   tuple(n for n in nodes if isinstance(n, int) and not isinstance(n, bool))
-                   if isinstance(nodes, list) else (), str(payload.get("text") or ""))
-
-    def concerns(self, node: int) -> bool:
-        """A mark of the whole experiment, or one naming ``node``."""
-        return not self.nodes or node in self.nodes
-
-
-def _seconds(value: Any, default: float) -> float:
-    real = number(value)
-    return default if real is None else real
 
 
 Span = tuple[int, int]
