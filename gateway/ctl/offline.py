@@ -113,9 +113,9 @@ def add_commands(commands: Any) -> None:
                         metavar=("START", "STOP"), help="the marks that start and stop a "
                         "trial (default: start stop)")
     lister.add_argument("--from", dest="start", metavar="WHEN",
-                        help="only the trials after this time (as export's --from)")
+                        help="only the trials that start at or after this time (as --from)")
     lister.add_argument("--to", dest="stop", metavar="WHEN",
-                        help="only the trials before this time (as export's --to)")
+                        help="only the trials that start before this time (as export's --to)")
     lister.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
                         help='one line: {"trials": [{"trial", "start", "stop", ...}]}')
 

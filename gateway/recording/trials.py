@@ -76,10 +76,10 @@ def listed(between: tuple[str, str], marks: list[Marked]) -> list[Trial]:
 def trials(files: list[Described], between: tuple[str, str], reading: Reading,
            within: Span | None = None) -> list[Trial]:
     """The trials of the catalogued ``files`` (their marks read whole), those that
-    overlap ``within`` if given, each counted: its rows (a message met twice, once)
+    start in ``within`` if given, each counted: its rows (a message met twice, once)
     and its files."""
     chosen = [t for t in listed(between, _marks(files))
-              if within is None or (t.span[0] < within[1] and t.span[1] > within[0])]
+              if within is None or within[0] <= t.span[0] < within[1]]
     reader = Reader(files, reading)
     for trial in chosen:
         window = Window(trial.span)
