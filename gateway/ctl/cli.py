@@ -243,6 +243,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "trials":
             from .recordings import run_trials
             return run_trials(args)
+        if args.command == "dataset":
+            from .recordings import run_dataset
+            return run_dataset(args)
         if args.command in ("export", "plot"):
             from .offline import run_export, run_plot
             return (run_export if args.command == "export" else run_plot)(args)

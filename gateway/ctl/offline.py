@@ -116,6 +116,16 @@ def add_commands(commands: Any) -> None:
                         help="only the trials that start at or after this time (as --from)")
     lister.add_argument("--to", dest="stop", metavar="WHEN",
                         help="only the trials that start before this time (as export's --to)")
+    converter = commands.add_parser(
+        "dataset", help="convert finished recordings into a Parquet dataset (incremental)",
+        description="Convert the finished recordings of RECORDINGS (a directory, or a "
+        "file) not yet converted, or changed since, into OUT, partitioned Hive-style: "
+        "OUT/record=<record>/node=<address>/date=<YYYY-MM-DD>/part-<file>.parquet, the "
+        "columns and types of export --format parquet; and OUT/trials.parquet. A file "
+        "being written is left for a later run. Needs gx2-gateway[parquet]. Exit 1 if "
+        "something unreadable was skipped, 2 if no file is a recording.")
+    converter.add_argument("recordings", metavar="RECORDINGS")
+    converter.add_argument("out", metavar="OUT")
     lister.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
                         help='one line: {"trials": [{"trial", "start", "stop", ...}]}')
 

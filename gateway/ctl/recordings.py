@@ -1,11 +1,13 @@
 """``gx2ctl recordings``: the catalogue of recordings (:mod:`gateway.recording.catalogue`)
 as a table for a person, or one JSON line for a script; ``gx2ctl trials``, the trials
-their marks define (:mod:`gateway.recording.trials`), likewise."""
+their marks define (:mod:`gateway.recording.trials`), likewise; ``gx2ctl dataset``,
+recordings converted into a Parquet dataset (:mod:`gateway.recording.dataset`)."""
 
 from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gateway.common.jsontext import json_line
@@ -134,4 +136,29 @@ def run_trials(args: argparse.Namespace) -> int:
             print(f"    node {node}: " + ", ".join(
                 f"{record} {count:,}" for record, count in records.items()), flush=True)
         print("    files: " + ", ".join(str(path) for path in trial.files), flush=True)
+    return PARTIAL if reading.partial else Exit.OK
+
+
+def run_dataset(args: argparse.Namespace) -> int:
+    """``gx2ctl dataset RECORDINGS OUT``: the recordings not yet converted, converted (a
+    line each); exit 1 if something unreadable was skipped, 2 if no file is a recording
+    or pyarrow is missing."""
+    from gateway.recording.dataset import convert
+    from gateway.recording.files import PARTIAL, RecordingError, usable_files
+    from gateway.recording.parquetfile import MissingExtra
+    from gateway.recording.reports import Reading
+    reading = Reading()
+    try:
+        paths = usable_files([args.recordings])
+        done = convert(paths, Path(args.out), reading, lambda line: print(line, flush=True))
+    except (RecordingError, MissingExtra) as error:
+        raise CtlError(str(error), Exit.USAGE) from None
+    except OSError as error:
+        raise CtlError(f"{args.out}: {error.strerror or error}", Exit.USAGE) from None
+    for line in dict.fromkeys(reading.lines()):
+        print(f"gx2ctl: {line}", file=sys.stderr, flush=True)
+    writing = f", {len(done.writing)} being written (left for a later run)" \
+        if done.writing else ""
+    print(f"{len(done.files)} converted, {done.current} up to date{writing}; "
+          f"{done.trials} trials in {Path(args.out) / 'trials.parquet'}", flush=True)
     return PARTIAL if reading.partial else Exit.OK
