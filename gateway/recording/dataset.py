@@ -27,6 +27,7 @@ from typing import Any
 
 from .catalogue import Described, catalogue
 from .columnexport import export_batches
+from .columns import nanoseconds
 from .parquetfile import parquet_modules
 from .reports import Reading
 from .trials import listed
@@ -133,13 +134,16 @@ def _parted(table: Any, out: Path, record: str, node: int, part: str, pa: Any,
 
 
 def _trials(files: list[Described], out: Path, pa: Any, pq: Any) -> int:
-    """``trials.parquet``: each trial between marks ``start`` and ``stop``, a column per
-    field its start mark carries (a field named as a column is left out)."""
+    """``trials.parquet``: each trial between marks ``start`` and ``stop`` (their
+    ``time``, on the clock of every record's ``time``: a query's ``time BETWEEN start
+    AND stop``), a column per field its start mark carries (a field named as a column
+    is left out)."""
     found = listed(("start", "stop"), _marks(files))
     columns: dict[str, list[Any]] = {
         "trial": [t.number for t in found],
-        "start": [t.start_mark.log_time for t in found],
-        "stop": [None if t.stop_mark is None else t.stop_mark.log_time for t in found],
+        "start": [nanoseconds(t.start_mark.time) for t in found],
+        "stop": [None if t.stop_mark is None else nanoseconds(t.stop_mark.time)
+                 for t in found],
         "start_mark": [t.start_mark.text for t in found],
         "stop_mark": [None if t.stop_mark is None else t.stop_mark.text for t in found]}
     keys = dict.fromkeys(k for t in found for k, _ in t.start_mark.fields)

@@ -6,6 +6,7 @@ trials table (issue 44)."""
 from __future__ import annotations
 
 import json
+import re
 from collections import Counter
 from pathlib import Path
 
@@ -101,3 +102,28 @@ def test_no_recording_is_one_line(tmp_path: Path) -> None:
     ran = gx2ctl("dataset", str(tmp_path / "nothing"), str(tmp_path / "out"))
     assert ran.status == 2 and len(ran.stderr.splitlines()) == 1, ran
     assert "Traceback" not in ran.stderr
+
+
+def test_the_queries_of_the_docs_run_as_written(recordings: Path, tmp_path: Path) -> None:
+    """docs/recording.md, "Analysing a study": every SQL block run by DuckDB on a dataset
+    in ``dataset/``, each giving rows; the trial's counts are the recordings'."""
+    assert gx2ctl("dataset", str(recordings), str(tmp_path / "dataset")).status == 0
+    text = (Path(__file__).resolve().parents[2] / "docs" / "recording.md").read_text()
+    section = text[text.index("## Analysing a study"):]
+    queries = re.findall(r"```sql\n(.*?)```", section, re.S)
+    assert len(queries) == 4
+    connection = duckdb.connect()
+    connection.execute(f"SET file_search_path = '{tmp_path}'")
+    results = [connection.sql(query.replace("'dataset/", f"'{tmp_path}/dataset/")).fetchall()
+               for query in queries]
+    assert all(results), results
+    trial, _, losses, joined = results
+    # trial 1: marks at 5 s and 12 s; nodes 11 and 12 at 25 Hz, sampled 2 ms before
+    # they were read (time, against the marks' time): 5.038 .. 11.998 s
+    assert [(node, rows) for node, rows, *_ in trial] == [(11, 175), (12, 175)]
+    assert {node for node, *_ in losses} == {11, 12, 13}
+    assert len(joined) == 2 * FILE_SECONDS * 25
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    rows = eval(code.splitlines()[1].split("=", 1)[1].replace(  # (the scan, then its query)
+        '"dataset/', f'"{tmp_path}/dataset/'), {"pl": pl})
+    assert rows.filter(pl.col("node") == 13).collect().height == 2 * FILE_SECONDS * 5
