@@ -8,9 +8,8 @@ import os
 import struct
 import zlib
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, NamedTuple
 
 import zstandard
 from mcap.opcode import Opcode
@@ -48,9 +47,9 @@ from .reports import FileReport, Loss, Reading
 # exactly.
 
 
-@dataclass(frozen=True)
-class Entry:
-    """One message of a recording."""
+class Entry(NamedTuple):
+    """One message of a recording (a named tuple: made 3x faster than a frozen
+    dataclass, for every message read; bench/exportformats.py)."""
 
     topic: str
     log_time: int
@@ -164,7 +163,7 @@ class _Walk:
             damaged = damaged or entry.after_damage
             if (wanted is None or entry.topic in wanted) and (
                     span is None or span[0] <= entry.log_time < span[1]):
-                yield replace(entry, after_damage=True) if damaged else entry
+                yield entry._replace(after_damage=True) if damaged else entry
                 damaged = False
 
     def _entries(self, wanted: frozenset[str] | None) -> Iterator[Entry]:

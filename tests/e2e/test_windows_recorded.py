@@ -68,7 +68,8 @@ def test_trials_marked_on_the_gateway_are_catalogued_and_exported(simulator, gat
                 counts[node][record] += 1
         assert described["nodes"] == counts
         assert described["stations"] == ["station1"]
-        assert described["marks"] == [{"time": p["time"], "text": p["text"]}
+        assert described["marks"] == [{"time": p["time"], "text": p["text"],
+                                       "fields": p["fields"]}
                                       for t, _, p in messages if t == "gx2/gateway/mark"]
         assert described["damaged"] is False and described["indexed"] is True
 
