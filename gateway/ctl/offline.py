@@ -119,8 +119,8 @@ def add_commands(commands: Any) -> None:
     converter = commands.add_parser(
         "dataset", help="convert finished recordings into a Parquet dataset (incremental)",
         description="Convert the finished recordings of RECORDINGS (a directory, or a "
-        "file) not yet converted, or changed since, into OUT, partitioned Hive-style: "
-        "OUT/record=<record>/node=<address>/date=<YYYY-MM-DD>/part-<file>.parquet, the "
+        "file) not yet converted, or changed since, into OUT, partitioned Hive-style by "
+        "record, node and day (OUT/record=R/node=N/date=D/ a part per recording), the "
         "columns and types of export --format parquet; and OUT/trials.parquet. A file "
         "being written is left for a later run. Needs gx2-gateway[parquet]. Exit 1 if "
         "something unreadable was skipped, 2 if no file is a recording.")
