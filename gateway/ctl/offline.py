@@ -209,6 +209,8 @@ def run_export(args: argparse.Namespace) -> int:
         alone = len(chosen) == 1 and bool(args.nodes or args.records)
         written, marks = _export_window(args, paths, out, reading, reader.entries(window),
                                         total, alone)
+        if window.label and written + marks:
+            _trial_json(args, files, window, out)
         found += written + marks
         tables += written
     status = _report(reading)
@@ -224,6 +226,26 @@ def run_export(args: argparse.Namespace) -> int:
               "marks and serial reads (met twice: a file given twice, or files that "
               "overlap)")
     return status
+
+
+def _trial_json(args: argparse.Namespace, files: list[Described], window: Window,
+                out: Path) -> None:
+    """``trial.json`` beside a trial's tables: its number, marks, times and the fields
+    of its start mark (as ``gx2ctl trials --json`` gives it, without the counts)."""
+    import json
+    import os
+
+    from gateway.recording.trials import listed
+    from gateway.recording.window import _marks
+    for trial in listed(tuple(args.between), _marks(files)):
+        if trial.span == window.span:
+            said = {key: value for key, value in trial.json().items()
+                    if key not in ("nodes", "files")}
+            hidden = out / ".trial.json.partial"
+            hidden.write_text(json.dumps(said, indent=1) + "\n", encoding="utf-8")
+            os.replace(hidden, out / "trial.json")
+            print(f"{out / 'trial.json'}  trial {trial.number}", flush=True)
+            return
 
 
 def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
