@@ -135,7 +135,10 @@ def add_op(commands: Any, groups: dict[str, Any], op: Op,
         listed = param.help
         if param.kind.choices:
             listed += f"; one of: {', '.join(param.kind.choices)}"
-        if param.many:
+        if param.many and param.option:  # (--field K=V --field K=V)
+            sub.add_argument(param.flag, dest=param.name, action="append", default=[],
+                             type=argtype(param.kind), metavar=metavar, help=listed)
+        elif param.many:
             sub.add_argument(param.name, nargs="+" if param.required else "*",
                              type=argtype(param.kind), metavar=metavar, help=listed)
         elif param.required:
@@ -237,6 +240,12 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "recordings":
             from .recordings import run_recordings
             return run_recordings(args)
+        if args.command == "trials":
+            from .recordings import run_trials
+            return run_trials(args)
+        if args.command == "dataset":
+            from .recordings import run_dataset
+            return run_dataset(args)
         if args.command in ("export", "plot"):
             from .offline import run_export, run_plot
             return (run_export if args.command == "export" else run_plot)(args)

@@ -117,6 +117,34 @@ def add_commands(commands: Any) -> None:
     # (SUPPRESS: given before the command, as in ``gx2ctl --json status``, it holds too)
     catalogue.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
                            help='one line: {"files": [{"path", "start", "end", ...}]}')
+    lister = commands.add_parser(
+        "trials", help="list the trials the marks define, with their fields and rows",
+        description="Each trial from a mark START to the next mark STOP (--between-marks, "
+        "default start stop), numbered as export's --trial numbers them, the one not yet "
+        "stopped last (its stop null): its start and stop, duration, its start mark's "
+        "fields (gx2ctl mark --field), the rows of each node and record in it, and the "
+        "files it spans. Default: as recordings. Exit 1 if something unreadable was "
+        "skipped, 2 if no file is a recording.")
+    lister.add_argument("paths", nargs="*", metavar="DIR | FILE.mcap")
+    lister.add_argument("--between-marks", dest="between", nargs=2, default=["start", "stop"],
+                        metavar=("START", "STOP"), help="the marks that start and stop a "
+                        "trial (default: start stop)")
+    lister.add_argument("--from", dest="start", metavar="WHEN",
+                        help="only the trials that start at or after this time (as --from)")
+    lister.add_argument("--to", dest="stop", metavar="WHEN",
+                        help="only the trials that start before this time (as export's --to)")
+    converter = commands.add_parser(
+        "dataset", help="convert finished recordings into a Parquet dataset (incremental)",
+        description="Convert the finished recordings of RECORDINGS (a directory, or a "
+        "file) not yet converted, or changed since, into OUT, partitioned Hive-style by "
+        "record, node and day (OUT/record=R/node=N/date=D/ a part per recording), the "
+        "columns and types of export --format parquet; and OUT/trials.parquet. A file "
+        "being written is left for a later run. Needs gx2-gateway[parquet]. Exit 1 if "
+        "something unreadable was skipped, 2 if no file is a recording.")
+    converter.add_argument("recordings", metavar="RECORDINGS")
+    converter.add_argument("out", metavar="OUT")
+    lister.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
+                        help='one line: {"trials": [{"trial", "start", "stop", ...}]}')
 
 
 def _files(given: list[str]) -> list[Path]:
@@ -210,6 +238,8 @@ def run_export(args: argparse.Namespace) -> int:
         alone = len(chosen) == 1 and bool(args.nodes or args.records)
         written, marks = _export_window(args, paths, out, reading, reader.entries(window),
                                         total, alone)
+        if window.label and written + marks:
+            _trial_json(args, files, window, out)
         found += written + marks
         tables += written
     status = _report(reading)
@@ -279,6 +309,26 @@ def _export_bags(args: argparse.Namespace, paths: list[Path], files: list[Descri
         raise CtlError(f"no bag written from {', '.join(args.files)}: no window gives a "
                        "ROS 2 message", Exit.USAGE)
     return status
+
+
+def _trial_json(args: argparse.Namespace, files: list[Described], window: Window,
+                out: Path) -> None:
+    """``trial.json`` beside a trial's tables: its number, marks, times and the fields
+    of its start mark (as ``gx2ctl trials --json`` gives it, without the counts)."""
+    import json
+    import os
+
+    from gateway.recording.trials import listed
+    from gateway.recording.window import _marks
+    for trial in listed(tuple(args.between), _marks(files)):
+        if trial.span == window.span:
+            said = {key: value for key, value in trial.json().items()
+                    if key not in ("nodes", "files")}
+            hidden = out / ".trial.json.partial"
+            hidden.write_text(json.dumps(said, indent=1) + "\n", encoding="utf-8")
+            os.replace(hidden, out / "trial.json")
+            print(f"{out / 'trial.json'}  trial {trial.number}", flush=True)
+            return
 
 
 def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,

@@ -1,9 +1,13 @@
 """``gx2ctl recordings``: the catalogue of recordings (:mod:`gateway.recording.catalogue`)
-as a table for a person, or one JSON line for a script."""
+as a table for a person, or one JSON line for a script; ``gx2ctl trials``, the trials
+their marks define (:mod:`gateway.recording.trials`), likewise; ``gx2ctl dataset``,
+recordings converted into a Parquet dataset (:mod:`gateway.recording.dataset`)."""
 
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gateway.common.jsontext import json_line
@@ -77,7 +81,8 @@ def lines(d: Described) -> list[str]:
     for node, records in d.nodes.items():
         out.append(f"    node {node}: " + ", ".join(
             f"{record} {count:,}" for record, count in records.items()))
-    out += [f"    mark {_when(m.log_time)}  {m.text}" for m in d.marks]
+    out += [f"    mark {_when(m.log_time)}  {m.text}" + "".join(
+        f"  {key}={value}" for key, value in m.fields) for m in d.marks]
     notes = [d.problem] if d.problem else []
     if not d.indexed and not d.problem:
         notes.append(d.how)
@@ -88,3 +93,72 @@ def lines(d: Described) -> list[str]:
 
 
 __all__ = ["run_recordings"]
+
+
+def run_trials(args: argparse.Namespace) -> int:
+    """``gx2ctl trials``: each trial of the recordings, a few lines each or one JSON
+    line; exit 1 if something unreadable was skipped, 2 if no file is a recording or
+    the window cannot be taken."""
+    from gateway.recording.catalogue import catalogue
+    from gateway.recording.files import PARTIAL, RecordingError, usable_files
+    from gateway.recording.reports import Reading
+    from gateway.recording.trials import trials
+    from gateway.recording.window import Asked, WindowError, windows
+    given = args.paths or [default_directory(args)]
+    try:
+        paths = usable_files(given)
+    except RecordingError as error:
+        raise CtlError(str(error), Exit.USAGE) from None
+    files = catalogue(paths)
+    within = None
+    if args.start or args.stop:
+        try:
+            within = windows(Asked(args.start, args.stop, None, None, ()), files)[0].span
+        except WindowError as error:
+            raise CtlError(str(error), Exit.USAGE) from None
+    reading = Reading()
+    found = trials(files, tuple(args.between), reading, within)
+    for line in dict.fromkeys(reading.lines()):  # (a file read for two trials: once)
+        print(f"gx2ctl: {line}", file=sys.stderr, flush=True)
+    if args.json:
+        print(json_line({"trials": [trial.json() for trial in found]}), flush=True)
+    elif not found:
+        print(f"no trial from a mark {args.between[0]!r} to a mark {args.between[1]!r}",
+              flush=True)
+    for trial in found if not args.json else ():
+        stop = "(open: no mark yet)" if trial.stop_mark is None else (
+            f"to {_when(trial.stop_mark.log_time, day=False)} UTC "
+            f"({_length((trial.stop_mark.log_time - trial.start_mark.log_time) / 1e9)})")
+        given_fields = "".join(f"  {k}={v}" for k, v in trial.start_mark.fields)
+        print(f"trial {trial.number}  {_when(trial.start_mark.log_time)} {stop}  "
+              f"{trial.rows:,} rows{given_fields}", flush=True)
+        for node, records in trial.nodes.items():
+            print(f"    node {node}: " + ", ".join(
+                f"{record} {count:,}" for record, count in records.items()), flush=True)
+        print("    files: " + ", ".join(str(path) for path in trial.files), flush=True)
+    return PARTIAL if reading.partial else Exit.OK
+
+
+def run_dataset(args: argparse.Namespace) -> int:
+    """``gx2ctl dataset RECORDINGS OUT``: the recordings not yet converted, converted (a
+    line each); exit 1 if something unreadable was skipped, 2 if no file is a recording
+    or pyarrow is missing."""
+    from gateway.recording.dataset import convert
+    from gateway.recording.files import PARTIAL, RecordingError, usable_files
+    from gateway.recording.parquetfile import MissingExtra
+    from gateway.recording.reports import Reading
+    reading = Reading()
+    try:
+        paths = usable_files([args.recordings])
+        done = convert(paths, Path(args.out), reading, lambda line: print(line, flush=True))
+    except (RecordingError, MissingExtra) as error:
+        raise CtlError(str(error), Exit.USAGE) from None
+    except OSError as error:
+        raise CtlError(f"{args.out}: {error.strerror or error}", Exit.USAGE) from None
+    for line in dict.fromkeys(reading.lines()):
+        print(f"gx2ctl: {line}", file=sys.stderr, flush=True)
+    writing = f", {len(done.writing)} being written (left for a later run)" \
+        if done.writing else ""
+    print(f"{len(done.files)} converted, {done.current} up to date{writing}; "
+          f"{done.trials} trials in {Path(args.out) / 'trials.parquet'}", flush=True)
+    return PARTIAL if reading.partial else Exit.OK
