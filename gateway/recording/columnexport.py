@@ -25,7 +25,7 @@ from gateway.common.topics import parse
 from .batchsteps import NONE, Decided, add_many, flush
 from .columnar import Columns
 from .columns import Column, mark_columns
-from .export import LEADING, MARKS, NoTables, Output, Table, mark_row
+from .export import LEADING, MARKS, NoTables, Output, Table, mark_row, table_name
 from .files import MARK, STATUS, RecordingError
 from .losses import STARTED, Losses, Stream
 from .parquetfile import BATCH, parquet_modules
@@ -163,7 +163,7 @@ def _opened(entry: Entry, where: tuple[int, str], out: Path, form: str,
         losses.ahead, lambda after, at: losses.outages.back(node, after, at))
     if node in losses._started:
         stream.started(*losses._started[node])
-    output = Output(out, f"{node}_{record}.{form}", form, table.columns, outputs,
+    output = Output(out, table_name(node, record, form), form, table.columns, outputs,
                     lambda path: BATCH_WRITERS[form](path, columns.schema))
     return _Open(table, columns, stream, output)
 
