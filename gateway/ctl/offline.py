@@ -133,6 +133,8 @@ def add_commands(commands: Any) -> None:
                         help="only the trials that start at or after this time (as --from)")
     lister.add_argument("--to", dest="stop", metavar="WHEN",
                         help="only the trials that start before this time (as export's --to)")
+    lister.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
+                        help='one line: {"trials": [{"trial", "start", "stop", ...}]}')
     converter = commands.add_parser(
         "dataset", help="convert finished recordings into a Parquet dataset (incremental)",
         description="Convert the finished recordings of RECORDINGS (a directory, or a "
@@ -143,8 +145,6 @@ def add_commands(commands: Any) -> None:
         "something unreadable was skipped, 2 if no file is a recording.")
     converter.add_argument("recordings", metavar="RECORDINGS")
     converter.add_argument("out", metavar="OUT")
-    lister.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
-                        help='one line: {"trials": [{"trial", "start", "stop", ...}]}')
 
 
 def _files(given: list[str]) -> list[Path]:
