@@ -22,7 +22,8 @@ from gateway.common.topics import default_station_name, parse
 
 from .files import MARK, SERIAL_READS, WRITTEN, being_written, is_serial_reads
 from .index import walked_span
-from .reader import Mark, index_of, read
+from .marks import Mark
+from .reader import index_of, read
 from .reports import Reading
 
 

@@ -1,7 +1,7 @@
 """One table's rows as Arrow columns, a batch of messages at a time: the messages'
 JSON decoded in one call (``pyarrow.json`` over the batch joined by newlines), each
 column taken out whole and typed as :mod:`.parquetfile` types it, exactly as the row
-by row path does (:func:`.parquetfile.converted` of :meth:`.export.Table.row`).
+by row path does (:func:`.parquetfile.converted` of :meth:`.tables.Table.row`).
 
 Why: a dict per message, then a list per row, then a column of Python values cost
 about 20 us a row; a batch, about 2 us (bench/exportformats.py). Anything the
@@ -39,7 +39,7 @@ class Batch:
 
 class Columns:
     """How one table's messages become Arrow columns (``fields``: (column, field,
-    index) after the leading columns, as :func:`.export.field_columns` lays them)."""
+    index) after the leading columns, as :func:`.tables.field_columns` lays them)."""
 
     def __init__(self, topic: str, columns: list[Column],
                  fields: list[tuple[str, str, int]], leading: tuple[str, ...]) -> None:
@@ -168,8 +168,8 @@ class Columns:
     def _row_path(self, messages: list[bytes]) -> tuple[Any, tuple[np.ndarray, ...]]:
         """The batch as the row by row export takes it (a message that is not a JSON
         object: RecordingError, as there)."""
-        from .export import element
         from .reader import Entry
+        from .tables import element
         payloads = [Entry(self.topic, 0, 0, data).payload() for data in messages]
         arrays = [self.pa.array(converted(column.kind, tuple(
             element(p.get(name), index) for p in payloads)), type=field.type)

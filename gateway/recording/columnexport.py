@@ -25,12 +25,13 @@ from gateway.common.topics import parse
 from .batchsteps import NONE, Decided, add_many, flush
 from .columnar import Columns
 from .columns import Column, mark_columns
-from .export import LEADING, MARKS, NoTables, Output, Table, mark_row, table_name
 from .files import MARK, STATUS, RecordingError
 from .losses import STARTED, Losses, Stream
+from .marks import Mark
 from .parquetfile import BATCH, parquet_modules
-from .reader import Entry, Mark, read_all
+from .reader import Entry, read_all
 from .reports import Reading
+from .tables import LEADING, MARKS, NoTables, Output, Table, mark_row, table_name
 
 
 class ParquetTables:

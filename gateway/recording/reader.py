@@ -28,7 +28,6 @@ from .files import (
     unreadable,
 )
 from .index import ChunkSpan, FileIndex, channel_of, parse
-from .marks import Mark  # noqa: F401  (where its users import it from)
 from .reports import FileReport, Loss, Reading
 
 # --- reading --------------------------------------------------------------------------------
