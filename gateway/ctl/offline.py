@@ -318,13 +318,14 @@ def _trial_json(args: argparse.Namespace, files: list[Described], window: Window
     import json
     import os
 
+    from gateway.recording.tables import TEMPORARY
     from gateway.recording.trials import listed
     from gateway.recording.window import _marks
     for trial in listed(tuple(args.between), _marks(files)):
         if trial.span == window.span:
             said = {key: value for key, value in trial.json().items()
                     if key not in ("nodes", "files")}
-            hidden = out / ".trial.json.partial"
+            hidden = out / TEMPORARY.format(name="trial.json")
             hidden.write_text(json.dumps(said, indent=1) + "\n", encoding="utf-8")
             os.replace(hidden, out / "trial.json")
             print(f"{out / 'trial.json'}  trial {trial.number}", flush=True)

@@ -30,6 +30,7 @@ from .columnexport import export_batches
 from .columns import nanoseconds
 from .parquetfile import parquet_modules
 from .reports import Reading
+from .tables import TEMPORARY
 from .trials import listed
 from .window import _marks
 
@@ -92,7 +93,7 @@ def _load(path: Path) -> dict[str, Any]:
 
 
 def _save(path: Path, done: dict[str, Any]) -> None:
-    hidden = path.with_name(f".{path.name}.partial")
+    hidden = path.with_name(TEMPORARY.format(name=path.name))
     hidden.write_text(json.dumps(done, indent=1, sort_keys=True), encoding="utf-8")
     os.replace(hidden, path)
 
@@ -127,7 +128,7 @@ def _parted(table: Any, out: Path, record: str, node: int, part: str, pa: Any,
         rows = table.filter(pc.is_null(days) if day is None else pc.equal(days, day))
         folder = out / f"record={record}" / f"node={node}" / f"date={day or 'unknown'}"
         folder.mkdir(parents=True, exist_ok=True)
-        hidden = folder / f".{part}.partial"
+        hidden = folder / TEMPORARY.format(name=part)
         pq.write_table(rows, hidden)
         os.replace(hidden, folder / part)
     return table.num_rows
@@ -154,7 +155,7 @@ def _trials(files: list[Described], out: Path, pa: Any, pq: Any) -> int:
              "stop": pa.timestamp("ns", tz="UTC")}
     table = pa.table({name: pa.array(values, types.get(name, pa.string()))
                       for name, values in columns.items()})
-    hidden = out / f".{TRIALS}.partial"
+    hidden = out / TEMPORARY.format(name=TRIALS)
     pq.write_table(table, hidden)
     os.replace(hidden, out / TRIALS)
     return len(found)
