@@ -11,7 +11,8 @@ from pathlib import Path
 from mcap.reader import make_reader
 
 from gateway.sim.node import NodeSettings
-from tests.helpers.processes import gx2ctl
+from tests.helpers.processes import Ran, gx2ctl
+from tests.helpers.waiting import wait_for
 
 NODES = [{"address": 76, "stream": "accel_angrate"}]
 
@@ -51,9 +52,15 @@ def test_marks_carry_fields_and_trials_are_listed(simulator, gateway, tmp_path):
     assert wrong.status == 2 and len(wrong.stderr.splitlines()) == 1, wrong
     assert "KEY=VALUE" in wrong.stderr and "Traceback" not in wrong.stderr, wrong
 
-    # listed from the file the gateway is writing; then read back whole when it is done
-    listed = gx2ctl("trials", "--json", str(directory))
-    assert listed.status == 0, listed
+    # listed from the file the gateway is writing, once the open trial's rows are on
+    # the disk (a mark's chunk is flushed as the mark is taken, the rows after it with
+    # the next second's flush); then read back whole when it is done
+    def listing() -> Ran | None:
+        ran = gx2ctl("trials", "--json", str(directory))
+        assert ran.status == 0, ran
+        return ran if json.loads(ran.stdout)["trials"][-1]["nodes"] else None
+
+    listed = wait_for(listing, 10, "the open trial's rows on the disk")
     table = gx2ctl("trials", str(directory))
     later = gx2ctl("trials", "--json", str(directory), "--from", "stop")
     catalogued = json.loads(gx2ctl("recordings", "--json", str(directory)).stdout)
