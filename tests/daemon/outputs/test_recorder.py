@@ -264,6 +264,41 @@ def test_a_queue_that_never_empties_still_flushes_rotates_and_retains(tmp_path):
     assert rotated and all(readable(path)[0] and readable(path)[1] for path in rotated)
 
 
+def test_a_recorder_closing_opens_no_file_and_deletes_none(tmp_path, monkeypatch, caplog):
+    """A disk too slow for close()'s time: the thread finishes its file after close()
+    has returned, but a rotation or retention falling due meanwhile is not carried out
+    (it opened a new file and deleted the one being closed; the suite saw its log in
+    the next test)."""
+    monkeypatch.setattr(recorder_module, "FLUSH_S", 0.05)  # (every pass a flush: due)
+    recorder = Recorder(RecordConfig(directory=str(tmp_path), rotate_mb=0.05, keep_gb=1e-9,
+                                     queue=10_000_000), {},
+                        create=ThrottledDisk(1e6).create)
+    stop = threading.Event()
+
+    def stream() -> None:  # 1.5 MB/s at a disk of 1
+        while not stop.is_set():
+            for _ in range(10):
+                recorder.serial(os.urandom(1500), time.time(), time.monotonic())
+            time.sleep(0.01)  # (a stream's pace)
+    feeder = threading.Thread(target=stream)
+    recorder.start()
+    feeder.start()
+    try:
+        wait_for(lambda: recorder.status()["files"] >= 2, 15, "a rotation under the backlog")
+    finally:
+        stop.set()
+        feeder.join()
+    caplog.set_level(logging.INFO, "gx2.record")
+    caplog.clear()
+    before = set(tmp_path.iterdir())
+    assert recorder.status()["queued"] > 0
+    recorder.close(timeout=0.2)
+    wait_for(lambda: not recorder._thread.is_alive(), 30, "the thread's end")
+    assert set(tmp_path.iterdir()) == before
+    assert not [r.message for r in caplog.records
+                if "deleted" in r.message or "recording to" in r.message]
+
+
 class FullDisk:
     """Files on a disk that fills up (every write to the OS fails with ENOSPC while
     ``full`` is set) and frees again; buffered as a file opened by Python is."""
