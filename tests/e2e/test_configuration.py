@@ -120,8 +120,13 @@ def run_gateway(*args: str, env: dict[str, str] | None = None) -> subprocess.Com
         return spawn_run(command, capture_output=True, text=True, timeout=CLI_TIMEOUT,
                          stdin=subprocess.DEVNULL, env=env)
     except subprocess.TimeoutExpired as expired:
-        return subprocess.CompletedProcess(command, None, expired.stdout or "",  # type: ignore[arg-type]
-                                           expired.stderr or "")
+        return subprocess.CompletedProcess(command, None, _text(expired.stdout),  # type: ignore[arg-type]
+                                           _text(expired.stderr))
+
+
+def _text(output: bytes | str | None) -> str:
+    """What a run cut short by its timeout wrote: bytes, whatever ``text=`` said."""
+    return output.decode(errors="replace") if isinstance(output, bytes) else output or ""
 
 
 def write_bad_config(directory: Path, name: str, change: Any) -> Path:
