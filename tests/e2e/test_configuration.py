@@ -217,12 +217,13 @@ def boolean_keys(model: type[BaseModel], where: tuple[str, ...] = ()) -> list[tu
     return found
 
 
-def with_word(config: dict[str, Any], key: tuple[str, ...], word: str) -> str:
-    """``config`` as YAML with ``word`` written bare (unquoted) at ``key``."""
-    section = config
-    for part in key[:-1]:
-        section = section.setdefault(part, {})
-    section[key[-1]] = "WORD-HERE"
+def with_word(config: dict[str, Any], keys: list[tuple[str, ...]], word: str) -> str:
+    """``config`` as YAML with ``word`` written bare (unquoted) at each of ``keys``."""
+    for key in keys:
+        section = config
+        for part in key[:-1]:
+            section = section.setdefault(part, {})
+        section[key[-1]] = "WORD-HERE"
     return yaml.safe_dump(config).replace("WORD-HERE", word)
 
 
@@ -238,30 +239,30 @@ def test_only_true_and_false_are_booleans(tmp_path):
         return {**valid_config(), "curve": {"server_key": str(tmp_path / "server.key_secret"),
                                              "clients": [str(tmp_path / "ops.key")]},
                 "mqtt": {"url": "mqtt://127.0.0.1:1883"}}
+    # every key given the word at once: the one line names each key it refuses (one
+    # run a word, not one a key and word: 6 start-ups of the gateway, not 30)
     runs = {}
     with ThreadPoolExecutor(max_workers=POOL) as pool:
-        for key in keys:
-            for word in ("yes", "on", "No", "OFF", "true", "False"):
-                path = tmp_path / f"{'.'.join(key)}-{word}.yaml"
-                path.write_text(with_word(config(), key, word))
-                runs[key, word, path] = pool.submit(run_gateway, "--config", str(path),
-                                                    "--check")
+        for word in ("yes", "on", "No", "OFF", "true", "False"):
+            path = tmp_path / f"{word}.yaml"
+            path.write_text(with_word(config(), keys, word))
+            runs[word, path] = pool.submit(run_gateway, "--config", str(path), "--check")
         sim = tmp_path / "sim.yaml"
         sim.write_text("line: {glue_ack: yes}\nnodes: [{address: 76, radio: {in_range: on}}]\n")
         sim_run = pool.submit(spawn_run, [script("gx2-sim"), "--config", str(sim), "--check"],
                               capture_output=True, text=True, timeout=CLI_TIMEOUT)
         failures = {}
-        for (key, word, path), future in runs.items():
+        for (word, path), future in runs.items():
             run = future.result()
             if word in ("true", "False"):
                 if run.returncode != 0:
-                    failures[key, word] = run.stderr
+                    failures[word] = run.stderr
                 continue
             problems = one_line_problems(run, path, [
-                re.escape(f"{'.'.join(key)}: "), r"write true or false",
-                re.escape(repr(word))])
+                re.escape(f"{'.'.join(key)}: ") + "[^;]*write true or false[^;]*"
+                + re.escape(repr(word)) for key in keys])
             if problems:
-                failures[key, word] = problems
+                failures[word] = problems
     assert failures == {}, "\n".join(f"{k}: {v}" for k, v in failures.items())
     assert one_line_problems(sim_run.result(), sim, [r"line\.glue_ack: ",
                                                      "write true or false, not 'yes'"]) == []
