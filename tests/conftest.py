@@ -4,6 +4,7 @@ gx2-gateway running on it (tests/helpers has the helpers behind them)."""
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -26,6 +27,31 @@ os.unsetenv("COLUMNS")
 os.unsetenv("LINES")
 
 restore_sigint()
+
+TESTS = Path(__file__).resolve().parent
+SHARED_FIXTURE = re.compile(r"scope=[\"'](?:class|module|package|session)[\"']")
+"""A fixture made once for several tests of its module."""
+
+
+def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
+    """The suite runs in several processes (pyproject.toml's addopts, pytest-xdist), each
+    test handed to whichever process is free. A module whose tests share a fixture of
+    wider scope than a test (the fault soak's run, a wheel built once, a batch of
+    programs started at once) goes to one process whole, so that the fixture is made
+    once, not once in each process. (What xdist's own ``loadgroup`` mode does with a
+    mark, done here by module: that mode marks node ids in a way pytest 9.2 ignores.)"""
+    from xdist.scheduler import LoadScopeScheduling
+
+    shared = {path.relative_to(config.rootpath).as_posix()
+              for path in TESTS.rglob("test_*.py")
+              if SHARED_FIXTURE.search(path.read_text(encoding="utf-8"))}
+
+    class Scheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return module if module in shared else nodeid
+
+    return Scheduling(config, log)
 
 
 @pytest.fixture

@@ -121,6 +121,8 @@ def test_a_stop_of_a_node_out_of_range_is_not_confirmed_and_kept(simulator, gate
 
     sim.call(lambda station, now: setattr(station.radio[95], "in_range", True))
     wait_for(lambda: continuous(sim, 95) == 0, 10, "the gateway to stop node 95")
+    # (health is judged each second: polled first, OK at the next judgement)
     wait_for(lambda: gw.node_status(95)["state"] == "polled", 5, "node 95 polled")
+    wait_for(lambda: gw.node_status(95)["health"] == "OK", 5, "node 95 OK")
     node = gw.node_status(95)
-    assert (node["health"], node["desired"]) == ("OK", "off"), node
+    assert (node["state"], node["desired"]) == ("polled", "off"), node

@@ -24,15 +24,22 @@ from gateway.sim.server import Simulator
 BAUD = 115200
 PACKETS = 150
 DEADLINE = 10.0
-SPREAD = 0.4e-3
-"""Of the lateness, p90 - p10. What the host clock sees is the spread: a constant part
-(the pty's own, some 0.4 ms here) is a bias that latency_ms takes out. With select(2) the
-spread is 0.15 ms here; with epoll's whole milliseconds it is some 0.7 ms (a wake-up
-rounded up by a uniform 0-1 ms)."""
+SPREAD = 0.2e-3
+"""Of the lateness, p50 - p10: what the host's clock estimate rests on is its fastest
+packets, and a constant part (the pty's own, some 0.2 ms here) is a bias that
+latency_ms takes out. With select(2) the spread is 0.03 to 0.07 ms here; with epoll's
+whole milliseconds 0.37 to 0.48 ms (a wake-up rounded up by a uniform 0-1 ms). The
+slower half is left out: a machine busy with other work (the suite's other processes
+on two cores) wakes the simulator late now and then, and p90 - p10 was 0.11 to 0.57 ms
+with select(2) in six measurements beside them."""
+ATTEMPTS = 3
+"""Measurements of PACKETS, the spread judged on the best: a machine's load passes, and a
+loop that sleeps in whole milliseconds is late in every one."""
 
 
-def test_packets_reach_the_host_when_the_line_model_sends_them(tmp_path: Path) -> None:
-    link = tmp_path / "gx2"
+def lateness(link: Path) -> list[float]:
+    """Seconds each packet after the first ten reached the host after its last byte
+    could have been sent (its sample, RADIO_LATENCY, its bytes on the line)."""
     # one node alone, no random radio delay: a packet reaches the base station
     # RADIO_LATENCY after its sample and is on the host's side once its bytes are sent
     sim = Simulator([NodeSettings(76, divider=592, stream="accel_angrate")], link=link,
@@ -67,7 +74,16 @@ def test_packets_reach_the_host_when_the_line_model_sends_them(tmp_path: Path) -
             for timer, size, read in received[10:] if timer in truth]
     assert len(late) >= PACKETS - 20
     assert min(late) > -50e-6, "a packet read before its bytes could have been sent"
-    deciles = statistics.quantiles(late, n=10)
-    assert deciles[-1] - deciles[0] < SPREAD, (
-        f"packets reach the host {deciles[0] * 1e3:.2f} to {deciles[-1] * 1e3:.2f} ms late "
-        "(p10 to p90)")
+    return late
+
+
+def test_packets_reach_the_host_when_the_line_model_sends_them(tmp_path: Path) -> None:
+    spreads = []
+    for attempt in range(ATTEMPTS):
+        deciles = statistics.quantiles(lateness(tmp_path / f"gx2-{attempt}"), n=10)
+        spreads.append((deciles[4] - deciles[0], deciles[0], deciles[4]))
+        if spreads[-1][0] < SPREAD:
+            return
+    raise AssertionError("packets reach the host " + ", ".join(
+        f"{low * 1e3:.2f} to {high * 1e3:.2f}" for _, low, high in spreads)
+        + f" ms late (p10 to p50) in each of {ATTEMPTS} measurements")

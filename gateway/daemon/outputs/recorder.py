@@ -290,7 +290,8 @@ class Recorder(Output):
             if time.monotonic() >= due:
                 if self._writer is not None:
                     self._guarded(self._flush)
-                self._retain()
+                if not self._closing:  # (see _flush)
+                    self._retain()
                 due = time.monotonic() + FLUSH_S
             if backlog:
                 if self._stop.is_set():
@@ -364,8 +365,11 @@ class Recorder(Output):
             self._proven += 1
             if self._proven >= RESUMED_AFTER:
                 self._resumed()
-        if (time.monotonic() - self._opened >= self.rotate_s
-                or self._output.tell() >= self.rotate_bytes):
+        # Once closing, the file is finished as it is: a disk slower than close()'s
+        # time leaves the thread writing after close() returned, and a rotation or the
+        # retention then opened a new file and deleted the one being closed.
+        if not self._closing and (time.monotonic() - self._opened >= self.rotate_s
+                                  or self._output.tell() >= self.rotate_bytes):
             self._finish()
             self._open()
 

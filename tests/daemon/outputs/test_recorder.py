@@ -264,6 +264,57 @@ def test_a_queue_that_never_empties_still_flushes_rotates_and_retains(tmp_path):
     assert rotated and all(readable(path)[0] and readable(path)[1] for path in rotated)
 
 
+class GatedDisk:
+    """Files whose writes to the OS wait while ``gate`` is shut: ``entered`` is set by a
+    write that found it shut (the thread is then inside a write, where a slow disk
+    keeps it)."""
+
+    def __init__(self) -> None:
+        self.gate = threading.Event()
+        self.gate.set()
+        self.entered = threading.Event()
+
+    def create(self, path: Path) -> Any:
+        disk = self
+
+        class Gated(io.FileIO):
+            def write(self, data: Any) -> int:
+                if not disk.gate.is_set():
+                    disk.entered.set()
+                    disk.gate.wait()
+                return super().write(data)
+        return io.BufferedWriter(Gated(path, "xb"))
+
+
+def test_a_recorder_closing_opens_no_file_and_deletes_none(tmp_path, monkeypatch, caplog):
+    """A disk slower than close()'s time: the thread finishes its file after close()
+    has returned, but a rotation or retention falling due meanwhile is not carried out
+    (it opened a new file and deleted the one being closed; the suite saw its log in
+    the next test)."""
+    monkeypatch.setattr(recorder_module, "FLUSH_S", 0.05)  # (every pass a flush: due)
+    disk = GatedDisk()
+    recorder = Recorder(RecordConfig(directory=str(tmp_path), rotate_mb=1e-6, keep_gb=1e-9),
+                        {}, create=disk.create)
+    recorder.start()
+    try:
+        sent = feed(recorder, 0.05)
+        wait_for(lambda: recorder.status()["files"] >= 1, 5, "a file")
+        disk.gate.clear()
+        while not disk.entered.is_set() and sent < 10_000:  # (until a write waits)
+            sent += feed(recorder, 0.05, sent)
+        assert disk.entered.is_set()
+        caplog.set_level(logging.INFO, "gx2.record")
+        before = set(tmp_path.iterdir())
+        recorder.close(timeout=0.2)
+        assert recorder._thread.is_alive()  # (still in its write)
+    finally:
+        disk.gate.set()
+    wait_for(lambda: not recorder._thread.is_alive(), 10, "the thread's end")
+    assert set(tmp_path.iterdir()) == before
+    assert not [r.message for r in caplog.records
+                if "deleted" in r.message or "recording to" in r.message]
+
+
 class FullDisk:
     """Files on a disk that fills up (every write to the OS fails with ENOSPC while
     ``full`` is set) and frees again; buffered as a file opened by Python is."""
