@@ -335,11 +335,15 @@ class Health:
             verdict = self.verdict(node, now)
             before = self._verdicts.get(node.address)
             self._verdicts[node.address] = verdict
-            if before is not None and verdict.level != before.level:
-                # (a line's first second, said not locked alone, is a node acquiring
-                # its clock, as a receiver's "no fix": every start, power-up and
-                # release has one; a warning each time taught users to ignore them)
-                quiet = verdict.level is Level.OK or verdict.reasons == (NOT_LOCKED,)
+            # (a line's first second, said not locked alone, is a node acquiring its
+            # clock, as a receiver's "no fix": every start, power-up and release has
+            # one; a warning each time taught users to ignore them. Logged at INFO,
+            # and a WARN that grows another reason during it warns then)
+            acquiring = (NOT_LOCKED,)
+            grew = before is not None and before.reasons == acquiring \
+                and verdict.level is Level.WARN and verdict.reasons != acquiring
+            if before is not None and (verdict.level != before.level or grew):
+                quiet = verdict.level is Level.OK or verdict.reasons == acquiring
                 log.log(logging.INFO if quiet else logging.WARNING,
                         "node %s health %s -> %s%s", node.label, before.level,
                         verdict.level, f": {'; '.join(verdict.reasons)}"

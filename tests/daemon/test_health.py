@@ -238,10 +238,14 @@ def test_a_clock_being_locked_is_logged_as_information_not_a_warning(caplog) -> 
     health.sample(node.stream_started)  # (before its first packet: OK)
     node.clock.update(1.0, 1.0)
     health.sample(node.stream_started + 0.5)
-    node._state = State.LINK_DOWN
+    node.lost_gateway += 300  # (still WARN, for one more reason)
     health.sample(node.stream_started + 1.0)
+    node._state = State.LINK_DOWN
+    health.sample(node.stream_started + 1.5)
     levels = [(r.levelno, r.getMessage()) for r in caplog.records]
     assert levels == [(logging.INFO, "node 76 health OK -> WARN: clock not locked"),
+                      (logging.WARNING, "node 76 health WARN -> WARN: clock not locked; "
+                                        "300 not published in 1 s"),
                       (logging.WARNING, "node 76 health WARN -> ERROR: link down")], levels
 
 
