@@ -63,6 +63,9 @@ class Placement(Enum):
     ONE_SIDE = "one_side"
     """By sightings on one side only (before the first, or after the last, sighting of
     its power-up): the line extrapolated at the drift measured."""
+    LIVE = "live"
+    """No two sightings bracket it inside the hull: its time as the live estimate gave
+    it."""
     UNPLACED = "unplaced"
     """No packet of its power-up showed the floor: placed on the lowest of them, late
     by a wait no packet shows."""
@@ -114,7 +117,7 @@ def _trusted_hull(blocks: list[tuple[float, list]], lo: int,
     only the points within TRUST of the lowest, along that drift, make the hull; the
     drift is returned with it (what carries the line beyond the hull's ends)."""
     lows = [min(vertices, key=lambda v: v[1]) for _, vertices in blocks[lo:hi]]
-    slopes = _lag_slopes(lows, LAG) or _lag_slopes(lows, 0.0)
+    slopes = _lag_slopes(lows, LAG) or _lag_slopes(lows, BLOCK / 2)
     drift = statistics.median(slopes) if slopes else 0.0
     drift = max(-MAX_DRIFT, min(MAX_DRIFT, drift))
     floor = min(y - drift * x for x, y in lows)
@@ -142,9 +145,12 @@ def _at(hull: list[tuple[float, float]], drift: float,
     return ya + (yb - ya) * (x - xa) / (xb - xa), xa, xb
 
 
-def refine(points: Sequence[tuple[float, float, bool]]) -> Refined:
+def refine(points: Sequence[tuple[float, float, bool]],
+           live: Sequence[float] | None = None) -> Refined:
     """Place each (device, arrival, waited) point of one power-up (device seconds from
-    its timer, arrival on the caller's clock, in device order) from all of them."""
+    its timer, arrival on the caller's clock, in device order) from all of them; where
+    no two sightings inside the reach's hull bracket a point, ``live[i]`` (the time the
+    live estimate gave it, on the same clock) is kept, if given (LIVE)."""
     seen_x = [d for d, _, waited in points if not waited]
     seen_y = [a - d for d, a, waited in points if not waited]
     if not seen_x:
@@ -157,7 +163,7 @@ def refine(points: Sequence[tuple[float, float, bool]]) -> Refined:
     placement: list[Placement] = []
     bound: list[float | None] = []
     span_start, hull, drift = None, [], 0.0
-    for device, _, _ in points:
+    for i, (device, _, _) in enumerate(points):
         if span_start is None or device - span_start >= SPAN:
             span_start = device
             # the blocks within REACH either side, and at least one beyond each edge of
@@ -166,6 +172,15 @@ def refine(points: Sequence[tuple[float, float, bool]]) -> Refined:
             hi = bisect.bisect_left(starts, device + SPAN + REACH) + 1
             hull, drift = _trusted_hull(blocks, max(lo, 0), min(hi, len(blocks)))
         y, left, right = _at(hull, drift, device)
+        inside = (left is not None and right is not None and left > hull[0][0]
+                  and right < hull[-1][0])
+        if live is not None and not inside:
+            # (a hull's end is its first or last point whatever its height: an edge to
+            # it bridges nothing, and a run of late packets there tilted it by 57 ms)
+            line.append(live[i])
+            placement.append(Placement.LIVE)
+            bound.append(None)
+            continue
         line.append(device + y)
         if left is not None and right is not None:
             # (on the edge between two sightings: a drift bending at DRIFT_RATE leaves

@@ -148,7 +148,7 @@ def feed(model: Model, clock: type[NodeClock] = NodeClock) -> Streams:
     counts: dict[tuple[int, int], list[int]] = {}
     shown: dict[tuple[int, int], dict[int, bool]] = {}
     line_free = -math.inf
-    series: dict[tuple[int, int], list[tuple[float, float, bool, float]]] = {}
+    series: dict[tuple[int, int], list[tuple[float, float, bool, float, float]]] = {}
     for packet in model.packets:
         node = packet.node
         arrival = packet.read - packet.size * BYTE_TIME
@@ -166,7 +166,7 @@ def feed(model: Model, clock: type[NodeClock] = NodeClock) -> Streams:
         time = clocks[node].update(device, arrival, behind) if behind \
             else clocks[node].update(device, arrival)
         key = (node, packet.segment)
-        series.setdefault(key, []).append((device, arrival, behind, packet.truth))
+        series.setdefault(key, []).append((device, arrival, behind, packet.truth, time))
         start = starts.setdefault(key, packet.truth)
         tally = counts.setdefault(key, [0, 0])
         tally[0] += 1
@@ -184,9 +184,11 @@ def feed(model: Model, clock: type[NodeClock] = NodeClock) -> Streams:
     out.queued = {key: q / n for key, (n, q) in counts.items()}
     if refine is not None:
         for key, points in series.items():
-            placed = refine([(d, a, w) for d, a, w, _ in points])
+            placed = refine([(d, a, w) for d, a, w, _, _ in points],
+                            [t for *_, t in points])
             start = starts[key]
-            out.refined[key] = [(truth, at - truth, bound) for (_, _, _, truth), at, bound
+            out.refined[key] = [(truth, at - truth, bound)
+                                for (_, _, _, truth, _), at, bound
                                 in zip(points, placed.line, placed.bound, strict=True)
                                 if truth - start >= WARM_UP]
     out.visible = {key: sum(bins.values()) / len(bins) for key, bins in shown.items()}
