@@ -44,6 +44,9 @@ enough that a hull's ends are far apart (the drift's error is the floor's noise 
 the reach), short enough that a crystal's drift is straight across it."""
 BLOCK = 2.0
 """Device seconds whose sightings are reduced to their own lower hull first."""
+BEYOND = 2
+"""Blocks of sightings a span's hull reaches past REACH on a side (where it has any):
+the sightings nearest a hidden stretch longer than REACH, and more past them."""
 LAG = 30.0
 """Device seconds between the two lowest points a drift's slope is taken across."""
 TRUST = 0.3e-3
@@ -66,7 +69,7 @@ class Placement(Enum):
     LIVE = "live"
     """No two sightings bracket it inside the hull: its time as the live estimate gave
     it."""
-    UNPLACED = "unplaced"
+    UNPLACEABLE = "unplaceable"
     """No packet of its power-up showed the floor: placed on the lowest of them, late
     by a wait no packet shows."""
 
@@ -75,7 +78,7 @@ class Placement(Enum):
 class Refined:
     """Per point: ``line`` (arrival of a packet sent at its device time with the
     floor's delay, on the caller's clock), how it was placed, and how far from the
-    floor that may be (seconds; None when unplaced: the wait is unknown)."""
+    floor that may be (seconds; None when unplaceable: the wait is unknown)."""
 
     line: list[float]
     placement: list[Placement]
@@ -156,7 +159,7 @@ def refine(points: Sequence[tuple[float, float, bool]],
     if not seen_x:
         floor = min((a - d for d, a, _ in points), default=0.0)
         return Refined([d + floor for d, _, _ in points],
-                       [Placement.UNPLACED] * len(points), [None] * len(points))
+                       [Placement.UNPLACEABLE] * len(points), [None] * len(points))
     blocks = _block_hulls(seen_x, seen_y)
     starts = [start for start, _ in blocks]
     line: list[float] = []
@@ -166,10 +169,12 @@ def refine(points: Sequence[tuple[float, float, bool]],
     for i, (device, _, _) in enumerate(points):
         if span_start is None or device - span_start >= SPAN:
             span_start = device
-            # the blocks within REACH either side, and at least one beyond each edge of
-            # the span that has any (a hidden stretch longer than REACH is bridged)
-            lo = bisect.bisect_right(starts, device - REACH) - 1
-            hi = bisect.bisect_left(starts, device + SPAN + REACH) + 1
+            # the blocks within REACH either side, and BEYOND more past each edge of
+            # the span that has any (a hidden stretch longer than REACH is bridged: with
+            # one block only, the edge across the stretch could end at that block's
+            # last sighting, the hull's end, and bridge nothing)
+            lo = bisect.bisect_right(starts, device - REACH) - BEYOND
+            hi = bisect.bisect_left(starts, device + SPAN + REACH) + BEYOND
             hull, drift = _trusted_hull(blocks, max(lo, 0), min(hi, len(blocks)))
         y, left, right = _at(hull, drift, device)
         inside = (left is not None and right is not None and left > hull[0][0]

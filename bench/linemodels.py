@@ -132,7 +132,7 @@ class Streams:
     refined: dict[tuple[int, int], list[tuple[float, float, float | None]]] = field(
         default_factory=dict)
     """Per stream, after WARM_UP: (true instant, error of the time placed after the fact
-    from the whole run, aspp.refine, and its bound; None: unplaced)."""
+    from the whole run, aspp.refine, and its bound; None: unplaceable or live)."""
 
 
 def feed(model: Model, clock: type[NodeClock] = NodeClock) -> Streams:
