@@ -28,6 +28,8 @@ from .client import CtlError
 FORMATS = ("csv", "parquet", "mat", "ros2")
 """export's formats (gateway.recording.export.FORMATS, which this module does not import
 before a command runs: gx2ctl's start stays light)."""
+TIMES = ("live", "refined")
+"""--time's choices (gateway.recording.refined.TIMES)."""
 FRAMES = ("enu", "ned")
 """--frame's choices (gateway.recording.rep103.FRAMES)."""
 
@@ -82,6 +84,13 @@ def add_commands(commands: Any) -> None:
                           help="ros2: enu (default): REP-103's ENU world and FLU body, "
                           "converted from the device's; ned: the device's own NED world "
                           "and sensor frame")
+    exporter.add_argument("--time", choices=TIMES, default="live",
+                          help="live (default): time as the gateway gave it while "
+                          "recording; refined: placed after the fact from the whole "
+                          "recording (the node's floor seen on both sides of a stretch "
+                          "whose packets all waited on the line), with columns time_placed "
+                          "and time_bound_ms; needs the gateway's own recording (its serial "
+                          "reads)")
     exporter.add_argument("--force", action="store_true",
                           help="remove the tables of an earlier export in DIR first, "
                           "every one (without it, export refuses to write over them, as "
@@ -194,6 +203,9 @@ def run_export(args: argparse.Namespace) -> int:
     if args.frame is not None and args.form != "ros2":
         raise CtlError(f"--frame is for --format ros2 (--format {args.form} keeps the "
                        "device's frames, as recorded)", Exit.USAGE)
+    if args.time != "live" and args.form == "ros2":
+        raise CtlError("--time refined is for the tables (csv, parquet, mat); a ROS 2 bag "
+                       "keeps the time as recorded", Exit.USAGE)
     paths = _files(args.files)
     files, chosen = _windows(args, paths)
     if args.form == "ros2":
@@ -209,7 +221,7 @@ def run_export(args: argparse.Namespace) -> int:
         # (one window of nodes asked that holds none of them: no marks.csv alone either)
         alone = len(chosen) == 1 and bool(args.nodes or args.records)
         written, marks = _export_window(args, paths, out, reading, reader.entries(window),
-                                        total, alone)
+                                        total, alone, _refined(args, files, window))
         found += written + marks
         tables += written
     status = _report(reading)
@@ -281,9 +293,23 @@ def _export_bags(args: argparse.Namespace, paths: list[Path], files: list[Descri
     return status
 
 
+def _refined(args: argparse.Namespace, files: list[Described], window: Window) -> Any:
+    """``--time refined``: the window's times placed after the fact (exit 2 for
+    recordings that cannot be refined); None for ``--time live``."""
+    if args.time == "live":
+        return None
+    from gateway.recording.files import RecordingError
+    from gateway.recording.refined import check_refinable, for_window
+    try:
+        check_refinable(files)
+        return for_window(files, window)
+    except RecordingError as error:
+        raise CtlError(str(error), Exit.USAGE) from None
+
+
 def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
-                   reading: Reading, entries: Any, total: int, tables_only: bool = False
-                   ) -> tuple[int, int]:
+                   reading: Reading, entries: Any, total: int, tables_only: bool = False,
+                   refined: Any = None) -> tuple[int, int]:
     """One window's tables written to ``out``, a line each; how many, and how many
     marks."""
     from gateway.recording.export import MARKS, MissingExtra, NoTables, RecordingError, export
@@ -291,7 +317,7 @@ def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
     try:
         with ProgressBar(total, sys.stderr.isatty()) as bar:
             tables, marks = export(paths, out, reading, args.form, bar.advance,
-                                   written, entries, tables_only)
+                                   written, entries, tables_only, refined)
     except NoTables:
         return 0, 0
     except MissingExtra as error:

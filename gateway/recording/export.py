@@ -1,13 +1,14 @@
 """Tables from recordings: one per node and record, a row per record.
 
-Columns: ``time``, ``host_time``, ``device_time``, ``seq``, ``lost_before``, ``lqi``,
-``rssi``, then the record's fields in the order of its layout (:mod:`aspp.records`),
-vectors as ``<field>_x/_y/_z``, matrices as ``<field>_11`` .. ``<field>_33`` (row,
-column), a record's list of integers as ``<field>_1`` .. ``<field>_n``; then the fields
-the gateway adds (a matrix's ``roll``, ``pitch``, ``yaw``, and ``quaternion_w`` ..
-``quaternion_z``: :data:`aspp.records.DERIVED_FROM_MATRIX`). A value a record
-does not have (an untimed record's ``time``) or NaN (JSON's null) is an empty cell or a
-null.
+Columns: ``time`` (with ``time_placed`` and ``time_bound_ms`` after it when the time is
+refined after the fact: :mod:`.refined`), ``host_time``, ``device_time``, ``seq``,
+``lost_before``, ``lqi``, ``rssi``, then the record's fields in the order of its
+layout (:mod:`aspp.records`), vectors as ``<field>_x/_y/_z``, matrices as ``<field>_11``
+.. ``<field>_33`` (row, column), a record's list of integers as ``<field>_1`` ..
+``<field>_n``; then the fields the gateway adds (a matrix's ``roll``, ``pitch``,
+``yaw``, and ``quaternion_w`` .. ``quaternion_z``: :data:`aspp.records.DERIVED_FROM_MATRIX`).
+A value a record does not have (an untimed record's ``time``) or NaN (JSON's null) is an
+empty cell or a null.
 
 ``lost_before`` is the samples of the node's stream missing just before the row, by its
 timer's steps (:mod:`.losses`): 0 normally, for rows that are not a stream's (polled
@@ -48,13 +49,17 @@ from .losses import Counted, Losses
 from .matfile import MatWriter, mat_modules
 from .parquetfile import MissingExtra, ParquetWriter, parquet_modules
 from .reader import Entry, Mark, read_all
+from .refined import COLUMNS as REFINED_COLUMNS
+from .refined import Refinement
 from .reports import Reading
 from .rosbag import Bag, export_bag, ros2_modules
 from .summary import Summary
 
 LEADING = ("time", "host_time", "device_time", "seq", "lost_before", "lqi", "rssi")
-LOST_BEFORE = LEADING.index("lost_before")
-BOOKKEEPING = frozenset((*LEADING, "node", "record", "command"))
+REFINED_LEADING = (LEADING[0], *REFINED_COLUMNS, *LEADING[1:])
+"""With ``time`` refined (:mod:`.refined`): how each row's time was placed, and its
+bound, beside it."""
+BOOKKEEPING = frozenset((*REFINED_LEADING, "node", "record", "command"))
 FORMATS = ("csv", "parquet", "mat", "ros2")
 """Every format, each in a module of its own (:mod:`.parquetfile`, :mod:`.matfile`,
 :mod:`.rosbag`) registered below: a table format in WRITERS, a format that writes a
@@ -136,10 +141,13 @@ def element(value: Any, index: int) -> Any:
 class Table:
     """One node's one record: its columns, fixed by its first row."""
 
-    def __init__(self, node: int, record: str, first: Mapping[str, Any]) -> None:
+    def __init__(self, node: int, record: str, first: Mapping[str, Any],
+                 leading: tuple[str, ...] = LEADING) -> None:
         self.node, self.record = node, record
+        self.leading = leading
+        self.lost_at = leading.index("lost_before")
         self.fields = field_columns(record, first)
-        self.columns = record_columns(record, LEADING, self.fields, first)
+        self.columns = record_columns(record, leading, self.fields, first)
         """Its columns' names, kinds, meanings and units."""
         self.losses = Summary()
         """Its rows (``received``), what was missed while its base station was down,
@@ -151,7 +159,7 @@ class Table:
         return self.losses.received
 
     def row(self, payload: Mapping[str, Any]) -> list[Any]:
-        return [*(payload.get(name) for name in LEADING),
+        return [*(payload.get(name) for name in self.leading),
                 *(element(payload.get(name), index) for _, name, index in self.fields)]
 
 
@@ -225,7 +233,8 @@ class Output:
 def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv",
            progress: Callable[[Entry], None] | None = None,
            written: list[Path] | None = None, entries: Iterable[Entry] | None = None,
-           tables_only: bool = False) -> tuple[list[tuple[Path, Table]], int]:
+           tables_only: bool = False, refined: Refinement | None = None
+           ) -> tuple[list[tuple[Path, Table]], int]:
     """Write the tables of the recordings ``paths`` into ``out``: (path, table) of each
     node's table, in the order first seen, and the number of marks (in ``marks.csv``).
     Each table written whole is added to ``written`` as it is. What reading skipped is
@@ -236,7 +245,9 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
     message of ``paths``. ``tables_only``: NoTables, and nothing written, if there is
     no table (only marks: the nodes asked are not in the recordings). ValueError, and
     nothing written, for a format that is not a table's (``ros2`` writes a window
-    whole: WHOLE's function, :func:`.rosbag.export_bag`)."""
+    whole: WHOLE's function, :func:`.rosbag.export_bag`). ``refined``: each row's
+    ``time`` refined after the fact (:mod:`.refined`), with its ``time_placed`` and
+    ``time_bound_ms`` beside it."""
     if form in WHOLE:
         raise ValueError(f"export writes tables; format {form!r} writes a window whole: "
                          f"call {WHOLE[form].__module__}.{WHOLE[form].__name__}")
@@ -271,9 +282,11 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
             if where is None:
                 continue
             payload = entry.payload()
+            if refined is not None:
+                payload = refined.apply(entry, payload)
             open_table = tables.get(where)
             if open_table is None:
-                table = Table(*where, payload)
+                table = Table(*where, payload, LEADING if refined is None else REFINED_LEADING)
                 output = Output(out, table_name(*where, form), form, table.columns,
                                 outputs)
                 open_table = tables[where] = (table, output)
@@ -304,7 +317,7 @@ def _write(counted: list[Counted[tuple[Table, Output, list[Any]]]],
     """Write rows whose ``lost_before`` is now known."""
     for row in counted:
         table, output, values = row.item
-        values[LOST_BEFORE] = row.lost
+        values[table.lost_at] = row.lost
         output.add(values)
         table.losses.add(row, period=losses.period(table.node, table.record))
 
