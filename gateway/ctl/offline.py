@@ -66,7 +66,8 @@ def add_commands(commands: Any) -> None:
         "ROS 2 bag",
         description="Write DIR/<address>_<record>.csv (or .parquet, .mat): a row per record, "
         "columns time, host_time, device_time, seq, lqi, rssi, then the record's fields "
-        "(vectors as _x/_y/_z, matrices as _11.._33), and DIR/marks.csv (its header "
+        "(vectors as _x/_y/_z, matrices as _11.._33; with --time refined, time_placed "
+        "and time_bound_ms after time), and DIR/marks.csv (its header "
         "alone if there are no marks). With --format ros2, DIR is a rosbag2 (metadata.yaml "
         "and one .mcap): sensor_msgs/msg/Imu on /gx2/<node name>/imu, "
         "sensor_msgs/msg/MagneticField on /gx2/<node name>/mag, tf2_msgs/msg/TFMessage "

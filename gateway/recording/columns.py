@@ -21,10 +21,10 @@ UNSIGNED = (("uint8", 0xFF), ("uint16", 0xFFFF), ("uint32", 0xFFFF_FFFF))
 LOST_BEFORE = ("samples of the node's stream missing just before this row, by its "
                "timer's steps; null where not known", "samples")
 """export's own column (not a published field): its meaning is said here, once."""
-PLACED = ("how ``time`` was placed when refined after the fact: between (sightings of "
+PLACED = ("how time was placed when refined after the fact: between (sightings of "
           "the node's floor on both sides), one_side, live (as recorded), unplaceable "
           "(no packet of its power-up showed the floor)", "")
-BOUND_MS = ("how far ``time`` may be from the sample instant, as refined (the floor's "
+BOUND_MS = ("how far time may be from the sample instant, as refined (the floor's "
             "noise and the drift's bend across the sightings around it); null where none "
             "is known (live, unplaceable)", "ms")
 """The columns of a refined export (:mod:`.refined`), said here, once."""

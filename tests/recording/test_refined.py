@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from aspp.records import encode
-from gateway.client import Recording, RecordingError
+from gateway.client import Recording, RecordingError, Unrefinable
 from gateway.recording.files import RecordingError as FilesRecordingError
 from gateway.recording.refined import line_settings
 from gateway.recording.sightings import LineSettings, Sightings
@@ -138,9 +138,9 @@ def test_bad_times_and_recordings_that_cannot_be_refined_are_one_line(tmp_path: 
     # the client says the same, as exceptions
     with pytest.raises(ValueError, match="time must be one of 'live', 'refined'"):
         Recording(published, time="bogus")
-    with pytest.raises(RecordingError, match="no serial reads"):
+    with pytest.raises(Unrefinable, match="no serial reads"):
         Recording(published, time="refined")
-    assert RecordingError is FilesRecordingError
+    assert issubclass(Unrefinable, RecordingError) and RecordingError is FilesRecordingError
 
 
 def test_the_client_gives_the_refined_times_export_writes(tmp_path: Path) -> None:
