@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from aspp.records import encode
+from aspp.timing import TICKS_PER_SECOND
 from gateway.client import Recording, RecordingError, Unrefinable
 from gateway.recording.files import RecordingError as FilesRecordingError
 from gateway.recording.refined import line_settings
@@ -154,3 +155,42 @@ def test_the_client_gives_the_refined_times_export_writes(tmp_path: Path) -> Non
     assert "time_placed" not in messages[0].fields
     frame = Recording(path, nodes=[12], time="refined").to_pandas()
     assert list(frame.columns[6:9]) == ["time", "time_placed", "time_bound_ms"]
+
+
+def test_several_stations_each_read_at_its_own_line(tmp_path: Path) -> None:
+    # two base stations' reads on their own channels, at their own baud rates and
+    # latencies (the head's stations): a packet's arrival is its read's less its bytes
+    # at its own line's rate, and its wait is judged against its own line only
+    stations = [{"name": "left", "port": "/dev/a", "baudrate": 115200, "latency_ms": 3,
+                 "nodes": [11]},
+                {"name": "right", "port": "/dev/b", "baudrate": 57600, "latency_ms": 5,
+                 "nodes": [12]}]
+    path = tmp_path / "two.mcap"
+    with path.open("wb") as output:
+        writer = RecordingWriter(output, {"stations": json.dumps(stations)})
+        reads = [1000.0, 1000.010, 1000.0105, 1000.021]
+        for at, (node, topic) in enumerate([(11, "serial/left"), (12, "serial/right")] * 2):
+            read = reads[at]
+            timer = 196_608 * (1 + at)  # (10 ms steps; device time is the timer's)
+            writer.serial(packet(node, timer), read + SHIFT, read, topic)
+            writer.message(f"gx2/{node}/accel_angrate",
+                           record(node, 1 + at, timer, timer / TICKS_PER_SECOND, read))
+        writer.finish()
+    settings = line_settings([path])
+    assert settings == {"serial/left": LineSettings(BYTE, 0.003),
+                        "serial/right": LineSettings(2 * BYTE, 0.005)}
+    from gateway.recording.reader import read
+    from gateway.recording.reports import Reading
+    sightings = Sightings(settings, LineSettings(BYTE, 0.0))
+    for entry in read(path, Reading()):
+        payload = None if entry.topic.startswith("serial") else json.loads(entry.data)
+        sightings.feed(entry.topic, entry.log_time, entry.publish_time, entry.data,
+                       payload, True)
+    left, right = sightings.power_ups
+    assert (left.node, right.node) == (11, 12)
+    assert right.arrival[0] == pytest.approx(1000.010 - 40 * 2 * BYTE)
+    assert right.shift[0] == pytest.approx(SHIFT - 0.005)
+    # the first packet of each, after nothing read on its line: waited (unknown); the
+    # second of the left began 7 ms after its own line's last packet, whatever the
+    # right line read just before it: free
+    assert left.waited == right.waited == [True, False]
