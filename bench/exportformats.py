@@ -1,8 +1,12 @@
 #!/usr/bin/env python3
 """What each export format costs: seconds per million rows, CSV against Parquet
-against MATLAB .mat against a ROS 2 bag, and the .mat writer's memory.
+against MATLAB .mat against a ROS 2 bag, and the .mat writer's memory; with
+``--before TREE``, this tree against another (a checkout of an earlier commit) side by
+side.
 
     .venv/bin/python bench/exportformats.py [--rows 200000] [--rounds 3]
+    git worktree add --detach /tmp/before44 COMMIT
+    .venv/bin/python bench/exportformats.py --before /tmp/before44 --rows 1000000 --rounds 2
 
 One recording of ``--rows`` 0xCB records (accel_angrate_mag, 17 columns) of one node
 at 100 Hz, written through the recorder's writer; then, interleaved over ``--rounds``,
@@ -12,11 +16,19 @@ format pays before its own writer (a ROS 2 bag: two messages a row, an Imu and a
 MagneticField, each built and serialized by rosbags). The .mat writer holds a table
 whole until scipy's ``savemat`` takes it: its peak is measured by tracemalloc in a
 round of its own.
+
+With ``--before``, each export runs in a process of its own, the two trees' in turn
+(A B A B, the same file): its seconds (the export alone, not the imports) and its
+peak RSS (the process's, imports included), best of the rounds; a format the other
+tree's export does not know (ros2 before it was added) is shown as ``-``.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import resource
+import subprocess
 import sys
 import tempfile
 import time
@@ -24,20 +36,29 @@ import tracemalloc
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+TREE = (sys.argv[sys.argv.index("--tree") + 1] if "--tree" in sys.argv
+        else str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, TREE)  # (another tree's gateway, for --before)
 
-from gateway.recording import export as exporting
-from gateway.recording.reports import Reading
-from gateway.recording.rosbag import export_bag
-from gateway.recording.writer import RecordingWriter
+from gateway.recording import export as exporting  # noqa: E402
+from gateway.recording.reports import Reading  # noqa: E402
+from gateway.recording.writer import RecordingWriter  # noqa: E402
 
 T0 = 1_795_000_000.0
 FORMATS = ("csv", "parquet", "mat", "ros2")
 
 
-class Nothing(exporting.Writer):
+class Nothing:
+    """A table writer that keeps nothing (any tree's export takes it: add and close)."""
+
     def __init__(self, path: Path, columns: list[Any]) -> None:
         path.touch()
+
+    def add(self, row: list[Any]) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
 
 
 def recording(path: Path, rows: int) -> Path:
@@ -55,9 +76,84 @@ def recording(path: Path, rows: int) -> Path:
     return path
 
 
+def register_reading() -> None:
+    """``reading``: the export with a writer that keeps nothing (a batch at a time in
+    a tree that exports so)."""
+    exporting.WRITERS["reading"] = Nothing
+    try:
+        from gateway.recording import columnexport
+    except ImportError:
+        return  # (a tree before issue 44: row by row only)
+    columnexport.BATCH_WRITERS["reading"] = Discard
+
+
+class Discard:
+    def __init__(self, path: Path, schema: Any) -> None:
+        path.touch()
+
+    def add(self, table: Any) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def child(source: Path, out: Path, form: str) -> None:
+    """One export in this process: its seconds and the process's peak RSS, as JSON
+    (null: this tree's export has no such format)."""
+    register_reading()
+    if form != "reading" and form not in exporting.FORMATS:
+        print(json.dumps(None))
+        return
+    took = once(source, out, form)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    print(json.dumps({"seconds": took, "rss": peak}))
+
+
+def side_by_side(args: argparse.Namespace) -> None:
+    """This tree against ``--before``, each export in a process of its own, in turn."""
+    trees = {"before": str(Path(args.before).resolve()), "after": TREE}
+    best: dict[tuple[str, str], dict[str, float] | None] = {}
+    with tempfile.TemporaryDirectory() as work:
+        source = recording(Path(work) / "run.mcap", args.rows)
+        for round_ in range(args.rounds):
+            for form in ("reading", *FORMATS):
+                for name, tree in trees.items():
+                    # (a new directory a round: a bag is never written over)
+                    out = Path(work) / f"{name}-{form}-{round_}"
+                    ran = subprocess.run(
+                        [sys.executable, __file__, "--tree", tree, "--child", form,
+                         "--source", str(source), "--out", str(out)],
+                        capture_output=True, text=True, check=True, cwd=work)
+                    got = json.loads(ran.stdout.splitlines()[-1])
+                    kept = best.setdefault((name, form), got)
+                    if kept is not None and got is not None:
+                        for key in ("seconds", "rss"):
+                            kept[key] = min(kept[key], got[key])
+    print(f"{args.rows:,} rows of accel_angrate_mag, best of {args.rounds} interleaved "
+          f"rounds; before: {trees['before']}")
+    print(f"{'':8} {'before':>22} {'after':>22} {'factor':>7}  peak RSS before/after")
+    for form in ("reading", *FORMATS):
+        was, now = best[("before", form)], best[("after", form)]
+        if was is None or now is None:
+            print(f"{form:8} {_seconds(was, args.rows):>22} {_seconds(now, args.rows):>22}")
+            continue
+        print(f"{form:8} {_seconds(was, args.rows)} {_seconds(now, args.rows)}"
+              f" {was['seconds'] / now['seconds']:6.1f}x  {was['rss'] / 2**20:5.0f} /"
+              f" {now['rss'] / 2**20:5.0f} MiB")
+
+
+def _seconds(took: dict[str, float] | None, rows: int) -> str:
+    """An export's seconds a million rows and rows a second (``-``: not that tree's)."""
+    if took is None:
+        return "-"
+    return f"{took['seconds'] * 1e6 / rows:6.2f} s/M ({rows / took['seconds']:8,.0f}/s)"
+
+
 def once(source: Path, out: Path, form: str) -> float:
     started = time.perf_counter()
     if form == "ros2":
+        from gateway.recording.rosbag import export_bag  # (not in a tree before it)
         export_bag([source], out, Reading())
     else:
         exporting.export([source], out, Reading(), form)
@@ -68,10 +164,21 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rows", type=int, default=200_000)
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--before", help="another tree (a checkout), side by side")
+    parser.add_argument("--tree", help=argparse.SUPPRESS)
+    parser.add_argument("--child", help=argparse.SUPPRESS)
+    parser.add_argument("--source", type=Path, help=argparse.SUPPRESS)
+    parser.add_argument("--out", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.child:
+        child(args.source, args.out, args.child)
+        return
+    if args.before:
+        side_by_side(args)
+        return
     with tempfile.TemporaryDirectory() as work:
         source = recording(Path(work) / "run.mcap", args.rows)
-        exporting.WRITERS["reading"] = Nothing
+        register_reading()
         best: dict[str, float] = {}
         for round_ in range(args.rounds):
             for form in ("reading", *FORMATS):

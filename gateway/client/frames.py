@@ -16,9 +16,8 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
 from gateway.recording.columns import nanoseconds
-from gateway.recording.export import element, field_columns
 from gateway.recording.parquetfile import MissingExtra
-from gateway.recording.refined import BOUND, PLACED
+from gateway.recording.tables import BOUND, PLACED, element, field_columns
 
 from .messages import Event, Message
 

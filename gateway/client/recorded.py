@@ -31,7 +31,8 @@ from gateway.common.payloads import as_published
 from gateway.common.topics import parse
 from gateway.recording.catalogue import catalogue
 from gateway.recording.files import MARK, STATUS, RecordingError, usable_files
-from gateway.recording.reader import Entry, Mark, read_all
+from gateway.recording.marks import Mark
+from gateway.recording.reader import Entry, read_all
 from gateway.recording.refined import Refinement, check_refinable, check_time, for_window
 from gateway.recording.reports import Reading
 from gateway.recording.window import Asked, Reader, Window, check_held, touched, windows

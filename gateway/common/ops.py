@@ -9,6 +9,7 @@ result as JSON).
 
 from __future__ import annotations
 
+import re
 import unicodedata
 from dataclasses import dataclass, field
 from typing import Any
@@ -54,6 +55,25 @@ def _mark_text(value: str) -> str:
 
 
 MARK_TEXT = Kind("mark text", str, str, _mark_text)
+MARK_FIELDS = 20
+"""The most fields a mark carries (``--field KEY=VALUE``)."""
+_FIELD_KEY = re.compile(r"[A-Za-z0-9_.-]{1,64}")
+
+
+def _mark_field(value: str) -> str:
+    """``KEY=VALUE``: a key of letters, digits and ``_.-`` (a column's name in the
+    dataset), a value of one line, as a mark's text is."""
+    key, equals, field_value = value.partition("=")
+    if not equals or not _FIELD_KEY.fullmatch(key.strip()):
+        raise ValueError(f"a mark's field is KEY=VALUE, KEY of letters, digits and _.- "
+                         f"(at most 64), not {value!r}")
+    text = field_value.strip()
+    if text:
+        _mark_text(text)
+    return f"{key.strip()}={text}"
+
+
+MARK_FIELD = Kind("mark field", str, str, _mark_field)
 
 
 @dataclass(frozen=True)
@@ -228,12 +248,18 @@ OPS: tuple[Op, ...] = (
     Op("mark", ("mark",), "mark a moment (a trial's start, a knock, a note) in what is "
        "recorded", (Param("nodes", NODE, "the nodes it concerns (default: the whole "
                           "experiment)", many=MAX_PING_NODES, default=()),
-                    Param("text", MARK_TEXT, "what happened (one line, quoted)")),
+                    Param("text", MARK_TEXT, "what happened (one line, quoted)"),
+                    Param("fields", MARK_FIELD, "a field the mark carries (a trial's "
+                          "subject, condition ...): KEY=VALUE, repeatable",
+                          many=MARK_FIELDS, default=(), option="--field",
+                          metavar="KEY=VALUE")),
        talks_to_node=False,
        description="Publish a mark on gx2/gateway/mark: TEXT, the time the gateway took "
-       "it, and the NODEs it concerns (none: the whole experiment). The gateway's own "
-       "recording and gx2ctl record keep it; gx2ctl export writes marks.csv, gx2ctl plot "
-       "draws it. Refused (exit 1) while the gateway replays a recording."),
+       "it, the NODEs it concerns (none: the whole experiment) and its --field KEY=VALUE "
+       "(fields: a map of strings). The gateway's own recording and gx2ctl record keep "
+       "it; gx2ctl export writes marks.csv, gx2ctl trials lists the trials with their "
+       "start mark's fields, gx2ctl plot draws it. Refused (exit 1) while the gateway "
+       "replays a recording."),
     Op("scan", ("scan",), "ping each address (1-100 by default) and say what answers: "
        "LQI/RSSI, firmware, serial number, rate, stream",
        (Param("station", STATION, "the base station whose channel to scan (default: every "

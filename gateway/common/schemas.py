@@ -206,6 +206,9 @@ _MARK: tuple[tuple[str, Schema, str, str], ...] = (
     ("nodes", {"type": "array", "items": {
         "type": "integer", "minimum": MIN_NODE, "maximum": MAX_NODE}},
      "the addresses it concerns; empty: the whole experiment", ""),
+    ("fields", {"type": "object", "additionalProperties": {"type": "string"}},
+     "what its maker said of it (gx2ctl mark --field KEY=VALUE: a trial's subject, "
+     "condition ...); absent in a mark made before issue 44", ""),
 )
 
 Notes = dict[str, tuple[str, str]]

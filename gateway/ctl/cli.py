@@ -24,6 +24,7 @@ from . import PROG
 from .client import Client, CtlError
 from .offline import add_commands as add_offline_commands
 from .output import json_line, show
+from .recordings import add_commands as add_recording_commands
 from .site import CLIENT_KEY_ENV, SERVER_KEY_ENV, gateways
 from .where import Endpoints, Gateway
 
@@ -109,6 +110,7 @@ def build_parser() -> ArgumentParser:
     recorder.add_argument("--seconds", type=bounded(float, 0.1, 1e7), metavar="S",
                           help="stop after S seconds (default: until interrupted)")
     add_offline_commands(commands)
+    add_recording_commands(commands)
     commands.add_parser(
         "keygen", help="write a new CURVE key pair: PREFIX.key (public, 0644) and "
         "PREFIX.key_secret (0600); never overwrites").add_argument("prefix", metavar="PREFIX")
@@ -135,7 +137,10 @@ def add_op(commands: Any, groups: dict[str, Any], op: Op,
         listed = param.help
         if param.kind.choices:
             listed += f"; one of: {', '.join(param.kind.choices)}"
-        if param.many:
+        if param.many and param.option:  # (--field K=V --field K=V)
+            sub.add_argument(param.flag, dest=param.name, action="append", default=[],
+                             type=argtype(param.kind), metavar=metavar, help=listed)
+        elif param.many:
             sub.add_argument(param.name, nargs="+" if param.required else "*",
                              type=argtype(param.kind), metavar=metavar, help=listed)
         elif param.required:
@@ -237,6 +242,12 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "recordings":
             from .recordings import run_recordings
             return run_recordings(args)
+        if args.command == "trials":
+            from .recordings import run_trials
+            return run_trials(args)
+        if args.command == "dataset":
+            from .recordings import run_dataset
+            return run_dataset(args)
         if args.command in ("export", "plot"):
             from .offline import run_export, run_plot
             return (run_export if args.command == "export" else run_plot)(args)

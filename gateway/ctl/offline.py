@@ -1,5 +1,6 @@
-"""gx2ctl's commands that read recordings and need no gateway: ``recordings``,
-``export`` and ``plot``; export and plot read a window of them (:mod:`gateway.recording.window`).
+"""gx2ctl's commands that read a window of recordings and need no gateway: ``export``
+and ``plot`` (:mod:`gateway.recording.window`); ``recordings``, ``trials`` and
+``dataset`` are :mod:`.recordings`'.
 
 Exit status: 0 written; 1 ("partial") written, but something unreadable was skipped
 (a file among others that is empty or not MCAP, a damaged chunk: one line each on
@@ -24,6 +25,7 @@ from gateway.common.protocol import Exit
 
 from . import PROG
 from .client import CtlError
+from .progress import ProgressBar
 
 FORMATS = ("csv", "parquet", "mat", "ros2")
 """export's formats (gateway.recording.export.FORMATS, which this module does not import
@@ -115,18 +117,6 @@ def add_commands(commands: Any) -> None:
                          help="a PNG or a PDF, by its ending (default: "
                          "<address>_<record>.png here)")
     add_window_options(plotter, nodes=False)
-    catalogue = commands.add_parser(
-        "recordings", help="list what recordings hold, from their summaries",
-        description="Per file, sorted by time: its span, size, stations, nodes and records "
-        "with message counts, and marks; overlapping and repeated files said. A finished "
-        "file is described from its summary (its messages unread); one without (its "
-        "writer killed, cut short, damaged) is read through and says so. Default: the "
-        "record directory of the gateway's --config, else the gateway's default record "
-        "directory. Exit 1 if a file is damaged, 2 if none is a recording.")
-    catalogue.add_argument("paths", nargs="*", metavar="DIR | FILE.mcap")
-    # (SUPPRESS: given before the command, as in ``gx2ctl --json status``, it holds too)
-    catalogue.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
-                           help='one line: {"files": [{"path", "start", "end", ...}]}')
 
 
 def _files(given: list[str]) -> list[Path]:
@@ -223,6 +213,8 @@ def run_export(args: argparse.Namespace) -> int:
         alone = len(chosen) == 1 and bool(args.nodes or args.records)
         written, marks = _export_window(args, paths, out, reading, reader.entries(window),
                                         total, alone, _refined(args, files, window))
+        if window.label and written + marks:
+            _trial_json(args, files, window, out)
         found += written + marks
         tables += written
     status = _report(reading)
@@ -292,6 +284,27 @@ def _export_bags(args: argparse.Namespace, paths: list[Path], files: list[Descri
         raise CtlError(f"no bag written from {', '.join(args.files)}: no window gives a "
                        "ROS 2 message", Exit.USAGE)
     return status
+
+
+def _trial_json(args: argparse.Namespace, files: list[Described], window: Window,
+                out: Path) -> None:
+    """``trial.json`` beside a trial's tables: its number, marks, times and the fields
+    of its start mark (as ``gx2ctl trials --json`` gives it, without the counts)."""
+    import json
+    import os
+
+    from gateway.recording.tables import TEMPORARY
+    from gateway.recording.trials import listed
+    from gateway.recording.window import _marks
+    for trial in listed(tuple(args.between), _marks(files)):
+        if trial.span == window.span:
+            said = {key: value for key, value in trial.json().items()
+                    if key not in ("nodes", "files")}
+            hidden = out / TEMPORARY.format(name="trial.json")
+            hidden.write_text(json.dumps(said, indent=1) + "\n", encoding="utf-8")
+            os.replace(hidden, out / "trial.json")
+            print(f"{out / 'trial.json'}  trial {trial.number}", flush=True)
+            return
 
 
 def _refined(args: argparse.Namespace, files: list[Described], window: Window) -> Any:
@@ -378,29 +391,3 @@ def run_plot(args: argparse.Namespace) -> int:
     print(out)
     return status
 
-
-class ProgressBar:
-    """rich's progress bar over the bytes of the recordings, on a terminal only (an
-    entry advances it by its message's size, a fair share of the file's)."""
-
-    def __init__(self, total: int, terminal: bool) -> None:
-        self._progress: Any = None
-        self._task: Any = None
-        self._total = max(total, 1)
-        if terminal:
-            from rich.progress import Progress
-            self._progress = Progress(transient=True)
-            self._task = self._progress.add_task("exporting", total=self._total)
-
-    def advance(self, entry: Any) -> None:
-        if self._progress is not None:
-            self._progress.advance(self._task, len(entry.data) // 2)
-
-    def __enter__(self) -> ProgressBar:
-        if self._progress is not None:
-            self._progress.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self._progress is not None:
-            self._progress.stop()

@@ -261,8 +261,11 @@ def _mark(fields: Mapping[str, Any], result: Mapping[str, Any]) -> Shown:
     nodes = result.get("nodes")
     named = (f" ({', '.join(cell(n) for n in nodes)})" if isinstance(nodes, list) and nodes
              else "")
+    fields = result.get("fields")
+    given = "".join(f"  {cell(k)}={cell(v)}" for k, v in fields.items()) if isinstance(
+        fields, Mapping) else ""
     return Shown([f"mark at {time_of_day(result.get('time'))}: {cell(result.get('text'))}"
-                  f"{named}"])
+                  f"{named}{given}"])
 
 
 @prints("reload")

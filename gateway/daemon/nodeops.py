@@ -188,7 +188,9 @@ async def mark(gw: Operations, request: Any) -> Result:
                       "what is happening now, on a live gateway")
     nodes = [gw.node(address).address for address in request.nodes]
     now = time.time()
-    payload = {"text": request.text, "time": now, "host_time": now, "nodes": nodes}
+    fields = dict(field.partition("=")[::2] for field in request.fields or ())
+    payload = {"text": request.text, "time": now, "host_time": now, "nodes": nodes,
+               "fields": fields}
     if gw.publish_mark is None or not await gw.publish_mark(payload):
         raise OpError("the mark could not be published (the gateway's log says why)")
     return dict(payload)

@@ -22,7 +22,8 @@ from gateway.common.topics import default_station_name, parse
 
 from .files import MARK, SERIAL_READS, WRITTEN, being_written, is_serial_reads
 from .index import walked_span
-from .reader import Mark, index_of, read
+from .marks import Mark
+from .reader import index_of, read
 from .reports import Reading
 
 
@@ -34,6 +35,8 @@ class Marked:
     time: float
     text: str
     log_time: int
+    fields: tuple[tuple[str, str], ...] = ()
+    """What its maker said of it (``gx2ctl mark --field KEY=VALUE``)."""
 
 
 @dataclass
@@ -77,7 +80,8 @@ class Described:
         return {"path": str(self.path), "start": _seconds(self.start),
                 "end": _seconds(self.end), "bytes": self.bytes, "stations": self.stations,
                 "nodes": {str(node): records for node, records in sorted(self.nodes.items())},
-                "marks": [{"time": mark.time, "text": mark.text} for mark in self.marks],
+                "marks": [{"time": mark.time, "text": mark.text, "fields": dict(mark.fields)}
+                          for mark in self.marks],
                 "damaged": self.damaged, "cut_short": self.cut_short,
                 "writing": self.writing,
                 "indexed": self.indexed, "overlaps": [str(p) for p in self.overlaps],
@@ -113,7 +117,7 @@ def _counted(described: Described, counts: dict[str, int]) -> None:
 
 def _marked(entry: Any) -> Marked:
     mark = Mark.of(entry)
-    return Marked(mark.time, mark.text, entry.log_time)
+    return Marked(mark.time, mark.text, entry.log_time, mark.fields)
 
 
 def describe(path: Path, whole: bool = True, read_writing: bool = True) -> Described:

@@ -34,45 +34,29 @@ of an earlier export only with a whole one.
 from __future__ import annotations
 
 import contextlib
-import csv
-import os
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
-from aspp.records import BY_NAME, derived
+from aspp.records import BY_NAME
 from gateway.common.topics import parse
 
-from .columns import Column, mark_columns, record_columns
+from .columns import mark_columns
 from .files import MARK, STATUS, RecordingError
 from .losses import Counted, Losses
-from .matfile import MatWriter, mat_modules
-from .parquetfile import MissingExtra, ParquetWriter, parquet_modules
-from .reader import Entry, Mark, read_all
-from .refined import COLUMNS as REFINED_COLUMNS
+from .marks import Mark
+from .matfile import mat_modules
+from .parquetfile import MissingExtra, parquet_modules
+from .reader import Entry, read_all
 from .refined import Refinement
 from .reports import Reading
 from .rosbag import Bag, export_bag, ros2_modules
-from .summary import Summary
+from .tables import MARKS, WRITERS, NoTables, Output, Table, mark_row, table_name
 
-LEADING = ("time", "host_time", "device_time", "seq", "lost_before", "lqi", "rssi")
-REFINED_LEADING = (LEADING[0], *REFINED_COLUMNS, *LEADING[1:])
-"""With ``time`` refined (:mod:`.refined`): how each row's time was placed, and its
-bound, beside it."""
-BOOKKEEPING = frozenset((*REFINED_LEADING, "node", "record", "command"))
 FORMATS = ("csv", "parquet", "mat", "ros2")
 """Every format, each in a module of its own (:mod:`.parquetfile`, :mod:`.matfile`,
-:mod:`.rosbag`) registered below: a table format in WRITERS, a format that writes a
-window whole (a ROS 2 bag) in WHOLE."""
-AXES = ("x", "y", "z")
-MATRIX = tuple(f"{row}{column}" for row in (1, 2, 3) for column in (1, 2, 3))
-MARKS = "marks"
-TEMPORARY = ".{name}.partial"
-
-
-def table_name(address: int, record: str, form: str) -> str:
-    """The name of a node's table of ``record`` in format ``form``."""
-    return f"{address}_{record}.{form}"
+:mod:`.rosbag`) registered: a table format in :data:`.tables.WRITERS`, a format that
+writes a window whole (a ROS 2 bag) in WHOLE below."""
 
 
 def earlier_tables(out: Path, form: str) -> list[Path]:
@@ -91,103 +75,6 @@ def earlier_tables(out: Path, form: str) -> list[Path]:
     return sorted(path for path in out.iterdir() if path.is_file() and is_table(path.name))
 
 
-def field_columns(record: str, payload: Mapping[str, Any]) -> list[tuple[str, str, int]]:
-    """(column, field, index) for each field column of ``record``: the layout's order
-    for a known record, the payload's own order for one this version does not know
-    (index -1: the value itself, not an element of it)."""
-    spec = BY_NAME.get(record)
-    if spec is not None:
-        shapes = [(f.name, f.type.shape, f.type.items, f.elements)
-                  for f in (*spec.reply, *derived(spec))]
-    else:
-        shapes = [(name, _shape(value), len(value) if isinstance(value, list) else 1, ())
-                  for name, value in payload.items() if name not in BOOKKEEPING]
-    columns: list[tuple[str, str, int]] = []
-    for name, shape, items, elements in shapes:
-        if name in BOOKKEEPING:
-            continue
-        if shape == "vector":
-            columns += [(f"{name}_{axis}", name, i)
-                        for i, axis in enumerate(elements or AXES)]
-        elif shape == "matrix":
-            columns += [(f"{name}_{cell}", name, i) for i, cell in enumerate(MATRIX)]
-        elif shape == "ints":
-            columns += [(f"{name}_{i + 1}", name, i) for i in range(items)]
-        else:
-            columns.append((name, name, -1))
-    return columns
-
-
-def _shape(value: Any) -> str:
-    if isinstance(value, list) and len(value) == 3 and all(isinstance(r, list) for r in value):
-        return "matrix"
-    if isinstance(value, list):
-        return "vector" if len(value) == 3 else "ints"
-    return "scalar"
-
-
-def element(value: Any, index: int) -> Any:
-    """Element ``index`` of a vector, a matrix (row-major) or a list; None if absent."""
-    if index < 0:
-        return None if isinstance(value, (list, dict)) else value
-    if isinstance(value, list) and value and isinstance(value[0], list):
-        value = [item for row in value for item in row]
-    if isinstance(value, list) and index < len(value):
-        item = value[index]
-        return None if isinstance(item, (list, dict)) else item
-    return None
-
-
-class Table:
-    """One node's one record: its columns, fixed by its first row."""
-
-    def __init__(self, node: int, record: str, first: Mapping[str, Any],
-                 leading: tuple[str, ...] = LEADING) -> None:
-        self.node, self.record = node, record
-        self.leading = leading
-        self.lost_at = leading.index("lost_before")
-        self.fields = field_columns(record, first)
-        self.columns = record_columns(record, leading, self.fields, first)
-        """Its columns' names, kinds, meanings and units."""
-        self.losses = Summary()
-        """Its rows (``received``), what was missed while its base station was down,
-        and what the file lost of them (the radio's and the gateway's losses are in
-        ``lost_before``, not said)."""
-
-    @property
-    def rows(self) -> int:
-        return self.losses.received
-
-    def row(self, payload: Mapping[str, Any]) -> list[Any]:
-        return [*(payload.get(name) for name in self.leading),
-                *(element(payload.get(name), index) for _, name, index in self.fields)]
-
-
-class Writer:
-    """Where a format puts one table's rows."""
-
-    def add(self, row: list[Any]) -> None: ...
-
-    def close(self) -> None: ...
-
-
-class CsvWriter(Writer):
-    def __init__(self, path: Path, columns: list[Column]) -> None:
-        self._file: IO[str] = path.open("w", newline="", encoding="utf-8")
-        self._csv = csv.writer(self._file)
-        self._csv.writerow([column.name for column in columns])
-
-    def add(self, row: list[Any]) -> None:
-        # repr of a float reads back to the same float; None (null, NaN) is empty
-        self._csv.writerow(["" if v is None else repr(v) if isinstance(v, float) else v
-                            for v in row])
-
-    def close(self) -> None:
-        self._file.close()
-
-
-WRITERS: dict[str, Callable[[Path, list[Column]], Writer]] = {
-    "csv": CsvWriter, "parquet": ParquetWriter, "mat": MatWriter}
 WHOLE: dict[str, Callable[..., Bag]] = {"ros2": export_bag}
 """The formats that write a window whole, not a table a node and record: each such
 function takes :func:`export`'s arguments and the format's own, and says what it
@@ -195,39 +82,6 @@ wrote."""
 EXTRAS: dict[str, Callable[[], object]] = {"parquet": parquet_modules, "mat": mat_modules,
                                            "ros2": ros2_modules}
 """What each format needs beyond the gateway's own dependencies: MissingExtra if absent."""
-
-
-class Output:
-    """One table's file: written under its temporary name, renamed when whole."""
-
-    def __init__(self, out: Path, name: str, form: str, columns: list[Column],
-                 outputs: list[Output]) -> None:
-        self.path = out / name
-        self.temporary = out / TEMPORARY.format(name=name)
-        self.rows = 0
-        self._writer: Writer | None = None
-        # known to the export's clean-up before its file exists: a Ctrl-C that lands
-        # just after the file is made (as a test's does, sent when a file appears) would
-        # otherwise leave the temporary behind
-        outputs.append(self)
-        self._writer = WRITERS[form](self.temporary, columns)
-
-    def add(self, row: list[Any]) -> None:
-        self._writer.add(row)  # type: ignore[union-attr]
-        self.rows += 1
-
-    def finish(self) -> None:
-        self._writer.close()  # type: ignore[union-attr]
-        os.replace(self.temporary, self.path)
-
-    def discard(self) -> None:
-        # whatever went wrong (even a second Ctrl-C's in the first's clean-up), the
-        # temporary goes: it is never taken for a table, being hidden and so named
-        if self._writer is not None:
-            with contextlib.suppress(Exception):
-                self._writer.close()
-        with contextlib.suppress(OSError):
-            self.temporary.unlink()
 
 
 def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv",
@@ -255,6 +109,13 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
         raise ValueError(f"no export format {form!r}: one of {', '.join(FORMATS)}")
     if form in EXTRAS:
         EXTRAS[form]()
+    from .columnexport import BATCH_WRITERS, export_batches
+    # a batch at a time: the same tables, 7x faster or more; a refined time is not
+    # carried there (the batch is typed from the messages' own JSON, and the losses are
+    # counted on their recorded time), so a refined export goes row by row, Parquet too
+    if form in BATCH_WRITERS and refined is None:
+        return export_batches(paths, out, reading, form, progress, written, entries,
+                              tables_only)
     out.mkdir(parents=True, exist_ok=True)
     tables: dict[tuple[int, str], tuple[Table, Output]] = {}
     losses: Losses[tuple[Table, Output, list[Any]]] = Losses()
@@ -286,7 +147,7 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
                 payload = refined.apply(entry, payload)
             open_table = tables.get(where)
             if open_table is None:
-                table = Table(*where, payload, LEADING if refined is None else REFINED_LEADING)
+                table = Table(*where, payload, refined=refined is not None)
                 output = Output(out, table_name(*where, form), form, table.columns,
                                 outputs)
                 open_table = tables[where] = (table, output)
@@ -308,10 +169,6 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
         marks.rows if marks is not None else 0)
 
 
-class NoTables(Exception):
-    """An export that found marks but no table where tables were asked for."""
-
-
 def _write(counted: list[Counted[tuple[Table, Output, list[Any]]]],
            losses: Losses[Any]) -> None:
     """Write rows whose ``lost_before`` is now known."""
@@ -322,9 +179,4 @@ def _write(counted: list[Counted[tuple[Table, Output, list[Any]]]],
         table.losses.add(row, period=losses.period(table.node, table.record))
 
 
-def mark_row(mark: Mark) -> list[Any]:
-    return [mark.time, mark.host_time, " ".join(map(str, mark.nodes)), mark.text]
-
-
-__all__ = ["FORMATS", "MissingExtra", "NoTables", "RecordingError", "export",
-           "field_columns"]
+__all__ = ["FORMATS", "MissingExtra", "NoTables", "RecordingError", "export"]

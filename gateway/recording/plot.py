@@ -42,7 +42,8 @@ from gateway.common.topics import parse
 
 from .files import MARK, STATUS
 from .losses import Counted, Losses, Stream
-from .reader import Entry, Mark, read_all
+from .marks import Mark
+from .reader import Entry, read_all
 from .reports import Reading
 from .summary import Summary
 

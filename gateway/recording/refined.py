@@ -40,14 +40,11 @@ from .files import METADATA, RecordingError, is_serial_reads
 from .reader import Entry, Span
 from .reports import Reading
 from .sightings import LineSettings, Sightings
+from .tables import BOUND, PLACED
 from .window import Reader, Window, touched
 
 TIMES = ("live", "refined")
 """What ``time`` may be: as recorded (the default), or refined after the fact."""
-PLACED = "time_placed"
-BOUND = "time_bound_ms"
-COLUMNS = (PLACED, BOUND)
-"""The columns a refined export adds after ``time``."""
 LOOKAHEAD = 8
 """Rows of a topic a row is looked for among, from the one after the last found (the
 two passes read the same rows in the same order: the first is the one)."""

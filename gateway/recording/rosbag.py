@@ -49,6 +49,7 @@ from .files import METADATA, STATUS, RecordingError
 from .parquetfile import MissingExtra
 from .reader import Entry, read_all
 from .reports import Reading
+from .tables import TEMPORARY
 
 INSTALL_ROS2 = "pip install 'gx2-gateway[ros2]'"
 IMU = "sensor_msgs/msg/Imu"
@@ -59,7 +60,6 @@ BAG_VERSION = 8
 """rosbag2's metadata version: 8 keeps each topic's offered QoS profiles as one YAML
 string (as every version before it did), which later rosbag2s read too."""
 METADATA_FILE = "metadata.yaml"
-TEMPORARY = ".{name}.partial"
 SECONDS_LIMIT = 2**31
 """builtin_interfaces/Time's ``sec`` is an int32: a later stamp is none."""
 

@@ -68,7 +68,8 @@ def test_trials_marked_on_the_gateway_are_catalogued_and_exported(simulator, gat
                 counts[node][record] += 1
         assert described["nodes"] == counts
         assert described["stations"] == ["station1"]
-        assert described["marks"] == [{"time": p["time"], "text": p["text"]}
+        assert described["marks"] == [{"time": p["time"], "text": p["text"],
+                                       "fields": p["fields"]}
                                       for t, _, p in messages if t == "gx2/gateway/mark"]
         assert described["damaged"] is False and described["indexed"] is True
 
@@ -149,7 +150,8 @@ def test_after_retention_deleted_the_first_files_windows_read_what_is_left(
                       if topic == "gx2/77/euler" and begin <= t <= end]
             assert len(inside) > 20
             assert sorted(p.name for p in folder.iterdir()) == [
-                f"76_accel_angrate.{form}", f"77_euler.{form}", f"marks.{form}"]
+                f"76_accel_angrate.{form}", f"77_euler.{form}", f"marks.{form}",
+                "trial.json"]
             assert host_times_of(folder / f"77_euler.{form}", form) == (
                 [nanoseconds(t) for t in inside] if form == "parquet" else inside)
 
@@ -208,5 +210,6 @@ def test_two_stations_recorded_are_catalogued_by_station_and_a_trial_read_per_no
     inside = [p["host_time"] for topic, t, p in messages
               if topic == "gx2/77/euler" and begin <= t <= end]
     (folder,) = out.iterdir()
-    assert sorted(p.name for p in folder.iterdir()) == ["77_euler.csv", "marks.csv"]
+    assert sorted(p.name for p in folder.iterdir()) == ["77_euler.csv", "marks.csv",
+                                                        "trial.json"]
     assert host_times_of(folder / "77_euler.csv", "csv") == inside and len(inside) > 20

@@ -27,7 +27,7 @@ import pylsl
 import yaml
 import zmq
 
-from gateway.recording.export import field_columns
+from gateway.recording.tables import field_columns
 from gateway.sim.base_station import RadioLink
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from gateway.recording import export
+from gateway.recording import export, tables
 from gateway.recording.files import FOOTER_BYTES, RECORD_HEAD
 from gateway.recording.plot import picture, records_of
 from gateway.recording.reader import read_all
@@ -170,7 +170,7 @@ def test_ctrl_c_just_as_a_table_s_file_is_made_leaves_no_temporary(tmp_path, mon
         writer.message(TOPIC, {**euler(1), "seq": 1})
         writer.finish()
 
-    def made_then_interrupted(file: Path, columns: list[str]) -> export.Writer:
+    def made_then_interrupted(file: Path, columns: list[str]) -> tables.Writer:
         file.write_text("")
         raise KeyboardInterrupt
 

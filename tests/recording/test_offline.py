@@ -23,8 +23,8 @@ from scipy.io import loadmat
 from aspp.orientation import matrix_from_euler
 from aspp.records import BY_NAME, decode, encode
 from gateway.recording.figure import figure_of
+from gateway.recording.marks import Mark
 from gateway.recording.plot import picture, records_of
-from gateway.recording.reader import Mark
 from gateway.recording.reports import Reading
 from gateway.recording.writer import RecordingWriter
 from gateway.sim.node import GX2, NodeSettings, SimNode

@@ -77,7 +77,8 @@ def test_catalogue_says_what_each_file_holds_from_its_summary(recordings: Path) 
                 counts.setdefault(parts[1], {}).setdefault(parts[2], 0)
                 counts[parts[1]][parts[2]] += 1
         assert described["nodes"] == counts
-        assert described["marks"] == [{"time": p["time"], "text": p["text"]}
+        assert described["marks"] == [{"time": p["time"], "text": p["text"],
+                                       "fields": p.get("fields", {})}
                                       for t, _, p in read_back if t == MARK]
         assert described["damaged"] is False and described["indexed"] is True
         assert described["overlaps"] == [] and described["same_as"] == []

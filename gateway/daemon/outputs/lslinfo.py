@@ -11,7 +11,7 @@ from types import ModuleType
 from typing import Any, NamedTuple
 
 from aspp.records import BY_NAME, derived
-from gateway.recording.export import field_columns
+from gateway.recording.tables import field_columns
 
 STREAM_TYPES: dict[str, str] = {
     "raw_sensors": "IMU", "accel_angrate": "IMU", "delta_angle_velocity": "IMU",

@@ -1,0 +1,99 @@
+"""A Parquet export a batch at a time (:mod:`gateway.recording.columnexport`) against
+the row by row export it stands in for: the same files, byte for byte in their values
+and schemas, and the same losses, for recordings that exercise what the batches must
+hand to the row path or to the streams between batches (a damaged chunk, a
+continuous-mode reply, a station's outage, values of the wrong type, lists of another
+length, records without a device time, times beyond what a timestamp holds)."""
+
+from __future__ import annotations
+
+import random
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+
+from gateway.recording import columnexport, export
+from gateway.recording.reports import Reading
+from gateway.recording.writer import RecordingWriter
+from tests.helpers.recorded import foreign_file, make_file
+
+T0 = 1_795_000_000.0
+
+
+def _both(paths: list[Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> int:
+    """Export ``paths`` both ways; the rows, having held them equal."""
+    batch = export.export(paths, tmp_path / "batch", Reading(), "parquet")
+    with monkeypatch.context() as patched:
+        patched.setattr(columnexport, "BATCH_WRITERS", {})
+        rows = export.export(paths, tmp_path / "rows", Reading(), "parquet")
+    assert batch[1] == rows[1]
+    assert [p.name for p, _ in batch[0]] == [p.name for p, _ in rows[0]]
+    total = 0
+    for (one, a), (other, b) in zip(batch[0], rows[0], strict=True):
+        x, y = pq.read_table(one), pq.read_table(other)
+        assert x.schema.equals(y.schema, check_metadata=True), one.name
+        assert x.to_pylist() == y.to_pylist(), one.name
+        assert vars(a.losses) == vars(b.losses), one.name
+        total += x.num_rows
+    return total
+
+
+def _stream(writer: RecordingWriter, node: int, count: int, lose: float, seed: int,
+            start: int = 0, reboot_at: int | None = None) -> None:
+    chance = random.Random(seed)
+    seq = 0
+    for i in range(start, start + count):
+        timer_i = i - (reboot_at or 0) if reboot_at is not None and i >= reboot_at else i
+        seq += 1
+        if chance.random() < lose:
+            continue
+        at = T0 + i / 100
+        writer.message(f"gx2/{node}/accel_angrate", {
+            "node": node, "record": "accel_angrate", "command": 0xC2, "seq": seq,
+            "host_time": at + 0.004, "time": at, "device_time": i / 100,
+            "timer": timer_i * 196_608, "lqi": 200, "rssi": -50,
+            "accel": [0.001 * i, 0.5, -1.0], "ang_rate": [0.1, None, 0.3]})
+
+
+def test_streams_with_losses_reboots_and_replies(tmp_path, monkeypatch) -> None:
+    path = tmp_path / "run.mcap"
+    with path.open("wb") as output:
+        writer = RecordingWriter(output)
+        _stream(writer, 76, 25_000, 0.1, 1, reboot_at=12_000)
+        _stream(writer, 77, 3_000, 0.3, 2)
+        writer.message("gx2/gateway/status", {"gateway": {"time": T0 + 300},
+                                              "link": {"state": "down", "since": T0 + 300},
+                                              "nodes": [{"node": 77}]})
+        writer.message("gx2/gateway/status", {"gateway": {"time": T0 + 302},
+                                              "link": {"state": "up", "since": T0 + 302},
+                                              "nodes": [{"node": 77}]})
+        writer.message("gx2/77/continuous_mode", {
+            "node": 77, "record": "continuous_mode", "command": 0xC4, "seq": 4000,
+            "host_time": T0 + 310, "device_time": 310.0, "timer": 31_000 * 196_608})
+        _stream(writer, 77, 2_000, 0.05, 3, start=31_100)
+        writer.finish()
+    assert _both([path], tmp_path, monkeypatch) > 25_000
+
+
+def test_recordings_damaged_cut_and_odd(tmp_path, monkeypatch) -> None:
+    whole = make_file(tmp_path / "a.mcap", 0, 30)
+    cut = make_file(tmp_path / "b.mcap", 30, 20, finish=False)
+    damaged = tmp_path / "c.mcap"
+    data = bytearray(make_file(tmp_path / "c0.mcap", 50, 20).read_bytes())
+    data[len(data) // 2: len(data) // 2 + 64] = bytes(64)  # (a chunk's content)
+    damaged.write_bytes(bytes(data))
+    euler = {"node": 11, "record": "euler", "command": 0xCE, "host_time": T0,
+             "roll": 0.1, "pitch": 0.2, "yaw": 0.3, "device_time": 1.0, "timer": 0}
+    odd = foreign_file(tmp_path / "odd.mcap", [
+        ("gx2/11/euler", {**euler, "seq": 1, "time": T0 + 1.5e-7}),
+        ("gx2/11/euler", {**euler, "seq": 2, "roll": True, "host_time": T0 + 1}),
+        ("gx2/11/euler", {**euler, "seq": 3, "time": 1e10, "host_time": T0 + 2}),
+        ("gx2/11/euler", {**euler, "seq": 4, "pitch": "up", "host_time": T0 + 3}),
+        ("gx2/11/euler", {**euler, "seq": 5, "device_time": None, "host_time": T0 + 4}),
+        ("gx2/12/accel_angrate", {"node": 12, "record": "accel_angrate", "seq": 1,
+                                  "host_time": T0, "accel": [1.0, 2.0],
+                                  "ang_rate": [0.1, 0.2, 0.3, 0.4], "lqi": 300}),
+        ("gx2/13/custom", {"node": 13, "record": "custom", "seq": 1, "host_time": T0,
+                           "odd": [1, 2], "label": "x", "value": 10 ** 30})])
+    assert _both([whole, cut, damaged, odd], tmp_path, monkeypatch) > 2_000

@@ -1,0 +1,129 @@
+"""``gx2ctl dataset`` through the installed program, queried as its users query it:
+DuckDB and Polars on the Hive-partitioned Parquet, counts and values held against the
+recordings read by the ``mcap`` package (never our reader); incremental runs; the
+trials table (issue 44)."""
+
+from __future__ import annotations
+
+import json
+import re
+from collections import Counter
+from pathlib import Path
+
+import duckdb
+import polars as pl
+import pyarrow.parquet as pq
+import pytest
+from mcap.reader import make_reader
+
+from gateway.recording.columns import nanoseconds
+from tests.helpers.processes import gx2ctl
+from tests.helpers.recorded import FILE_SECONDS, make_file
+
+
+def _records(paths: list[Path]) -> list[tuple[str, dict]]:
+    """(topic, payload) of the nodes' records, by the ``mcap`` package."""
+    found = []
+    for path in paths:
+        with path.open("rb") as stream:
+            for _, channel, message in make_reader(stream).iter_messages(
+                    log_time_order=False):
+                if channel.topic.startswith("gx2/") and channel.topic.split("/")[1].isdigit():
+                    found.append((channel.topic, json.loads(message.data)))
+    return found
+
+
+@pytest.fixture
+def recordings(tmp_path: Path) -> Path:
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    for k in range(2):
+        make_file(folder / f"gx2-2026112{k}T000000.000Z.mcap", k * FILE_SECONDS, FILE_SECONDS)
+    return folder
+
+
+def test_the_dataset_is_what_the_recordings_hold(recordings: Path, tmp_path: Path) -> None:
+    out = tmp_path / "dataset"
+    ran = gx2ctl("dataset", str(recordings), str(out))
+    assert ran.status == 0 and "2 converted, 0 up to date" in ran.stdout, ran
+    messages = _records(sorted(recordings.glob("*.mcap")))
+    expected = Counter((topic.split("/")[2], int(topic.split("/")[1])) for topic, _ in messages)
+    glob = f"{out}/record=*/**/*.parquet"
+    counted = duckdb.sql(
+        f"SELECT record, node, count(*) FROM read_parquet('{glob}', hive_partitioning=true, "
+        "union_by_name=true) GROUP BY record, node").fetchall()
+    assert {(r, int(n)): c for r, n, c in counted} == dict(expected)
+    # every time to the ns, as the message wrote it; DuckDB's timestamps are us: Polars
+    frame = pl.scan_parquet(f"{out}/record=accel_angrate/**/*.parquet",
+                            hive_partitioning=True).filter(pl.col("node") == 11).sort(
+        "time").collect()
+    wanted = sorted(nanoseconds(p["time"]) for t, p in messages if t == "gx2/11/accel_angrate")
+    assert frame["time"].dt.epoch("ns").to_list() == wanted
+    assert frame["ang_rate_z"].to_list()[:3] == [0.0, 1.0, 2.0]
+    # the types of export --format parquet, column for column
+    exported = tmp_path / "exported"
+    assert gx2ctl("export", str(recordings), "--out", str(exported), "--format",
+                  "parquet").status == 0
+    [part] = (out / "record=euler" / "node=13").glob("date=*/part-*20T*.parquet")
+    assert pq.read_schema(part).equals(pq.read_schema(exported / "13_euler.parquet"),
+                                       check_metadata=True)
+    # two nodes joined on time (the recordings' nodes 11 and 12 sample together)
+    joined = duckdb.sql(
+        f"SELECT count(*) FROM read_parquet('{out}/record=accel_angrate/node=11/**/*.parquet')"
+        f" a JOIN read_parquet('{out}/record=accel_angrate/node=12/**/*.parquet') b "
+        "USING (time)").fetchall()
+    assert joined == [(expected[("accel_angrate", 11)],)]
+    trials = duckdb.sql(f"SELECT trial, start_mark, stop_mark, stop IS NULL FROM "
+                        f"read_parquet('{out}/trials.parquet') ORDER BY trial").fetchall()
+    # (the second trial's stop is in a file not yet recorded: open)
+    assert trials == [(1, "start", "stop", False), (2, "start", None, True)]
+
+
+def test_a_second_run_converts_only_what_is_new(recordings: Path, tmp_path: Path) -> None:
+    out = tmp_path / "dataset"
+    assert gx2ctl("dataset", str(recordings), str(out)).status == 0
+    parts = {p: p.stat().st_mtime_ns for p in out.rglob("part-*.parquet")}
+    again = gx2ctl("dataset", str(recordings), str(out))
+    assert again.status == 0 and "0 converted, 2 up to date" in again.stdout, again
+    make_file(recordings / "gx2-20261122T000000.000Z.mcap", 2 * FILE_SECONDS, FILE_SECONDS)
+    third = gx2ctl("dataset", str(recordings), str(out))
+    assert third.status == 0 and "1 converted, 2 up to date" in third.stdout, third
+    assert {p: p.stat().st_mtime_ns for p in parts} == parts  # (untouched)
+    # retention deletes a recording: its parts stay
+    (recordings / "gx2-20261120T000000.000Z.mcap").unlink()
+    assert gx2ctl("dataset", str(recordings), str(out)).status == 0
+    total = duckdb.sql(f"SELECT count(*) FROM read_parquet('{out}/record=euler/**/*.parquet')"
+                       ).fetchall()
+    assert total == [(3 * FILE_SECONDS * 5,)]
+    assert not list(out.rglob(".*partial"))
+
+
+def test_no_recording_is_one_line(tmp_path: Path) -> None:
+    ran = gx2ctl("dataset", str(tmp_path / "nothing"), str(tmp_path / "out"))
+    assert ran.status == 2 and len(ran.stderr.splitlines()) == 1, ran
+    assert "Traceback" not in ran.stderr
+
+
+def test_the_queries_of_the_docs_run_as_written(recordings: Path, tmp_path: Path) -> None:
+    """docs/recording.md, "Analysing a study": every SQL block run by DuckDB on a dataset
+    in ``dataset/``, each giving rows; the trial's counts are the recordings'."""
+    assert gx2ctl("dataset", str(recordings), str(tmp_path / "dataset")).status == 0
+    text = (Path(__file__).resolve().parents[2] / "docs" / "recording.md").read_text()
+    section = text[text.index("## Analysing a study"):]
+    queries = re.findall(r"```sql\n(.*?)```", section, re.S)
+    assert len(queries) == 4
+    connection = duckdb.connect()
+    connection.execute(f"SET file_search_path = '{tmp_path}'")
+    results = [connection.sql(query.replace("'dataset/", f"'{tmp_path}/dataset/")).fetchall()
+               for query in queries]
+    assert all(results), results
+    trial, _, losses, joined = results
+    # trial 1: marks at 5 s and 12 s; nodes 11 and 12 at 25 Hz, sampled 2 ms before
+    # they were read (time, against the marks' time): 5.038 .. 11.998 s
+    assert [(node, rows) for node, rows, *_ in trial] == [(11, 175), (12, 175)]
+    assert {node for node, *_ in losses} == {11, 12, 13}
+    assert len(joined) == 2 * FILE_SECONDS * 25
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    rows = eval(code.splitlines()[1].split("=", 1)[1].replace(  # (the scan, then its query)
+        '"dataset/', f'"{tmp_path}/dataset/'), {"pl": pl})
+    assert rows.filter(pl.col("node") == 13).collect().height == 2 * FILE_SECONDS * 5
