@@ -201,6 +201,7 @@ def run_export(args: argparse.Namespace) -> int:
     files, chosen = _windows(args, paths)
     if args.form == "ros2":
         return _export_bags(args, paths, files, chosen)
+    _refined(args, files)  # (refused before --force removes an earlier export's tables)
     _replace_earlier([Path(args.out) / window.label for window in chosen], args.form,
                      args.force)
     reading = Reading()
@@ -307,16 +308,18 @@ def _trial_json(args: argparse.Namespace, files: list[Described], window: Window
             return
 
 
-def _refined(args: argparse.Namespace, files: list[Described], window: Window) -> Any:
+def _refined(args: argparse.Namespace, files: list[Described],
+             window: Window | None = None) -> Any:
     """``--time refined``: the window's times placed after the fact (exit 2 for
-    recordings that cannot be refined); None for ``--time live``."""
+    recordings that cannot be refined; without a window, only that checked); None for
+    ``--time live``."""
     if args.time == "live":
         return None
     from gateway.recording.files import RecordingError
     from gateway.recording.refined import check_refinable, for_window
     try:
         check_refinable(files)
-        return for_window(files, window)
+        return None if window is None else for_window(files, window)
     except RecordingError as error:
         raise CtlError(str(error), Exit.USAGE) from None
 

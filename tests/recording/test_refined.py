@@ -13,6 +13,7 @@ import pytest
 from aspp.records import encode
 from aspp.timing import TICKS_PER_SECOND
 from gateway.client import Recording, RecordingError, Unrefinable
+from gateway.recording.columns import nanoseconds
 from gateway.recording.files import RecordingError as FilesRecordingError
 from gateway.recording.refined import line_settings
 from gateway.recording.sightings import LineSettings, Sightings
@@ -122,6 +123,45 @@ def test_a_refined_export_says_how_each_row_was_placed(tmp_path: Path) -> None:
         assert "time_placed" not in next(csv.DictReader(table))
 
 
+def test_parquet_and_mat_hold_the_refined_times_csv_holds(tmp_path: Path) -> None:
+    """Parquet is written a batch at a time from the messages' own JSON, which holds
+    the recorded time: a refined export goes row by row, as CSV and .mat do, with the
+    same rows and the two columns typed."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from scipy.io import loadmat
+    path = written(tmp_path / "line.mcap")
+    for form in ("csv", "parquet", "mat"):
+        ran = gx2ctl("export", str(path), "--out", str(tmp_path / form), "--time", "refined",
+                     "--format", form)
+        assert ran.status == 0, ran.stderr
+    with (tmp_path / "csv" / "12_accel_angrate.csv").open() as table:
+        rows = list(csv.DictReader(table))
+    parquet = pq.read_table(tmp_path / "parquet" / "12_accel_angrate.parquet")
+    assert parquet.column_names[:4] == ["time", "time_placed", "time_bound_ms", "host_time"]
+    assert parquet.schema.field("time_placed").type == pa.string()
+    assert parquet.schema.field("time_bound_ms").type == pa.float64()
+    assert parquet.column("time_placed").to_pylist() == [r["time_placed"] for r in rows]
+    assert parquet.column("time_bound_ms").to_pylist() == [None] * len(rows)
+    assert [t.value for t in parquet.column("time")] == [
+        nanoseconds(float(r["time"])) for r in rows]  # (the decimal written, exactly)
+    assert parquet.column("lost_before").to_pylist() == [
+        int(r["lost_before"]) if r["lost_before"] else None for r in rows]
+    mat = loadmat(tmp_path / "mat" / "12_accel_angrate.mat", simplify_cells=True)
+    table = mat["n12_accel_angrate"]
+    assert list(table)[:3] == ["time", "time_placed", "time_bound_ms"]
+    assert list(table["time"]) == [float(r["time"]) for r in rows]
+
+
+def test_gx2ctls_choices_of_time_are_the_librarys() -> None:
+    """gx2ctl's parser names them without importing the refinement (its start stays
+    light): the same as the library's."""
+    from gateway.ctl import offline
+    from gateway.recording import refined
+
+    assert offline.TIMES == refined.TIMES
+
+
 def test_bad_times_and_recordings_that_cannot_be_refined_are_one_line(tmp_path: Path) -> None:
     published = make_file(tmp_path / "published.mcap", 0, 3)  # (gx2ctl record's: no bytes)
     cases = {
@@ -136,6 +176,14 @@ def test_bad_times_and_recordings_that_cannot_be_refined_are_one_line(tmp_path: 
         assert ran.status == 2, (args, ran)
         assert ran.stderr.startswith(start) and ran.stderr.count("\n") == 1, ran.stderr
         assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+    # refused before --force removes an earlier export's tables
+    earlier = gx2ctl("export", str(published), "--out", str(tmp_path / "earlier"))
+    assert earlier.status == 0, earlier.stderr
+    before = sorted((tmp_path / "earlier").iterdir())
+    ran = gx2ctl("export", str(published), "--out", str(tmp_path / "earlier"), "--time",
+                 "refined", "--force")
+    assert ran.status == 2 and "no serial reads" in ran.stderr, ran
+    assert sorted((tmp_path / "earlier").iterdir()) == before
     # the client says the same, as exceptions
     with pytest.raises(ValueError, match="time must be one of 'live', 'refined'"):
         Recording(published, time="bogus")
