@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from gateway.common.jsontext import json_line
 from gateway.common.protocol import Exit
@@ -18,6 +18,51 @@ from .client import CtlError
 
 if TYPE_CHECKING:
     from gateway.recording.catalogue import Described
+
+
+def add_commands(commands: Any) -> None:
+    """The parsers of ``recordings``, ``trials`` and ``dataset`` (after export's and
+    plot's: :func:`.offline.add_commands`)."""
+    catalogue = commands.add_parser(
+        "recordings", help="list what recordings hold, from their summaries",
+        description="Per file, sorted by time: its span, size, stations, nodes and records "
+        "with message counts, and marks; overlapping and repeated files said. A finished "
+        "file is described from its summary (its messages unread); one without (its "
+        "writer killed, cut short, damaged) is read through and says so. Default: the "
+        "record directory of the gateway's --config, else the gateway's default record "
+        "directory. Exit 1 if a file is damaged, 2 if none is a recording.")
+    catalogue.add_argument("paths", nargs="*", metavar="DIR | FILE.mcap")
+    # (SUPPRESS: given before the command, as in ``gx2ctl --json status``, it holds too)
+    catalogue.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
+                           help='one line: {"files": [{"path", "start", "end", ...}]}')
+    lister = commands.add_parser(
+        "trials", help="list the trials the marks define, with their fields and rows",
+        description="Each trial from a mark START to the next mark STOP (--between-marks, "
+        "default start stop), numbered as export's --trial numbers them, the one not yet "
+        "stopped last (its stop null): its start and stop, duration, its start mark's "
+        "fields (gx2ctl mark --field), the rows of each node and record in it, and the "
+        "files it spans. Default: as recordings. Exit 1 if something unreadable was "
+        "skipped, 2 if no file is a recording.")
+    lister.add_argument("paths", nargs="*", metavar="DIR | FILE.mcap")
+    lister.add_argument("--between-marks", dest="between", nargs=2, default=["start", "stop"],
+                        metavar=("START", "STOP"), help="the marks that start and stop a "
+                        "trial (default: start stop)")
+    lister.add_argument("--from", dest="start", metavar="WHEN",
+                        help="only the trials that start at or after this time (as --from)")
+    lister.add_argument("--to", dest="stop", metavar="WHEN",
+                        help="only the trials that start before this time (as export's --to)")
+    lister.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
+                        help='one line: {"trials": [{"trial", "start", "stop", ...}]}')
+    converter = commands.add_parser(
+        "dataset", help="convert finished recordings into a Parquet dataset (incremental)",
+        description="Convert the finished recordings of RECORDINGS (a directory, or a "
+        "file) not yet converted, or changed since, into OUT, partitioned Hive-style by "
+        "record, node and day (OUT/record=R/node=N/date=D/ a part per recording), the "
+        "columns and types of export --format parquet; and OUT/trials.parquet. A file "
+        "being written is left for a later run. Needs gx2-gateway[parquet]. Exit 1 if "
+        "something unreadable was skipped, 2 if no file is a recording.")
+    converter.add_argument("recordings", metavar="RECORDINGS")
+    converter.add_argument("out", metavar="OUT")
 
 
 def default_directory(args: argparse.Namespace) -> str:
