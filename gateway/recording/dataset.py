@@ -8,9 +8,11 @@ the trials the marks define (:mod:`.trials`), made again each run.
 Incremental and idempotent: ``OUT/_converted.json`` names each recording converted
 (its size and modification time); a run converts only the finished recordings not in
 it, or changed since (their old parts replaced), so a timer running it keeps the
-dataset minutes behind the recorder. Every part is written under a hidden name and
-renamed when whole (a killed run leaves no part a query reads), and the list of what
-was converted is replaced after each recording. A recording gone (retention, a move)
+dataset minutes behind the recorder. Every part is written in the hidden work folder
+and renamed into its partition when whole: a partition's folder holds nothing but whole
+parts, even after a run killed half way (a Polars scan of a folder reads every file in
+it, hidden or not; tests/recording/test_dataset_killed.py). The list of what was
+converted is replaced after each recording. A recording gone (retention, a move)
 leaves its parts: the dataset is never trimmed by what the recorder deletes.
 """
 
@@ -70,7 +72,7 @@ def convert(paths: list[Path], out: Path, reading: Reading,
         if done.get(key) == stamp:
             result.current += 1
             continue
-        rows = _convert_one(described, out, reading, pa, pq)
+        rows = _convert_one(described, out, reading, pq)
         done[key] = stamp
         _save(out / CONVERTED, done)
         result.files.append((described.path, rows))
@@ -98,8 +100,7 @@ def _save(path: Path, done: dict[str, Any]) -> None:
     os.replace(hidden, path)
 
 
-def _convert_one(described: Described, out: Path, reading: Reading, pa: Any,
-                 pq: Any) -> int:
+def _convert_one(described: Described, out: Path, reading: Reading, pq: Any) -> int:
     """One recording's tables exported, then parted by day: its rows."""
     work = out / WORK / described.path.stem
     shutil.rmtree(work, ignore_errors=True)
@@ -110,7 +111,8 @@ def _convert_one(described: Described, out: Path, reading: Reading, pa: Any,
             stale.unlink()  # (a recording changed since: its parts made again)
         rows = 0
         for path, table in tables:
-            rows += _parted(pq.read_table(path), out, table.record, table.node, part, pa, pq)
+            rows += _parted(pq.read_table(path), out, work, table.record, table.node,
+                            part, pq)
         return rows
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -118,9 +120,10 @@ def _convert_one(described: Described, out: Path, reading: Reading, pa: Any,
             (out / WORK).rmdir()
 
 
-def _parted(table: Any, out: Path, record: str, node: int, part: str, pa: Any,
+def _parted(table: Any, out: Path, work: Path, record: str, node: int, part: str,
             pq: Any) -> int:
-    """A table's rows written to the day partitions of their time (else host_time)."""
+    """A table's rows written to the day partitions of their time (else host_time),
+    each day's part made in ``work`` (on the dataset's file system) and renamed there."""
     import pyarrow.compute as pc
     when = pc.coalesce(table.column("time"), table.column("host_time"))
     days = pc.strftime(when, format="%Y-%m-%d")
@@ -128,7 +131,7 @@ def _parted(table: Any, out: Path, record: str, node: int, part: str, pa: Any,
         rows = table.filter(pc.is_null(days) if day is None else pc.equal(days, day))
         folder = out / f"record={record}" / f"node={node}" / f"date={day or 'unknown'}"
         folder.mkdir(parents=True, exist_ok=True)
-        hidden = folder / TEMPORARY.format(name=part)
+        hidden = work / TEMPORARY.format(name=f"{record}.{node}.{day}.{part}")
         pq.write_table(rows, hidden)
         os.replace(hidden, folder / part)
     return table.num_rows
