@@ -232,7 +232,7 @@ def _joined(pa: Any, source: str, parts: list[_Part]) -> Any:
     leading = _leading(pa)
     names = list(LEADING)
     tables = []
-    for part in sorted(parts, key=lambda p: p.positions[0] if len(p.positions) else 0):
+    for part in sorted((p for p in parts if len(p.seq)), key=lambda p: p.positions[0]):
         table, n = part.table, len(part.seq)
         names += [name for name in table.column_names if name not in names]
         made = {"gateway": _text(pa, source, n), "node": pa.repeat(pa.scalar(
