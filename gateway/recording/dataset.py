@@ -107,8 +107,11 @@ def _convert_one(described: Described, out: Path, reading: Reading, pq: Any) -> 
     try:
         tables, _ = export_batches([described.path], work, reading, "parquet")
         part = f"part-{described.path.stem}.parquet"
-        for stale in out.glob(f"record=*/node=*/date=*/{part}"):
-            stale.unlink()  # (a recording changed since: its parts made again)
+        for folder in out.glob("record=*/node=*/date=*/"):
+            # (a recording changed since: its parts made again; the name matched
+            # exactly, never as a pattern: a file named s[12].mcap is not s1.mcap)
+            with contextlib.suppress(FileNotFoundError):
+                (folder / part).unlink()
         rows = 0
         for path, table in tables:
             rows += _parted(pq.read_table(path), out, work, table.record, table.node,

@@ -127,3 +127,17 @@ def test_the_queries_of_the_docs_run_as_written(recordings: Path, tmp_path: Path
     rows = eval(code.splitlines()[1].split("=", 1)[1].replace(  # (the scan, then its query)
         '"dataset/', f'"{tmp_path}/dataset/'), {"pl": pl})
     assert rows.filter(pl.col("node") == 13).collect().height == 2 * FILE_SECONDS * 5
+
+
+def test_a_name_with_glob_characters_deletes_no_other_recording_parts(tmp_path: Path) -> None:
+    """``s[12].mcap`` converted: the parts of ``s1.mcap`` stay (a name is no pattern)."""
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    make_file(folder / "s1.mcap", 0, FILE_SECONDS)
+    make_file(folder / "s[12].mcap", FILE_SECONDS, FILE_SECONDS)
+    out = tmp_path / "dataset"
+    assert gx2ctl("dataset", str(folder), str(out)).status == 0
+    assert {p.name for p in out.rglob("part-*")} == {"part-s1.parquet", "part-s[12].parquet"}
+    total = duckdb.sql(f"SELECT count(*) FROM read_parquet('{out}/record=euler/**/*.parquet')"
+                       ).fetchall()
+    assert total == [(2 * FILE_SECONDS * 5,)]
