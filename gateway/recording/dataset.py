@@ -23,13 +23,14 @@ import json
 import os
 import shutil
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from .catalogue import Described, catalogue
 from .columnexport import export_batches
 from .columns import nanoseconds
+from .files import RecordingError
 from .parquetfile import parquet_modules
 from .reports import Reading
 from .tables import TEMPORARY
@@ -54,6 +55,9 @@ class Converted:
     writing: list[Path]
     """Recordings a writer still has open: converted by a later run."""
     trials: int
+    failed: list[str] = field(default_factory=list)
+    """A line for each recording that could not be converted (naming it): left
+    unstamped, tried again by the next run; the run is partial."""
 
 
 def convert(paths: list[Path], out: Path, reading: Reading,
@@ -65,20 +69,36 @@ def convert(paths: list[Path], out: Path, reading: Reading,
     files = catalogue(paths, read_writing=False)
     result = Converted([], 0, [], 0)
     for described in files:
-        key, stamp = described.path.name, _stamp(described.path)
+        key = described.path.name
         if described.writing:
             result.writing.append(described.path)
             continue
-        if done.get(key) == stamp:
-            result.current += 1
+        try:
+            stamp = _stamp(described.path)
+            if done.get(key) == stamp:
+                result.current += 1
+                continue
+            rows = _convert_one(described, out, reading, pq)
+        except (RecordingError, OSError) as error:
+            if isinstance(error, OSError) and not _names(error, described.path):
+                raise  # (OUT's trouble, not the recording's: the run cannot go on)
+            why = str(error) if isinstance(error, RecordingError) else \
+                (error.strerror or str(error))
+            result.failed.append(why if str(described.path) in why
+                                 else f"{described.path}: {why}")
             continue
-        rows = _convert_one(described, out, reading, pq)
         done[key] = stamp
         _save(out / CONVERTED, done)
         result.files.append((described.path, rows))
         said(f"{described.path}  {rows:,} rows")
     result.trials = _trials(files, out, pa, pq)
     return result
+
+
+def _names(error: OSError, path: Path) -> bool:
+    """Whether ``error`` is about the recording ``path`` (not about OUT)."""
+    return any(name is not None and os.fspath(name) == os.fspath(path)
+               for name in (error.filename, error.filename2))
 
 
 def _stamp(path: Path) -> dict[str, int]:

@@ -141,3 +141,38 @@ def test_a_name_with_glob_characters_deletes_no_other_recording_parts(tmp_path: 
     total = duckdb.sql(f"SELECT count(*) FROM read_parquet('{out}/record=euler/**/*.parquet')"
                        ).fetchall()
     assert total == [(2 * FILE_SECONDS * 5,)]
+
+
+def _not_an_object(path: Path) -> None:
+    """A recording one of whose messages is not a JSON object (RecordingError)."""
+    from mcap.writer import Writer
+    with path.open("wb") as stream:
+        writer = Writer(stream)
+        writer.start(profile="", library="another")
+        channel = writer.register_channel("gx2/11/euler", "json", schema_id=0)
+        at = 1_795_000_021_000_000_000
+        writer.add_message(channel, at, json.dumps(
+            {"node": 11, "record": "euler", "seq": 0, "host_time": at / 1e9,
+             "roll": 0.0}).encode(), at)
+        writer.add_message(channel, at + 1, b"[1, 2]", at + 1)
+        writer.finish()
+
+
+def test_an_unreadable_recording_is_one_line_and_the_rest_are_converted(
+        tmp_path: Path) -> None:
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    make_file(folder / "gx2-20261120T000000.000Z.mcap", 0, FILE_SECONDS)
+    odd = folder / "gx2-20261121T000000.000Z.mcap"
+    _not_an_object(odd)
+    make_file(folder / "gx2-20261122T000000.000Z.mcap", FILE_SECONDS, FILE_SECONDS)
+    out = tmp_path / "dataset"
+    for run in range(2):  # (left unstamped: tried again, and said again)
+        ran = gx2ctl("dataset", str(folder), str(out))
+        assert ran.status == 1, ran
+        [line] = ran.stderr.splitlines()
+        assert str(odd) in line and "not a JSON object" in line, ran
+        assert f"{2 - 2 * run} converted, {2 * run} up to date, 1 not converted" in ran.stdout
+    assert {p.name for p in out.rglob("part-*")} == {
+        "part-gx2-20261120T000000.000Z.parquet", "part-gx2-20261122T000000.000Z.parquet"}
+    assert odd.name not in json.loads((out / "_converted.json").read_text())
