@@ -58,6 +58,8 @@ class Converted:
     failed: list[str] = field(default_factory=list)
     """A line for each recording that could not be converted (naming it): left
     unstamped, tried again by the next run; the run is partial."""
+    gone: list[Path] = field(default_factory=list)
+    """Recordings deleted (retention, a move) while the run ran: skipped."""
 
 
 def convert(paths: list[Path], out: Path, reading: Reading,
@@ -80,6 +82,10 @@ def convert(paths: list[Path], out: Path, reading: Reading,
                 continue
             rows = _convert_one(described, out, reading, pq)
         except (RecordingError, OSError) as error:
+            if not described.path.exists():  # (retention deleted it while we ran)
+                result.gone.append(described.path)
+                said(f"{described.path}  gone (deleted while converted), skipped")
+                continue
             if isinstance(error, OSError) and not _names(error, described.path):
                 raise  # (OUT's trouble, not the recording's: the run cannot go on)
             why = str(error) if isinstance(error, RecordingError) else \

@@ -176,3 +176,34 @@ def test_an_unreadable_recording_is_one_line_and_the_rest_are_converted(
     assert {p.name for p in out.rglob("part-*")} == {
         "part-gx2-20261120T000000.000Z.parquet", "part-gx2-20261122T000000.000Z.parquet"}
     assert odd.name not in json.loads((out / "_converted.json").read_text())
+
+
+def test_a_recording_deleted_during_the_run_is_skipped(
+        recordings: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Retention deletes a recording between the catalogue and its conversion: it is
+    said gone and skipped, the rest converted (the run blamed OUT, and stopped)."""
+    import gateway.recording.dataset as dataset
+    from gateway.ctl import cli
+    first = recordings / "gx2-20261120T000000.000Z.mcap"
+    catalogue = dataset.catalogue
+
+    def then_retention(*args: object, **kwargs: object) -> object:
+        found = catalogue(*args, **kwargs)
+        first.unlink()
+        return found
+    monkeypatch.setattr(dataset, "catalogue", then_retention)
+    out = tmp_path / "dataset"
+    assert cli.main(["dataset", str(recordings), str(out)]) == 0
+    said = capsys.readouterr()
+    assert f"{first}  gone" in said.out and "1 converted" in said.out, said
+    assert {p.name for p in out.rglob("part-*")} == {"part-gx2-20261121T000000.000Z.parquet"}
+
+
+def test_out_s_trouble_names_the_file(recordings: Path, tmp_path: Path) -> None:
+    out = tmp_path / "dataset"
+    out.mkdir()
+    (out / "record=euler").write_text("not a folder")
+    ran = gx2ctl("dataset", str(recordings), str(out))
+    assert ran.status == 2 and len(ran.stderr.splitlines()) == 1, ran
+    assert f"{out}/record=euler/node=13" in ran.stderr, ran
