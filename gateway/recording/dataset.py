@@ -29,9 +29,8 @@ from typing import Any
 
 from .catalogue import Described, catalogue
 from .columnexport import export_batches
-from .columns import nanoseconds
 from .files import RecordingError
-from .parquetfile import parquet_modules
+from .parquetfile import converted, parquet_modules
 from .reports import Reading
 from .tables import TEMPORARY
 from .trials import listed
@@ -174,9 +173,10 @@ def _trials(files: list[Described], out: Path, pa: Any, pq: Any) -> int:
     found = listed(("start", "stop"), _marks(files))
     columns: dict[str, list[Any]] = {
         "trial": [t.number for t in found],
-        "start": [nanoseconds(t.start_mark.time) for t in found],
-        "stop": [None if t.stop_mark is None else nanoseconds(t.stop_mark.time)
-                 for t in found],
+        # (as export converts a time: one beyond timestamp[ns], a foreign mark's, null)
+        "start": converted("time", tuple(t.start_mark.time for t in found)),
+        "stop": converted("time", tuple(None if t.stop_mark is None else t.stop_mark.time
+                                        for t in found)),
         "start_mark": [t.start_mark.text for t in found],
         "stop_mark": [None if t.stop_mark is None else t.stop_mark.text for t in found]}
     keys = dict.fromkeys(k for t in found for k, _ in t.start_mark.fields)

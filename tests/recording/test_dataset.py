@@ -207,3 +207,25 @@ def test_out_s_trouble_names_the_file(recordings: Path, tmp_path: Path) -> None:
     ran = gx2ctl("dataset", str(recordings), str(out))
     assert ran.status == 2 and len(ran.stderr.splitlines()) == 1, ran
     assert f"{out}/record=euler/node=13" in ran.stderr, ran
+
+
+def test_a_mark_time_beyond_timestamp_ns_is_null_in_trials(tmp_path: Path) -> None:
+    """A foreign mark's ``time`` of 1e10 s (the year 2286): null, as export writes it
+    (every run ended in an OverflowError, trials.parquet never written)."""
+    from gateway.recording.files import MARK
+    from gateway.recording.writer import RecordingWriter
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    t0 = 1_795_000_000.0
+    with (folder / "gx2-20261120T000000.000Z.mcap").open("wb") as stream:
+        writer = RecordingWriter(stream)
+        writer.message(MARK, {"time": 1e10, "host_time": t0, "nodes": [], "text": "start"})
+        writer.message("gx2/11/euler", {"node": 11, "record": "euler", "seq": 0,
+                                        "host_time": t0 + 0.5, "time": t0 + 0.5,
+                                        "roll": 0.0, "pitch": 0.0, "yaw": 0.0})
+        writer.finish()
+    out = tmp_path / "dataset"
+    ran = gx2ctl("dataset", str(folder), str(out))
+    assert ran.status == 0 and "1 trials" in ran.stdout, ran
+    assert pq.read_table(out / "trials.parquet").to_pylist() == [
+        {"trial": 1, "start": None, "stop": None, "start_mark": "start", "stop_mark": None}]
