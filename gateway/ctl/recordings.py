@@ -142,8 +142,8 @@ def run_trials(args: argparse.Namespace) -> int:
 def run_dataset(args: argparse.Namespace) -> int:
     """``gx2ctl dataset RECORDINGS OUT``: the recordings not yet converted, converted (a
     line each); exit 1 if something unreadable was skipped, 2 if no file is a recording
-    or pyarrow is missing."""
-    from gateway.recording.dataset import convert
+    or pyarrow is missing, 75 (EX_TEMPFAIL) if another run is converting into OUT."""
+    from gateway.recording.dataset import BUSY, Busy, convert
     from gateway.recording.files import PARTIAL, RecordingError, usable_files
     from gateway.recording.parquetfile import MissingExtra
     from gateway.recording.reports import Reading
@@ -153,6 +153,8 @@ def run_dataset(args: argparse.Namespace) -> int:
         done = convert(paths, Path(args.out), reading, lambda line: print(line, flush=True))
     except (RecordingError, MissingExtra) as error:
         raise CtlError(str(error), Exit.USAGE) from None
+    except Busy as error:
+        raise CtlError(str(error), BUSY) from None
     except OSError as error:
         raise CtlError(f"{error.filename or args.out}: {error.strerror or error}",
                        Exit.USAGE) from None

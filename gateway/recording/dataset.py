@@ -19,10 +19,11 @@ leaves its parts: the dataset is never trimmed by what the recorder deletes.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,10 +38,19 @@ from .trials import listed
 from .window import _marks
 
 CONVERTED = "_converted.json"
+BUSY = 75
+"""gx2ctl dataset's exit status when another run holds OUT's lock (EX_TEMPFAIL: try again
+later; the timer's next run does)."""
 TRIALS = "trials.parquet"
 WORK = ".converting"
 """Where a recording's tables are exported before they are parted (hidden: no query's
 glob takes it)."""
+LOCK = ".lock"
+"""Held (flock, exclusive) by the run converting into OUT: one run at a time."""
+
+
+class Busy(Exception):
+    """Another run is converting into OUT (it holds OUT/.lock): this one did nothing."""
 
 
 @dataclass
@@ -66,6 +76,39 @@ def convert(paths: list[Path], out: Path, reading: Reading,
     """Convert the recordings ``paths`` not yet converted into the dataset ``out``."""
     pa, pq = parquet_modules()
     out.mkdir(parents=True, exist_ok=True)
+    with _locked(out):
+        _cleared(out)
+        return _converted(paths, out, reading, said, pa, pq)
+
+
+@contextlib.contextmanager
+def _locked(out: Path) -> Iterator[None]:
+    """OUT/.lock held for the run (released when the run ends, or dies: the kernel's
+    flock); Busy if another run holds it (the timer's, and one by hand)."""
+    descriptor = os.open(out / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise Busy(f"{out}: another gx2ctl dataset is converting into it (it holds "
+                       f"{out / LOCK}); this run did nothing") from None
+        yield
+    finally:
+        os.close(descriptor)
+
+
+def _cleared(out: Path) -> None:
+    """What a run killed (SIGTERM, SIGKILL, a power cut) left half made: the work
+    folder, and the hidden partial files of OUT and of its partitions (an earlier
+    version's). Only under the lock: no other run is making them."""
+    shutil.rmtree(out / WORK, ignore_errors=True)
+    for stale in [*out.glob(".*.partial"), *out.glob("record=*/node=*/date=*/.*.partial")]:
+        with contextlib.suppress(FileNotFoundError):
+            stale.unlink()
+
+
+def _converted(paths: list[Path], out: Path, reading: Reading,
+               said: Callable[[str], None], pa: Any, pq: Any) -> Converted:
     done = _load(out / CONVERTED)
     files = catalogue(paths, read_writing=False)
     result = Converted([], 0, [], 0)

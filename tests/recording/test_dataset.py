@@ -229,3 +229,34 @@ def test_a_mark_time_beyond_timestamp_ns_is_null_in_trials(tmp_path: Path) -> No
     assert ran.status == 0 and "1 trials" in ran.stdout, ran
     assert pq.read_table(out / "trials.parquet").to_pylist() == [
         {"trial": 1, "start": None, "stop": None, "start_mark": "start", "stop_mark": None}]
+
+
+def test_a_second_run_at_once_says_so_and_does_nothing(recordings: Path, tmp_path: Path
+                                                       ) -> None:
+    """The timer's run and one by hand on one OUT: the second finds OUT/.lock held."""
+    import fcntl
+    out = tmp_path / "dataset"
+    out.mkdir()
+    with (out / ".lock").open("w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)  # (as a run converting holds it)
+        ran = gx2ctl("dataset", str(recordings), str(out))
+    assert ran.status == 75 and ran.stdout == "", ran
+    [line] = ran.stderr.splitlines()
+    assert "another gx2ctl dataset is converting" in line, ran
+    assert not list(out.rglob("*.parquet"))
+    assert gx2ctl("dataset", str(recordings), str(out)).status == 0  # (released)
+
+
+def test_a_run_clears_what_a_killed_run_left(recordings: Path, tmp_path: Path) -> None:
+    """A run stopped (SIGTERM) mid-recording, its recording then deleted by retention:
+    the next run removes its work folder and partial files."""
+    out = tmp_path / "dataset"
+    left = [out / ".converting" / "gx2-20261119T000000.000Z" / "11_euler.parquet",
+            out / "._converted.json.partial", out / ".trials.parquet.partial",
+            out / "record=euler" / "node=13" / "date=2026-11-18" / ".part-gone.parquet.partial"]
+    for path in left:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"PAR1 half")
+    assert gx2ctl("dataset", str(recordings), str(out)).status == 0
+    hidden = [p for p in out.rglob("*") if p.name.startswith(".") and p.name != ".lock"]
+    assert hidden == []
