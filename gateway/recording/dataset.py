@@ -3,7 +3,8 @@ Hive-style as DuckDB, Polars, Spark, Trino and Athena read it as it is:
 ``OUT/record=<record>/node=<address>/date=<YYYY-MM-DD>/part-<file>.parquet``, the
 columns and types of ``export --format parquet`` (:mod:`.columnexport`), a part per
 recording, node, record and UTC day of its rows' ``time``; and ``OUT/trials.parquet``,
-the trials the marks define (:mod:`.trials`), made again each run.
+the trials the marks define (:mod:`.trials`), each run's merged into the earlier ones
+(a trial whose recording retention deleted keeps its row and number: see _trials).
 
 Incremental and idempotent: ``OUT/_converted.json`` names each recording converted
 (its size and modification time); a run converts only the finished recordings not in
@@ -212,25 +213,52 @@ def _trials(files: list[Described], out: Path, pa: Any, pq: Any) -> int:
     """``trials.parquet``: each trial between marks ``start`` and ``stop`` (their
     ``time``, on the clock of every record's ``time``: a query's ``time BETWEEN start
     AND stop``), a column per field its start mark carries (a field named as a column
-    is left out)."""
+    is left out).
+
+    Merged with the trials.parquet of earlier runs, never dropping one: a trial is
+    known by its start mark (its ``time`` and text); one in the recordings now replaces
+    its row (an open trial gets its stop), one whose recording retention deleted keeps
+    its row. A trial keeps the number it was first given; a new one is numbered on from
+    the highest (so numbers follow the marks' order as recordings arrive in order)."""
     found = listed(("start", "stop"), _marks(files))
-    columns: dict[str, list[Any]] = {
-        "trial": [t.number for t in found],
-        # (as export converts a time: one beyond timestamp[ns], a foreign mark's, null)
-        "start": converted("time", tuple(t.start_mark.time for t in found)),
-        "stop": converted("time", tuple(None if t.stop_mark is None else t.stop_mark.time
-                                        for t in found)),
-        "start_mark": [t.start_mark.text for t in found],
-        "stop_mark": [None if t.stop_mark is None else t.stop_mark.text for t in found]}
-    keys = dict.fromkeys(k for t in found for k, _ in t.start_mark.fields)
-    for key in keys:
-        if key not in columns:
-            columns[key] = [dict(t.start_mark.fields).get(key) for t in found]
+    # (as export converts a time: one beyond timestamp[ns], a foreign mark's, null)
+    starts = converted("time", tuple(t.start_mark.time for t in found))
+    stops = converted("time", tuple(None if t.stop_mark is None else t.stop_mark.time
+                                    for t in found))
+    rows = {(row["start"], row["start_mark"]): row for row in _earlier(out / TRIALS, pa, pq)}
+    number = max((row["trial"] for row in rows.values()), default=0)
+    for trial, start, stop in zip(found, starts, stops, strict=True):
+        key = (start, trial.start_mark.text)
+        kept = rows.get(key)
+        if kept is None:
+            number += 1
+        row = {"trial": number if kept is None else kept["trial"], "start": start,
+               "stop": stop, "start_mark": trial.start_mark.text,
+               "stop_mark": None if trial.stop_mark is None else trial.stop_mark.text}
+        for name, value in trial.start_mark.fields:
+            row.setdefault(name, value)
+        rows[key] = row
+    ordered = sorted(rows.values(), key=lambda row: row["trial"])
+    names = dict.fromkeys(name for row in ordered for name in row)
     types = {"trial": pa.int64(), "start": pa.timestamp("ns", tz="UTC"),
              "stop": pa.timestamp("ns", tz="UTC")}
-    table = pa.table({name: pa.array(values, types.get(name, pa.string()))
-                      for name, values in columns.items()})
+    table = pa.table({name: pa.array([row.get(name) for row in ordered],
+                                     types.get(name, pa.string())) for name in names})
     hidden = out / TEMPORARY.format(name=TRIALS)
     pq.write_table(table, hidden)
     os.replace(hidden, out / TRIALS)
-    return len(found)
+    return len(ordered)
+
+
+def _earlier(path: Path, pa: Any, pq: Any) -> list[dict[str, Any]]:
+    """The rows of an earlier run's trials.parquet, times as ns; none if there is none
+    (or it cannot be read: made again from the recordings present)."""
+    try:
+        table = pq.read_table(path)
+    except (OSError, pa.ArrowException):
+        return []
+    for name in ("start", "stop"):
+        if name in table.column_names:
+            table = table.set_column(table.column_names.index(name), name,
+                                     table.column(name).cast(pa.int64()))
+    return [row for row in table.to_pylist() if isinstance(row.get("trial"), int)]

@@ -260,3 +260,24 @@ def test_a_run_clears_what_a_killed_run_left(recordings: Path, tmp_path: Path) -
     assert gx2ctl("dataset", str(recordings), str(out)).status == 0
     hidden = [p for p in out.rglob("*") if p.name.startswith(".") and p.name != ".lock"]
     assert hidden == []
+
+
+def test_trials_are_kept_when_retention_deletes_their_recording(
+        recordings: Path, tmp_path: Path) -> None:
+    """trials.parquet merges each run's trials into the earlier ones: an open trial gets
+    its stop, keeping its number; a trial whose recording is deleted keeps its row and
+    number (it was dropped, and the next renumbered 1)."""
+    out = tmp_path / "dataset"
+    query = (f"SELECT trial, epoch_ns(start), stop IS NULL FROM "
+             f"read_parquet('{out}/trials.parquet') ORDER BY trial")
+    assert gx2ctl("dataset", str(recordings), str(out)).status == 0
+    first = duckdb.sql(query).fetchall()
+    assert [(n, open_) for n, _, open_ in first] == [(1, False), (2, True)]
+    make_file(recordings / "gx2-20261122T000000.000Z.mcap", 2 * FILE_SECONDS, FILE_SECONDS)
+    assert gx2ctl("dataset", str(recordings), str(out)).status == 0
+    second = duckdb.sql(query).fetchall()
+    assert second == [(1, first[0][1], False), (2, first[1][1], False)]
+    (recordings / "gx2-20261120T000000.000Z.mcap").unlink()  # (retention)
+    ran = gx2ctl("dataset", str(recordings), str(out))
+    assert ran.status == 0 and "2 trials" in ran.stdout, ran
+    assert duckdb.sql(query).fetchall() == second
