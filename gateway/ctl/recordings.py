@@ -143,15 +143,16 @@ def run_dataset(args: argparse.Namespace) -> int:
     """``gx2ctl dataset RECORDINGS OUT``: the recordings not yet converted, converted (a
     line each); exit 1 if something unreadable was skipped, 2 if no file is a recording
     or pyarrow is missing, 75 (EX_TEMPFAIL) if another run is converting into OUT."""
-    from gateway.recording.dataset import BUSY, Busy, convert
+    from gateway.recording.dataset import BUSY, Busy, OtherRecordings, convert
     from gateway.recording.files import PARTIAL, RecordingError, usable_files
     from gateway.recording.parquetfile import MissingExtra
     from gateway.recording.reports import Reading
     reading = Reading()
     try:
         paths = usable_files([args.recordings])
-        done = convert(paths, Path(args.out), reading, lambda line: print(line, flush=True))
-    except (RecordingError, MissingExtra) as error:
+        done = convert(paths, Path(args.out), reading, lambda line: print(line, flush=True),
+                       Path(args.recordings))
+    except (RecordingError, MissingExtra, OtherRecordings) as error:
         raise CtlError(str(error), Exit.USAGE) from None
     except Busy as error:
         raise CtlError(str(error), BUSY) from None

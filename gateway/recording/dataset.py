@@ -54,6 +54,12 @@ class Busy(Exception):
     """Another run is converting into OUT (it holds OUT/.lock): this one did nothing."""
 
 
+class OtherRecordings(Exception):
+    """OUT holds the recordings of another directory (_converted.json's
+    ``recordings``): a part is named by its recording's file name alone, so two
+    directories' same-named recordings would replace each other's parts."""
+
+
 @dataclass
 class Converted:
     """What a run did."""
@@ -73,13 +79,16 @@ class Converted:
 
 
 def convert(paths: list[Path], out: Path, reading: Reading,
-            said: Callable[[str], None] = lambda line: None) -> Converted:
-    """Convert the recordings ``paths`` not yet converted into the dataset ``out``."""
+            said: Callable[[str], None] = lambda line: None,
+            recordings: Path | None = None) -> Converted:
+    """Convert the recordings ``paths`` (of the directory ``recordings``: by default
+    the first's) not yet converted into the dataset ``out``; OtherRecordings if ``out``
+    holds another directory's."""
     pa, pq = parquet_modules()
     out.mkdir(parents=True, exist_ok=True)
     with _locked(out):
         _cleared(out)
-        return _converted(paths, out, reading, said, pa, pq)
+        return _converted(paths, out, reading, said, pa, pq, _folder(recordings, paths))
 
 
 @contextlib.contextmanager
@@ -108,9 +117,22 @@ def _cleared(out: Path) -> None:
             stale.unlink()
 
 
+def _folder(recordings: Path | None, paths: list[Path]) -> str:
+    """The directory of the recordings, resolved (a file given: its directory)."""
+    given = recordings if recordings is not None else paths[0]
+    return str(given.resolve() if given.is_dir() else given.resolve().parent)
+
+
 def _converted(paths: list[Path], out: Path, reading: Reading,
-               said: Callable[[str], None], pa: Any, pq: Any) -> Converted:
-    done = _load(out / CONVERTED)
+               said: Callable[[str], None], pa: Any, pq: Any, folder: str) -> Converted:
+    state = _load(out / CONVERTED)
+    kept = state.setdefault("recordings", folder)
+    if kept != folder:
+        raise OtherRecordings(
+            f"{out} holds the recordings of {kept} ({out / CONVERTED}), and {folder} is "
+            "another directory: its same-named recordings would replace those parts; "
+            "give it an OUT of its own")
+    done: dict[str, Any] = state["files"]
     files = catalogue(paths, read_writing=False)
     result = Converted([], 0, [], 0)
     for described in files:
@@ -137,7 +159,7 @@ def _converted(paths: list[Path], out: Path, reading: Reading,
                                  else f"{described.path}: {why}")
             continue
         done[key] = stamp
-        _save(out / CONVERTED, done)
+        _save(out / CONVERTED, state)
         result.files.append((described.path, rows))
         said(f"{described.path}  {rows:,} rows")
     result.trials = _trials(files, out, pa, pq)
@@ -156,11 +178,17 @@ def _stamp(path: Path) -> dict[str, int]:
 
 
 def _load(path: Path) -> dict[str, Any]:
+    """``{"recordings": DIR, "files": {NAME: STAMP}}``; an earlier version's
+    ``{NAME: STAMP}`` read as the files (its directory the one given now)."""
     try:
         loaded = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
-        return {}
-    return loaded if isinstance(loaded, dict) else {}
+        return {"files": {}}
+    if not isinstance(loaded, dict):
+        return {"files": {}}
+    if isinstance(loaded.get("files"), dict) and isinstance(loaded.get("recordings"), str):
+        return loaded
+    return {"files": loaded}
 
 
 def _save(path: Path, done: dict[str, Any]) -> None:

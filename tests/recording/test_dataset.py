@@ -175,7 +175,7 @@ def test_an_unreadable_recording_is_one_line_and_the_rest_are_converted(
         assert f"{2 - 2 * run} converted, {2 * run} up to date, 1 not converted" in ran.stdout
     assert {p.name for p in out.rglob("part-*")} == {
         "part-gx2-20261120T000000.000Z.parquet", "part-gx2-20261122T000000.000Z.parquet"}
-    assert odd.name not in json.loads((out / "_converted.json").read_text())
+    assert odd.name not in json.loads((out / "_converted.json").read_text())["files"]
 
 
 def test_a_recording_deleted_during_the_run_is_skipped(
@@ -281,3 +281,35 @@ def test_trials_are_kept_when_retention_deletes_their_recording(
     ran = gx2ctl("dataset", str(recordings), str(out))
     assert ran.status == 0 and "2 trials" in ran.stdout, ran
     assert duckdb.sql(query).fetchall() == second
+
+
+def test_a_second_recordings_directory_into_one_out_is_refused(tmp_path: Path) -> None:
+    """Two gateways' directories, a recording of the same name in each: the second
+    directory is refused in one line (its recording replaced the first's parts)."""
+    name = "gx2-20261120T000000.000Z.mcap"
+    one, other = tmp_path / "roomA", tmp_path / "roomB"
+    for k, folder in enumerate((one, other)):
+        folder.mkdir()
+        make_file(folder / name, k * FILE_SECONDS, FILE_SECONDS)
+    out = tmp_path / "dataset"
+    assert gx2ctl("dataset", str(one), str(out)).status == 0
+    ran = gx2ctl("dataset", str(other), str(out))
+    assert ran.status == 2 and len(ran.stderr.splitlines()) == 1, ran
+    assert f"holds the recordings of {one}" in ran.stderr, ran
+    seqs = duckdb.sql(f"SELECT min(seq), max(seq), count(*) FROM read_parquet("
+                      f"'{out}/record=accel_angrate/node=11/**/*.parquet')").fetchall()
+    assert seqs == [(0, FILE_SECONDS * 25 - 1, FILE_SECONDS * 25)]
+    state = json.loads((out / "_converted.json").read_text())
+    assert state["recordings"] == str(one) and list(state["files"]) == [name]
+    # a file of the same directory given alone is that directory's
+    assert gx2ctl("dataset", str(one / name), str(out)).status == 0
+
+
+def test_an_earlier_version_s_converted_list_is_read(recordings: Path, tmp_path: Path
+                                                     ) -> None:
+    out = tmp_path / "dataset"
+    assert gx2ctl("dataset", str(recordings), str(out)).status == 0
+    state = json.loads((out / "_converted.json").read_text())
+    (out / "_converted.json").write_text(json.dumps(state["files"]))  # ({NAME: STAMP})
+    ran = gx2ctl("dataset", str(recordings), str(out))
+    assert ran.status == 0 and "0 converted, 2 up to date" in ran.stdout, ran
