@@ -159,13 +159,14 @@ def run_dataset(args: argparse.Namespace) -> int:
     except OSError as error:
         raise CtlError(f"{error.filename or args.out}: {error.strerror or error}",
                        Exit.USAGE) from None
-    for line in dict.fromkeys([*reading.lines(), *done.failed]):
+    for line in dict.fromkeys([*reading.lines(), *done.failed, *done.warnings]):
         print(f"gx2ctl: {line}", file=sys.stderr, flush=True)
     writing = f", {len(done.writing)} being written (left for a later run)" \
         if done.writing else ""
     failed = f", {len(done.failed)} not converted (unreadable: tried again next run)" \
         if done.failed else ""
     gone = f", {len(done.gone)} gone (deleted while the run ran)" if done.gone else ""
+    gone += f", {len(done.same)} the same as one converted (skipped)" if done.same else ""
     print(f"{len(done.files)} converted, {done.current} up to date{writing}{failed}{gone}; "
           f"{done.trials} trials in {Path(args.out) / 'trials.parquet'}", flush=True)
     return PARTIAL if reading.partial or done.failed else Exit.OK

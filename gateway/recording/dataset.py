@@ -76,6 +76,12 @@ class Converted:
     unstamped, tried again by the next run; the run is partial."""
     gone: list[Path] = field(default_factory=list)
     """Recordings deleted (retention, a move) while the run ran: skipped."""
+    same: list[tuple[Path, str]] = field(default_factory=list)
+    """Recordings the same as one converted (a copy: the catalogue's same_as), and the
+    name of that one: skipped (stamped, with it named)."""
+    warnings: list[str] = field(default_factory=list)
+    """A line for each recording converted that overlaps one converted before it (the
+    rows recorded in both are in the dataset twice)."""
 
 
 def convert(paths: list[Path], out: Path, reading: Reading,
@@ -142,8 +148,16 @@ def _converted(paths: list[Path], out: Path, reading: Reading,
             continue
         try:
             stamp = _stamp(described.path)
-            if done.get(key) == stamp:
+            if _unchanged(done.get(key), stamp):
                 result.current += 1
+                continue
+            twin = next((p.name for p in described.same_as
+                         if p.name != key and _holds(done, p.name)), None)
+            if twin is not None:
+                done[key] = {**stamp, "same_as": twin}
+                _save(out / CONVERTED, state)
+                result.same.append((described.path, twin))
+                said(f"{described.path}  the same as {twin} (converted): skipped")
                 continue
             rows = _convert_one(described, out, reading, pq)
         except (RecordingError, OSError) as error:
@@ -158,6 +172,12 @@ def _converted(paths: list[Path], out: Path, reading: Reading,
             result.failed.append(why if str(described.path) in why
                                  else f"{described.path}: {why}")
             continue
+        overlapped = [p.name for p in described.overlaps
+                      if p.name != key and _holds(done, p.name)]
+        if overlapped:
+            result.warnings.append(
+                f"{described.path} overlaps {', '.join(overlapped)} (converted): the rows "
+                "recorded in both are in the dataset twice")
         done[key] = stamp
         _save(out / CONVERTED, state)
         result.files.append((described.path, rows))
@@ -170,6 +190,17 @@ def _names(error: OSError, path: Path) -> bool:
     """Whether ``error`` is about the recording ``path`` (not about OUT)."""
     return any(name is not None and os.fspath(name) == os.fspath(path)
                for name in (error.filename, error.filename2))
+
+
+def _unchanged(kept: Any, stamp: dict[str, int]) -> bool:
+    return isinstance(kept, dict) and all(kept.get(k) == v for k, v in stamp.items())
+
+
+def _holds(done: dict[str, Any], name: str) -> bool:
+    """Whether the recording ``name`` has its own parts (converted, not skipped as the
+    same as another)."""
+    kept = done.get(name)
+    return isinstance(kept, dict) and "same_as" not in kept
 
 
 def _stamp(path: Path) -> dict[str, int]:

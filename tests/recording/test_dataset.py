@@ -313,3 +313,26 @@ def test_an_earlier_version_s_converted_list_is_read(recordings: Path, tmp_path:
     (out / "_converted.json").write_text(json.dumps(state["files"]))  # ({NAME: STAMP})
     ran = gx2ctl("dataset", str(recordings), str(out))
     assert ran.status == 0 and "0 converted, 2 up to date" in ran.stdout, ran
+
+
+def test_a_copy_is_skipped_and_an_overlap_said(tmp_path: Path) -> None:
+    """A recording twice (a copy under another name, the catalogue's same_as): its rows
+    once, the copy said skipped; a recording overlapping one converted: a line said."""
+    import shutil
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    first = make_file(folder / "gx2-20261120T000000.000Z.mcap", 0, FILE_SECONDS)
+    shutil.copy2(first, folder / "gx2-20261120T000000.000Z-copy.mcap")
+    out = tmp_path / "dataset"
+    ran = gx2ctl("dataset", str(folder), str(out))
+    assert ran.status == 0 and "1 converted, 0 up to date, 1 the same as" in ran.stdout, ran
+    assert "skipped" in ran.stdout and ran.stderr == "", ran
+    counted = duckdb.sql(f"SELECT count(*), count(DISTINCT seq) FROM read_parquet("
+                         f"'{out}/record=accel_angrate/node=11/**/*.parquet')").fetchall()
+    assert counted == [(FILE_SECONDS * 25, FILE_SECONDS * 25)]
+    later = make_file(folder / "gx2-20261120T000010.000Z.mcap", FILE_SECONDS // 2,
+                      FILE_SECONDS)
+    ran = gx2ctl("dataset", str(folder), str(out))
+    assert ran.status == 0 and "1 converted, 2 up to date" in ran.stdout, ran
+    [line] = ran.stderr.splitlines()
+    assert f"{later} overlaps" in line and "twice" in line, ran
