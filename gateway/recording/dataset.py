@@ -32,7 +32,7 @@ from typing import Any
 from .catalogue import Described, catalogue
 from .columnexport import export_batches
 from .files import RecordingError
-from .parquetfile import converted, parquet_modules
+from .parquetfile import BATCH, converted, parquet_modules
 from .reports import Reading
 from .tables import TEMPORARY
 from .trials import listed
@@ -242,8 +242,7 @@ def _convert_one(described: Described, out: Path, reading: Reading, pq: Any) -> 
                 (folder / part).unlink()
         rows = 0
         for path, table in tables:
-            rows += _parted(pq.read_table(path), out, work, table.record, table.node,
-                            part, pq)
+            rows += _parted(path, out, work, table.record, table.node, part, pq)
         return rows
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -251,21 +250,35 @@ def _convert_one(described: Described, out: Path, reading: Reading, pq: Any) -> 
             (out / WORK).rmdir()
 
 
-def _parted(table: Any, out: Path, work: Path, record: str, node: int, part: str,
+def _parted(source: Path, out: Path, work: Path, record: str, node: int, part: str,
             pq: Any) -> int:
-    """A table's rows written to the day partitions of their time (else host_time),
-    each day's part made in ``work`` (on the dataset's file system) and renamed there."""
+    """A table's rows (the exported file ``source``, read a batch at a time: memory
+    flat however long the recording) written to the day partitions of their time (else
+    host_time), each day's part made in ``work`` (on the dataset's file system), a
+    batch at a time, and renamed there when whole."""
     import pyarrow.compute as pc
-    when = pc.coalesce(table.column("time"), table.column("host_time"))
-    days = pc.strftime(when, format="%Y-%m-%d")
-    for day in pc.unique(days).to_pylist():
-        rows = table.filter(pc.is_null(days) if day is None else pc.equal(days, day))
+    exported = pq.ParquetFile(source)
+    writers: dict[str | None, tuple[Any, Path]] = {}
+    rows = 0
+    try:
+        for batch in exported.iter_batches(batch_size=BATCH):  # (export's batch)
+            when = pc.coalesce(batch.column("time"), batch.column("host_time"))
+            days = pc.strftime(when, format="%Y-%m-%d")
+            for day in pc.unique(days).to_pylist():
+                if day not in writers:
+                    hidden = work / TEMPORARY.format(name=f"{record}.{node}.{day}.{part}")
+                    writers[day] = (pq.ParquetWriter(hidden, exported.schema_arrow), hidden)
+                writers[day][0].write_batch(
+                    batch.filter(pc.is_null(days) if day is None else pc.equal(days, day)))
+            rows += batch.num_rows
+    finally:
+        for writer, _ in writers.values():
+            writer.close()
+    for day, (_, hidden) in writers.items():
         folder = out / f"record={record}" / f"node={node}" / f"date={day or 'unknown'}"
         folder.mkdir(parents=True, exist_ok=True)
-        hidden = work / TEMPORARY.format(name=f"{record}.{node}.{day}.{part}")
-        pq.write_table(rows, hidden)
         os.replace(hidden, folder / part)
-    return table.num_rows
+    return rows
 
 
 def _trials(files: list[Described], out: Path, pa: Any, pq: Any) -> int:

@@ -336,3 +336,36 @@ def test_a_copy_is_skipped_and_an_overlap_said(tmp_path: Path) -> None:
     assert ran.status == 0 and "1 converted, 2 up to date" in ran.stdout, ran
     [line] = ran.stderr.splitlines()
     assert f"{later} overlaps" in line and "twice" in line, ran
+
+
+_PEAK = """
+import sys
+from pathlib import Path
+import pyarrow as pa
+from gateway.recording.dataset import convert
+from gateway.recording.reports import Reading
+from tests.helpers.recorded import make_file
+folder = Path(sys.argv[1])
+recording = make_file(folder / "gx2-20261120T000000.000Z.mcap", 0, int(sys.argv[2]))
+convert([recording], folder / "dataset", Reading())
+print(pa.default_memory_pool().max_memory())
+"""
+
+
+def test_memory_does_not_grow_with_the_recording(tmp_path: Path) -> None:
+    """A recording four times as long converts in about the same Arrow memory (a batch
+    at a time, as export: a table read whole, then filtered per day, took memory in
+    proportion to the recording). Each in a process of its own: the pool's peak is the
+    conversion's."""
+    import subprocess
+    import sys
+    peaks = []
+    for seconds in (800, 3200):
+        folder = tmp_path / str(seconds)
+        folder.mkdir()
+        ran = subprocess.run([sys.executable, "-c", _PEAK, str(folder), str(seconds)],
+                             capture_output=True, text=True, timeout=120,
+                             cwd=Path(__file__).resolve().parents[2])
+        assert ran.returncode == 0, ran.stderr
+        peaks.append(int(ran.stdout))
+    assert peaks[1] < 1.4 * peaks[0], peaks
