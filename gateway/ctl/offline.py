@@ -142,8 +142,9 @@ def add_commands(commands: Any) -> None:
         "record, node and day (OUT/record=R/node=N/date=D/ a part per recording), the "
         "columns and types of export --format parquet; and OUT/trials.parquet. A file "
         "being written is left for a later run. Needs gx2-gateway[parquet]. Exit 1 if "
-        "something unreadable was skipped, 2 if no file is a recording, 75 if another "
-        "run is converting into OUT (it holds OUT/.lock; this one did nothing).")
+        "something unreadable was skipped (it is tried again next run), 2 if no file is a "
+        "recording or OUT holds another directory's recordings, 75 if another run is "
+        "converting into OUT (it holds OUT/.lock; this one did nothing).")
     converter.add_argument("recordings", metavar="RECORDINGS")
     converter.add_argument("out", metavar="OUT")
 

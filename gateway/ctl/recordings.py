@@ -141,8 +141,9 @@ def run_trials(args: argparse.Namespace) -> int:
 
 def run_dataset(args: argparse.Namespace) -> int:
     """``gx2ctl dataset RECORDINGS OUT``: the recordings not yet converted, converted (a
-    line each); exit 1 if something unreadable was skipped, 2 if no file is a recording
-    or pyarrow is missing, 75 (EX_TEMPFAIL) if another run is converting into OUT."""
+    line each); exit 1 if something unreadable was skipped, 2 if no file is a recording,
+    OUT holds another directory's recordings or pyarrow is missing, 75 (EX_TEMPFAIL) if
+    another run is converting into OUT."""
     from gateway.recording.dataset import BUSY, Busy, OtherRecordings, convert
     from gateway.recording.files import PARTIAL, RecordingError, usable_files
     from gateway.recording.parquetfile import MissingExtra

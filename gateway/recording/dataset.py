@@ -6,14 +6,19 @@ recording, node, record and UTC day of its rows' ``time``; and ``OUT/trials.parq
 the trials the marks define (:mod:`.trials`), each run's merged into the earlier ones
 (a trial whose recording retention deleted keeps its row and number: see _trials).
 
-Incremental and idempotent: ``OUT/_converted.json`` names each recording converted
-(its size and modification time); a run converts only the finished recordings not in
-it, or changed since (their old parts replaced), so a timer running it keeps the
-dataset minutes behind the recorder. Every part is written in the hidden work folder
-and renamed into its partition when whole: a partition's folder holds nothing but whole
-parts, even after a run killed half way (a Polars scan of a folder reads every file in
-it, hidden or not; tests/recording/test_dataset_killed.py). The list of what was
-converted is replaced after each recording. A recording gone (retention, a move)
+Incremental and idempotent: ``OUT/_converted.json`` names the RECORDINGS directory
+(an OUT takes one: parts are named by file name) and each recording converted (its size
+and modification time); a run converts only the finished recordings not in it, or
+changed since (their old parts replaced), so a timer running it keeps the dataset
+minutes behind the recorder. One run at a time (an exclusive flock on ``OUT/.lock``: a
+second says so and does nothing), which first removes what a killed run left. A
+recording that cannot be read is said and left for the next run, the rest converted; a
+copy of one converted (the catalogue's same_as) is skipped. Every part is written in
+the hidden work folder, a batch at a time, and renamed into its partition when whole: a
+partition's folder holds nothing but whole parts, even after a run killed half way (a
+Polars scan of a folder reads every file in it, hidden or not;
+tests/recording/test_dataset_killed.py). The list of what was converted is replaced
+after each recording. A recording gone (retention, a move)
 leaves its parts: the dataset is never trimmed by what the recorder deletes.
 """
 
