@@ -9,17 +9,21 @@ The recordings: one saturated base station (3 nodes of 0xC2 at 96 Hz, 288 record
 its status once a second and a mark every ten minutes, in hourly files as the recorder
 makes them (named as it names them, a chunk closed each second as its flush closes
 them), written directly with the project's recording writer in simulated time (no
-gateway runs for a day). They are made once into ``--dir`` and kept there: a later run
-with the same ``--dir`` and ``--hours`` times them again without making them.
+gateway runs for a day). Each node's records as the gateway numbers and times them:
+its own ``seq``, its timer 204,800 ticks a sample (wrapping at 2**32) and
+``device_time`` that timer unwrapped, in seconds (export counts losses from them).
+They are made once into ``--dir`` and kept there: a later run with the same ``--dir``
+and ``--hours`` times them again without making them.
 
 Timed: the installed console script, ``gx2ctl export DIR --from X --to X+60s --out
 OUT`` with X half an hour into the middle file (a minute inside one file), and again
 with X a few seconds before an hour (a minute across two files); the wall time of each
 run, from just before the process starts until it exits, as the median and the range
 of ``--runs`` runs. Then the minute inside one file read in this process through
-``Recording`` (iterated), and made a DataFrame (``to_pandas``, pandas imported before
-timing), if pandas is installed. The serial reads a gateway records too are left out: they would
-double the files' size, not the minute's chunks (a window read seeks past the rest).
+``Recording`` (iterated), made a DataFrame (``to_pandas``, pandas imported before
+timing), if pandas is installed, and an Arrow table (``to_arrow``), if pyarrow is. The
+serial reads a gateway records too are left out: they would double the files' size,
+not the minute's chunks (a window read seeks past the rest).
 """
 
 from __future__ import annotations
@@ -34,21 +38,27 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
+from aspp.timing import TICKS_PER_SECOND, TIMER_MODULUS
 from gateway.recording.files import MARK, file_name
 from gateway.recording.writer import RecordingWriter
 
 START = 1_795_000_000.0
 NODES = (11, 12, 13)
 RATE = 96
-COMPLETE = ".complete-{hours}h"
-"""Left in ``--dir`` once its files are whole: the next run uses them."""
+COMPLETE = ".complete-{hours}h-2"
+"""Left in ``--dir`` once its files are whole: the next run uses them. (-2: files made
+since each node has its own ``seq`` and a timer that agrees with ``device_time``;
+before, a ``seq`` shared by the nodes and a timer 6,144 ticks a sample against
+204,800 made every row a restart to export's loss counting.)"""
+TICKS = TICKS_PER_SECOND // RATE
+"""A node's timer ticks between two samples."""
 
 
 def make_hour(path: Path, first: float) -> None:
     """An hour of the saturated station from UNIX time ``first``, a chunk a second."""
     with path.open("wb") as output:
         writer = RecordingWriter(output)
-        seq = 0
+        sample = round((first - START) * RATE)  # (each node's samples since START)
         for second in range(3600):
             now = first + second
             writer.message("gx2/gateway/status", {"gateway": {"time": now}, "nodes": []})
@@ -58,11 +68,13 @@ def make_hour(path: Path, first: float) -> None:
                                       "text": text})
             for i in range(RATE):
                 at = now + i / RATE
+                sample += 1
                 for node in NODES:
-                    seq += 1
+                    ticks = sample * TICKS + node * 1_000_003  # (powered up apart)
                     data = (f'{{"node":{node},"record":"accel_angrate","command":194,'
-                            f'"seq":{seq},"host_time":{at + 0.004!r},"time":{at!r},'
-                            f'"device_time":{at - START!r},"timer":{seq * 2048},'
+                            f'"seq":{sample},"host_time":{at + 0.004!r},"time":{at!r},'
+                            f'"device_time":{ticks / TICKS_PER_SECOND!r},'
+                            f'"timer":{ticks % TIMER_MODULUS},'
                             f'"lqi":200,"rssi":-50,"accel":[0.01,0.02,-1.0],'
                             f'"ang_rate":[0.001,0.002,{i / 1000!r}]}}').encode()
                     writer.message(f"gx2/{node}/accel_angrate",
@@ -112,25 +124,33 @@ def timed(gx2ctl: str, folder: Path, start: float, runs: int) -> list[float]:
     return walls
 
 
-def library(folder: Path, start: float, runs: int) -> tuple[list[float], list[float]]:
-    """Seconds to iterate the minute through Recording, and to make its DataFrame."""
+def library(folder: Path, start: float, runs: int) -> dict[str, list[float]]:
+    """Seconds to iterate the minute through Recording, to make its DataFrame and its
+    Arrow table (each made if its library is installed)."""
     from gateway.client import Recording
-    try:
-        import pandas  # (imported before timing: its import is not the minute's)
-    except ImportError:
-        pandas = None
-    iterated, framed = [], []
+    made = {}
+    for name, method in (("pandas", "to_pandas"), ("pyarrow", "to_arrow")):
+        try:  # (imported before timing: its import is not the minute's)
+            __import__(name)
+            made[method] = []
+        except ImportError:
+            pass
+    timed: dict[str, list[float]] = {"iterated": [], **made}
+    minute = 60 * RATE * len(NODES)
     for _ in range(runs):
         began = time.perf_counter()
         count = sum(1 for _ in Recording(folder, start=iso(start), stop=iso(start + 60)))
-        iterated.append(time.perf_counter() - began)
-        if count != 60 * RATE * len(NODES):
-            sys.exit(f"expected {60 * RATE * len(NODES)} messages, Recording gave {count}")
-        if pandas is not None:
+        timed["iterated"].append(time.perf_counter() - began)
+        if count != minute:
+            sys.exit(f"expected {minute} messages, Recording gave {count}")
+        for method in made:
             began = time.perf_counter()
-            Recording(folder, start=iso(start), stop=iso(start + 60)).to_pandas()
-            framed.append(time.perf_counter() - began)
-    return iterated, framed
+            rows = len(getattr(Recording(folder, start=iso(start), stop=iso(start + 60)),
+                               method)())
+            timed[method].append(time.perf_counter() - began)
+            if rows != minute:
+                sys.exit(f"expected {minute} rows, {method} gave {rows}")
+    return timed
 
 
 def main() -> None:
@@ -150,10 +170,8 @@ def main() -> None:
                         ("across two files", middle - 30)]:
         walls = timed(gx2ctl, args.dir, start, args.runs)
         print(f"export of one minute {what}: {summary(walls)}")
-    iterated, framed = library(args.dir, middle + 1800, args.runs)
-    print(f"Recording of that minute inside one file, iterated: {summary(iterated)}")
-    if framed:
-        print(f"Recording of that minute, to_pandas: {summary(framed)}")
+    for how, walls in library(args.dir, middle + 1800, args.runs).items():
+        print(f"Recording of that minute inside one file, {how}: {summary(walls)}")
 
 
 def summary(walls: list[float]) -> str:

@@ -13,8 +13,9 @@ recordings, so an analysis script is the same live and offline.
         ...  # the same loop
 
 Modules: :mod:`.messages` (what both yield), :mod:`.subscriber` (live, ZeroMQ),
-:mod:`.recorded` (the recordings), :mod:`.frames` (``to_pandas``). The recordings'
-reader is imported when first asked for: ``gx2ctl tail`` and ``top`` do not pay for it.
+:mod:`.recorded` (the recordings), :mod:`.frames` (``to_pandas``), :mod:`.arrows`
+(``Recording.to_arrow``). The recordings' reader is imported when first asked for:
+``gx2ctl tail`` and ``top`` do not pay for it.
 """
 
 from __future__ import annotations

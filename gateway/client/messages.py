@@ -122,9 +122,7 @@ class Numbering:
         """The Message of a record's payload, counted (None if not ``wanted``: a record
         filtered out still takes its ``seq``, so it is never taken for a gap);
         Malformed if it has no ``seq``."""
-        seq = payload.get("seq")
-        if not isinstance(seq, int) or isinstance(seq, bool):
-            raise Malformed(f"on {topic}: no integer seq")
+        seq = seq_of(payload, topic)
         gap, restarted = self.count(gateway, node, seq)
         if not wanted:
             return None
@@ -132,6 +130,14 @@ class Numbering:
                        number(payload.get("time")), number(payload.get("device_time")),
                        integer(payload.get("lqi")), integer(payload.get("rssi")),
                        payload, gap, restarted)
+
+
+def seq_of(payload: Mapping[str, Any], topic: str) -> int:
+    """A record's ``seq``; Malformed if it has no integer one."""
+    seq = payload.get("seq")
+    if not isinstance(seq, int) or isinstance(seq, bool):
+        raise Malformed(f"on {topic}: no integer seq")
+    return seq
 
 
 def number(value: Any) -> float | None:

@@ -41,6 +41,7 @@ from .messages import Event, Malformed, Numbering, Status
 
 if TYPE_CHECKING:
     import pandas
+    import pyarrow
 
 log = logging.getLogger("gx2.client")
 
@@ -119,13 +120,7 @@ class Recording:
     def _event(self, entry: Entry, refined: Refinement | None = None) -> Event | None:
         topic = entry.topic
         if topic == STATUS:
-            if not self.yield_status:
-                return None
-            try:
-                payload = entry.payload()
-            except RecordingError:
-                return None
-            return Status(self.source, payload, self._numbering.started(self.source, payload))
+            return self.numbered_status(entry) if self.yield_status else None
         where = parse(topic)
         if where is None:
             return None  # marks, the serial channels
@@ -137,9 +132,21 @@ class Recording:
             return self._numbering.message(self.source, node, record, payload, topic,
                                            not self.records or record in self.records)
         except (RecordingError, Malformed) as problem:
-            self.malformed += 1
-            log.warning("%s: skipped a message: %s", self.source, problem)
+            self.skipped(problem)
             return None
+
+    def numbered_status(self, entry: Entry) -> Status | None:
+        """A recorded heartbeat, its restart counted (None if it is not a JSON object)."""
+        try:
+            payload = entry.payload()
+        except RecordingError:
+            return None
+        return Status(self.source, payload, self._numbering.started(self.source, payload))
+
+    def skipped(self, problem: Exception) -> None:
+        """A message on a node's topic that is not a record: counted, and said."""
+        self.malformed += 1
+        log.warning("%s: skipped a message: %s", self.source, problem)
 
     def trials(self) -> list[Recording]:
         """One Recording per window (per trial of ``between_marks``), in time order."""
@@ -169,6 +176,12 @@ class Recording:
         """The records as one pandas DataFrame (:func:`gateway.client.to_pandas`)."""
         from .frames import to_pandas
         return to_pandas(self)
+
+    def to_arrow(self) -> pyarrow.Table:
+        """The records as one pyarrow Table, to_pandas's rows and columns in export's
+        types, read a batch at a time (:mod:`gateway.client.arrows`)."""
+        from .arrows import to_arrow
+        return to_arrow(self)
 
     def __enter__(self) -> Recording:
         return self

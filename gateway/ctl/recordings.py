@@ -60,7 +60,9 @@ def add_commands(commands: Any) -> None:
         "record, node and day (OUT/record=R/node=N/date=D/ a part per recording), the "
         "columns and types of export --format parquet; and OUT/trials.parquet. A file "
         "being written is left for a later run. Needs gx2-gateway[parquet]. Exit 1 if "
-        "something unreadable was skipped, 2 if no file is a recording.")
+        "something unreadable was skipped (it is tried again next run), 2 if no file is a "
+        "recording or OUT holds another directory's recordings, 75 if another run is "
+        "converting into OUT (it holds OUT/.lock; this one did nothing).")
     converter.add_argument("recordings", metavar="RECORDINGS")
     converter.add_argument("out", metavar="OUT")
 
@@ -186,24 +188,33 @@ def run_trials(args: argparse.Namespace) -> int:
 
 def run_dataset(args: argparse.Namespace) -> int:
     """``gx2ctl dataset RECORDINGS OUT``: the recordings not yet converted, converted (a
-    line each); exit 1 if something unreadable was skipped, 2 if no file is a recording
-    or pyarrow is missing."""
-    from gateway.recording.dataset import convert
+    line each); exit 1 if something unreadable was skipped, 2 if no file is a recording,
+    OUT holds another directory's recordings or pyarrow is missing, 75 (EX_TEMPFAIL) if
+    another run is converting into OUT."""
+    from gateway.recording.dataset import BUSY, Busy, OtherRecordings, convert
     from gateway.recording.files import PARTIAL, RecordingError, usable_files
     from gateway.recording.parquetfile import MissingExtra
     from gateway.recording.reports import Reading
     reading = Reading()
     try:
         paths = usable_files([args.recordings])
-        done = convert(paths, Path(args.out), reading, lambda line: print(line, flush=True))
-    except (RecordingError, MissingExtra) as error:
+        done = convert(paths, Path(args.out), reading, lambda line: print(line, flush=True),
+                       Path(args.recordings))
+    except (RecordingError, MissingExtra, OtherRecordings) as error:
         raise CtlError(str(error), Exit.USAGE) from None
+    except Busy as error:
+        raise CtlError(str(error), BUSY) from None
     except OSError as error:
-        raise CtlError(f"{args.out}: {error.strerror or error}", Exit.USAGE) from None
-    for line in dict.fromkeys(reading.lines()):
+        raise CtlError(f"{error.filename or args.out}: {error.strerror or error}",
+                       Exit.USAGE) from None
+    for line in dict.fromkeys([*reading.lines(), *done.failed, *done.warnings]):
         print(f"gx2ctl: {line}", file=sys.stderr, flush=True)
     writing = f", {len(done.writing)} being written (left for a later run)" \
         if done.writing else ""
-    print(f"{len(done.files)} converted, {done.current} up to date{writing}; "
+    failed = f", {len(done.failed)} not converted (unreadable: tried again next run)" \
+        if done.failed else ""
+    gone = f", {len(done.gone)} gone (deleted while the run ran)" if done.gone else ""
+    gone += f", {len(done.same)} the same as one converted (skipped)" if done.same else ""
+    print(f"{len(done.files)} converted, {done.current} up to date{writing}{failed}{gone}; "
           f"{done.trials} trials in {Path(args.out) / 'trials.parquet'}", flush=True)
-    return PARTIAL if reading.partial else Exit.OK
+    return PARTIAL if reading.partial or done.failed else Exit.OK

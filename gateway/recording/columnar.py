@@ -169,14 +169,18 @@ class Columns:
         """The batch as the row by row export takes it (a message that is not a JSON
         object: RecordingError, as there)."""
         from .reader import Entry
-        from .tables import element
         payloads = [Entry(self.topic, 0, 0, data).payload() for data in messages]
+        return self.rows(payloads), _numbers(payloads)
+
+    def rows(self, payloads: list[dict[str, Any]]) -> Any:
+        """Decoded messages as a table of the columns, typed value by value as the row
+        by row export types them (:func:`.parquetfile.converted`)."""
+        from .tables import element
         arrays = [self.pa.array(converted(column.kind, tuple(
             element(p.get(name), index) for p in payloads)), type=field.type)
             for column, field, (name, index) in zip(self.columns, self.schema,
                                                     self.sources, strict=True)]
-        table = self.pa.Table.from_arrays(arrays, schema=self.schema)
-        return table, _numbers(payloads)
+        return self.pa.Table.from_arrays(arrays, schema=self.schema)
 
 
 def _numbers(payloads: list[dict[str, Any]]) -> tuple[np.ndarray, ...]:
