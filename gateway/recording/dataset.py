@@ -130,9 +130,9 @@ def _parted(table: Any, out: Path, work: Path, record: str, node: int, part: str
     for day in pc.unique(days).to_pylist():
         rows = table.filter(pc.is_null(days) if day is None else pc.equal(days, day))
         folder = out / f"record={record}" / f"node={node}" / f"date={day or 'unknown'}"
-        folder.mkdir(parents=True, exist_ok=True)
         hidden = work / TEMPORARY.format(name=f"{record}.{node}.{day}.{part}")
         pq.write_table(rows, hidden)
+        folder.mkdir(parents=True, exist_ok=True)
         os.replace(hidden, folder / part)
     return table.num_rows
 
