@@ -4,6 +4,7 @@ it through the subscriber library (``gateway.client.Recording``, and its
 ``to_pandas``) (issue 34).
 
     .venv/bin/python bench/window.py --dir /tmp/gx2-day [--hours 24] [--runs 5]
+        [--library-minutes 1]
 
 The recordings: one saturated base station (3 nodes of 0xC2 at 96 Hz, 288 records/s),
 its status once a second and a mark every ten minutes, in hourly files as the recorder
@@ -19,7 +20,8 @@ Timed: the installed console script, ``gx2ctl export DIR --from X --to X+60s --o
 OUT`` with X half an hour into the middle file (a minute inside one file), and again
 with X a few seconds before an hour (a minute across two files); the wall time of each
 run, from just before the process starts until it exits, as the median and the range
-of ``--runs`` runs. Then the minute inside one file read in this process through
+of ``--runs`` runs. Then the minute inside one file (``--library-minutes`` from its
+start) read in this process through
 ``Recording`` (iterated), made a DataFrame (``to_pandas``, pandas imported before
 timing), if pandas is installed, and an Arrow table (``to_arrow``), if pyarrow is. The
 serial reads a gateway records too are left out: they would double the files' size,
@@ -124,8 +126,9 @@ def timed(gx2ctl: str, folder: Path, start: float, runs: int) -> list[float]:
     return walls
 
 
-def library(folder: Path, start: float, runs: int) -> dict[str, list[float]]:
-    """Seconds to iterate the minute through Recording, to make its DataFrame and its
+def library(folder: Path, start: float, seconds: float, runs: int
+            ) -> dict[str, list[float]]:
+    """Seconds to iterate the window through Recording, to make its DataFrame and its
     Arrow table (each made if its library is installed)."""
     from gateway.client import Recording
     made = {}
@@ -136,20 +139,20 @@ def library(folder: Path, start: float, runs: int) -> dict[str, list[float]]:
         except ImportError:
             pass
     timed: dict[str, list[float]] = {"iterated": [], **made}
-    minute = 60 * RATE * len(NODES)
+    wanted = round(seconds * RATE * len(NODES))
+    stop = iso(start + seconds)
     for _ in range(runs):
         began = time.perf_counter()
-        count = sum(1 for _ in Recording(folder, start=iso(start), stop=iso(start + 60)))
+        count = sum(1 for _ in Recording(folder, start=iso(start), stop=stop))
         timed["iterated"].append(time.perf_counter() - began)
-        if count != minute:
-            sys.exit(f"expected {minute} messages, Recording gave {count}")
+        if count != wanted:
+            sys.exit(f"expected {wanted} messages, Recording gave {count}")
         for method in made:
             began = time.perf_counter()
-            rows = len(getattr(Recording(folder, start=iso(start), stop=iso(start + 60)),
-                               method)())
+            rows = len(getattr(Recording(folder, start=iso(start), stop=stop), method)())
             timed[method].append(time.perf_counter() - began)
-            if rows != minute:
-                sys.exit(f"expected {minute} rows, {method} gave {rows}")
+            if rows != wanted:
+                sys.exit(f"expected {wanted} rows, {method} gave {rows}")
     return timed
 
 
@@ -159,6 +162,8 @@ def main() -> None:
                         help="where the recordings are made and kept")
     parser.add_argument("--hours", type=int, default=24)
     parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--library-minutes", type=float, default=1,
+                        help="the window read through the library (inside one file)")
     args = parser.parse_args()
     make(args.dir, args.hours)
     gx2ctl = str(Path(sys.executable).parent / "gx2ctl")
@@ -170,8 +175,11 @@ def main() -> None:
                         ("across two files", middle - 30)]:
         walls = timed(gx2ctl, args.dir, start, args.runs)
         print(f"export of one minute {what}: {summary(walls)}")
-    for how, walls in library(args.dir, middle + 1800, args.runs).items():
-        print(f"Recording of that minute inside one file, {how}: {summary(walls)}")
+    minutes = args.library_minutes
+    rows = round(60 * minutes * RATE) * len(NODES)
+    for how, walls in library(args.dir, middle + 1800, 60 * minutes, args.runs).items():
+        print(f"Recording of {minutes:g} min inside one file ({rows:,} rows), {how}: "
+              f"{summary(walls)}")
 
 
 def summary(walls: list[float]) -> str:
