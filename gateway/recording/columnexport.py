@@ -31,7 +31,7 @@ from .marks import Mark
 from .parquetfile import BATCH, parquet_modules
 from .reader import Entry, read_all
 from .reports import Reading
-from .tables import LEADING, MARKS, NoTables, Output, Table, mark_row, table_name
+from .tables import LEADING, MARKS, NoTables, Output, Table, kept, mark_row, table_name
 
 
 class ParquetTables:
@@ -93,7 +93,7 @@ def export_batches(paths: Iterable[Path], out: Path, reading: Reading, form: str
     done = [] if written is None else written
     places: dict[str, tuple[int, str] | None] = {}
     """Each topic's (node, record), parsed once."""
-    try:
+    with kept(outputs, done):  # (finished whole, or discarded)
         for entry in read_all(paths, reading) if entries is None else entries:
             if progress is not None:
                 progress(entry)
@@ -142,13 +142,6 @@ def export_batches(paths: Iterable[Path], out: Path, reading: Reading, form: str
             raise NoTables(out)
         if marks is None and tables:
             marks = Output(out, f"{MARKS}.{form}", form, mark_columns(), outputs)
-        for output in outputs:
-            output.finish()
-            done.append(output.path)
-    finally:
-        for output in outputs:
-            if output.path not in done:
-                output.discard()
     return [(t.output.path, t.table) for t in tables.values()], (
         marks.rows if marks is not None else 0)
 

@@ -51,7 +51,7 @@ from .reader import Entry, read_all
 from .refined import Refinement
 from .reports import Reading
 from .rosbag import Bag, export_bag, ros2_modules
-from .tables import MARKS, WRITERS, NoTables, Output, Table, mark_row, table_name
+from .tables import MARKS, WRITERS, NoTables, Output, Table, kept, mark_row, table_name
 
 FORMATS = ("csv", "parquet", "mat", "ros2")
 """Every format, each in a module of its own (:mod:`.parquetfile`, :mod:`.matfile`,
@@ -122,7 +122,7 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
     outputs: list[Output] = []
     marks: Output | None = None
     done = [] if written is None else written
-    try:
+    with kept(outputs, done):  # (finished whole, or discarded)
         for entry in read_all(paths, reading) if entries is None else entries:
             if progress is not None:
                 progress(entry)
@@ -158,13 +158,6 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
             raise NoTables(out)
         if marks is None and tables:  # (its header alone: the window holds no mark)
             marks = Output(out, f"{MARKS}.{form}", form, mark_columns(), outputs)
-        for output in outputs:
-            output.finish()
-            done.append(output.path)
-    finally:
-        for output in outputs:
-            if output.path not in done:
-                output.discard()
     return [(output.path, table) for table, output in tables.values()], (
         marks.rows if marks is not None else 0)
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
@@ -173,6 +173,22 @@ class Output:
                 self._writer.close()
         with contextlib.suppress(OSError):
             self.temporary.unlink()
+
+
+@contextlib.contextmanager
+def kept(outputs: list[Output], done: list[Path]) -> Iterator[None]:
+    """Every output finished (and listed in ``done``) when the block ends whole; on an
+    error, each not yet finished discarded: no table is left half written under its
+    name."""
+    try:
+        yield
+        for output in outputs:
+            output.finish()
+            done.append(output.path)
+    finally:
+        for output in outputs:
+            if output.path not in done:
+                output.discard()
 
 
 class NoTables(Exception):
