@@ -57,23 +57,18 @@ The exit status is 1 if an invariant fails.
 from __future__ import annotations
 
 import argparse
-import bisect
 import os
 import pickle
 import random
-import re
 import shutil
 import signal
-import statistics
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from array import array
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -89,6 +84,8 @@ from benchutil import (
     rss_kib,
     unix_minus_monotonic,
 )
+from soakrecords import ADDRESSES, NODES, RECOVERY_SLACK, Fault, NodePoll, Poll, Result, Samples
+from soakreport import analyse, print_report
 
 from aspp import Reply
 from aspp.frame import REPLY_OVERHEAD
@@ -97,36 +94,16 @@ from gateway.sim.base_station import RADIO_LATENCY, BaseStation
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
 
-NODES = (NodeSettings(76, divider=740, ppm=25.0), NodeSettings(77, divider=760, ppm=-30.0),
-         NodeSettings(78, divider=780, ppm=10.0))
-"""69.2, 67.4 and 65.6 Hz of 40-byte packets: 70% of the line, rates apart so that no
-node's packets wait behind another's for long."""
-ADDRESSES = tuple(n.address for n in NODES)
 STREAM, BIG_STREAM = "accel_angrate", "accel_angrate_orientation"
 LINE_BYTES = 11520.0
 """Bytes a second a 115200-baud line carries."""
 KINDS = ("stall", "cpu", "unplug", "power_one", "power_all", "radio", "load", "overload",
          "reload")
-RECOVERY_SLACK = 5.0
-"""Seconds past the health window a recovery may take: the health's 1 s sampling, the
-2 Hz poll, a clock locking after a second of packets, a stream re-armed."""
 POLL_PERIOD = 0.5
-P99_TARGET, APART_TARGET = 0.2e-3, 0.15e-3
-OFF, GOOD = 0.5e-3, 0.2e-3
-"""A sample more than OFF from its node's median is off; WARN time whose samples are
-all within GOOD was needless."""
-HONEST_SHARE, NEEDLESS_SHARE = 0.95, 0.05
-UNWARNED_LISTED = 10
-"""How many off samples with no WARN the report lists (--unwarned)."""
-WARN_NEAR = 1.0
-"""Seconds around a sample's arrival in which a poll's WARN covers it."""
-LATE_NEAR = 0.5
-LATE_TOLERANCE = 0.1e-3
-"""What a sample's error may exceed ``late_ms`` by: the estimate's noise on a free line."""
-RSS_FLAT_KIB = 4096
 UNMATCHED_S = 2.0
 """Seconds a record waits for the tap to decode its packet (the simulator's thread may
 be descheduled between writing a packet and decoding it; the gateway may not)."""
+
 
 
 def bytes_per_second(stream: str, hz: float) -> float:
@@ -140,97 +117,6 @@ def rate_hz(node: NodeSettings) -> float:
 def others_load() -> float:
     """Bytes a second nodes 77 and 78 send: what node 76's rate is set against."""
     return sum(bytes_per_second(STREAM, rate_hz(n)) for n in NODES[1:])
-
-
-# -- the run's records ---------------------------------------------------------------
-
-
-@dataclass
-class Fault:
-    """One fault as it ran; times are ``time.monotonic()``."""
-
-    kind: str
-    detail: str
-    start: float
-    due: float
-    end: float | None = None
-    undo: Callable[[], None] | None = None
-    recovered: float | None = None
-    """Seconds from its end to the first healthy status asked after it."""
-
-
-@dataclass
-class NodePoll:
-    health: str
-    reasons: tuple[str, ...]
-    locked: bool
-    floor_age_s: float | None
-    floor_seen: bool | None
-    late_ms: float | None
-
-    @property
-    def clock_warn(self) -> bool:
-        """A WARN that names the clock or the line: what tells a user ``time`` is off."""
-        return self.health == "WARN" and any("clock" in r or "line" in r
-                                             for r in self.reasons)
-
-    @property
-    def clock_trouble(self) -> bool:
-        """Status says the estimate is held, unlocked or its floor unseen."""
-        return not self.locked or self.clock_warn
-
-
-@dataclass
-class Poll:
-    asked: float
-    at: float
-    healthy: bool
-    nodes: dict[int, NodePoll]
-    gateway_reasons: tuple[str, ...]
-
-
-@dataclass
-class Samples:
-    """Every timed record with its truth, per node, as columns (an hour is a million)."""
-
-    truth: dict[int, array] = field(default_factory=lambda: {a: array("d") for a in ADDRESSES})
-    arrival: dict[int, array] = field(default_factory=lambda: {a: array("d")
-                                                                for a in ADDRESSES})
-    error: dict[int, array] = field(default_factory=lambda: {a: array("d") for a in ADDRESSES})
-    untrue: int = 0
-    """Records for which the tap saw no true instant."""
-
-    def add(self, node: int, truth: float, arrival: float, error: float) -> None:
-        self.truth[node].append(truth)
-        self.arrival[node].append(arrival)
-        self.error[node].append(error)
-
-    def sort(self) -> None:
-        """In order of arrival (records matched late were added late), for bisect."""
-        for node, arrival in self.arrival.items():
-            order = sorted(range(len(arrival)), key=arrival.__getitem__)
-            for column in (self.truth, self.arrival, self.error):
-                column[node] = array("d", (column[node][i] for i in order))
-
-
-@dataclass
-class Result:
-    seconds: float
-    window_s: float
-    started: float
-    warmed: float
-    faults: list[Fault]
-    polls: list[Poll]
-    samples: Samples
-    losses: dict[str, int]
-    resources: list[tuple[int, int]]
-    """(RSS KiB, open fds) after the warm-up and at the end."""
-    ops_failed: list[str]
-    work: Path
-
-    @property
-    def bound(self) -> float:
-        return self.window_s + RECOVERY_SLACK
 
 
 # -- the rig: simulator, gateway, subscriber ----------------------------------------
@@ -622,309 +508,6 @@ def run(seconds: float, seed: int, *, kinds: tuple[str, ...] = KINDS, window_s: 
                   rig.samples, losses, resources, poller.ops_failed, rig.work)
 
 
-# -- the analysis ---------------------------------------------------------------------
-
-Interval = tuple[float, float]
-
-
-def merged(intervals: Iterable[Interval]) -> list[Interval]:
-    out: list[Interval] = []
-    for start, end in sorted(intervals):
-        if out and start <= out[-1][1]:
-            out[-1] = (out[-1][0], max(out[-1][1], end))
-        else:
-            out.append((start, end))
-    return out
-
-
-def covers(intervals: list[Interval], starts: list[float], first: float, last: float) -> bool:
-    """Whether [first, last] meets one of the (merged, sorted) intervals."""
-    i = bisect.bisect_right(starts, last) - 1
-    return i >= 0 and intervals[i][1] >= first
-
-
-def fault_span(fault: Fault, bound: float) -> Interval:
-    end = fault.end if fault.end is not None else fault.due
-    return fault.start, end + (fault.recovered if fault.recovered is not None else bound)
-
-
-def trouble_spans(polls: list[Poll], node: int) -> list[Interval]:
-    """The polls around each that says the node's clock is held, unlocked or unseen."""
-    spans = []
-    for i, poll in enumerate(polls):
-        state = poll.nodes.get(node)
-        if state is not None and state.clock_trouble:
-            spans.append((polls[max(i - 1, 0)].asked, polls[min(i + 1, len(polls) - 1)].at))
-    return spans
-
-
-def windows(result: Result, node: int) -> list[Interval]:
-    spans = [(result.started, result.warmed)]
-    spans += [fault_span(f, result.bound) for f in result.faults]
-    return merged(spans + trouble_spans(result.polls, node))
-
-
-def p99(values: list[float]) -> float:
-    if not values:
-        return float("nan")
-    d = sorted(abs(v) for v in values)
-    return d[int(0.99 * (len(d) - 1))]
-
-
-def split(result: Result, spans: dict[int, list[Interval]]) -> tuple[dict[int, list[int]],
-                                                                      dict[int, list[int]]]:
-    """Each node's sample indexes inside and outside its windows."""
-    inside: dict[int, list[int]] = {}
-    outside: dict[int, list[int]] = {}
-    for node in ADDRESSES:
-        starts = [s for s, _ in spans[node]]
-        truth, arrival = result.samples.truth[node], result.samples.arrival[node]
-        inside[node], outside[node] = [], []
-        for i in range(len(truth)):
-            target = inside if covers(spans[node], starts, truth[i], arrival[i]) else outside
-            target[node].append(i)
-    return inside, outside
-
-
-@dataclass
-class Figures:
-    """p99 of |error - the node's median outside| (s), the nodes' medians' spread (s),
-    and how many samples."""
-
-    p99: float
-    apart: float
-    count: int
-    worst: float
-
-
-def figures(result: Result, medians: dict[int, float],
-            chosen: dict[int, list[int]]) -> Figures:
-    deviations: list[float] = []
-    own: list[float] = []
-    for node, indexes in chosen.items():
-        errors = result.samples.error[node]
-        values = [errors[i] for i in indexes]
-        deviations += [v - medians[node] for v in values]
-        if values:
-            own.append(statistics.median(values))
-    apart = max(own) - min(own) if len(own) > 1 else 0.0
-    return Figures(p99(deviations), apart, len(deviations),
-                   max(map(abs, deviations), default=float("nan")))
-
-
-def polls_near(polls: list[Poll], at: list[float], t: float, near: float) -> list[Poll]:
-    lo, hi = bisect.bisect_left(at, t - near), bisect.bisect_right(at, t + near)
-    return polls[lo:hi]
-
-
-@dataclass
-class Honesty:
-    off: int
-    off_warned: int
-    warn_seconds: float
-    warn_good_seconds: float
-    late_given: int
-    late_violations: list[str]
-    by_reason: dict[str, list[float]] = field(default_factory=dict)
-    """WARN seconds and those on good samples, by the clock or line reason said."""
-
-
-def warned_off(result: Result, medians: dict[int, float],
-               chosen: dict[int, list[int]]) -> tuple[int, int]:
-    """How many of the chosen samples were off, and how many of those arrived within
-    WARN_NEAR of a status naming their node's clock or line in a WARN."""
-    polls = result.polls
-    at = [p.at for p in polls]
-    off = warned = 0
-    for node, indexes in chosen.items():
-        errors, arrival = result.samples.error[node], result.samples.arrival[node]
-        for i in indexes:
-            if abs(errors[i] - medians[node]) > OFF:
-                off += 1
-                warned += any(p.nodes[node].clock_warn for p in
-                              polls_near(polls, at, arrival[i], WARN_NEAR) if node in p.nodes)
-    return off, warned
-
-
-def unwarned(result: Result, medians: dict[int, float]) -> list[str]:
-    """The off samples no WARN named the clock or line for, each with the fault
-    nearest before it: where to look."""
-    polls, at = result.polls, [p.at for p in result.polls]
-    said = []
-    for node in ADDRESSES:
-        errors, arrival = result.samples.error[node], result.samples.arrival[node]
-        for i in range(len(errors)):
-            if abs(errors[i] - medians[node]) <= OFF or any(
-                    p.nodes[node].clock_warn for p in
-                    polls_near(polls, at, arrival[i], WARN_NEAR) if node in p.nodes):
-                continue
-            before = [f for f in result.faults if f.start <= arrival[i]]
-            near = (f"{before[-1].kind} {arrival[i] - before[-1].start:.1f} s after its "
-                    "start" if before else "before any fault")
-            said.append(f"node {node} at {arrival[i] - result.started:.1f} s "
-                        f"{(errors[i] - medians[node]) * 1e3:+.2f} ms, {near}")
-    return sorted(said, key=lambda line: float(line.split(" at ")[1].split(" s ")[0]))
-
-
-def honesty(result: Result, medians: dict[int, float]) -> Honesty:
-    polls = result.polls
-    every = {n: list(range(len(result.samples.error[n]))) for n in ADDRESSES}
-    off, off_warned = warned_off(result, medians, every)
-    warn_s = good_s = 0.0
-    late_given, violations = 0, []
-    by_reason: dict[str, list[float]] = {}
-    for node in ADDRESSES:
-        errors, arrival = result.samples.error[node], result.samples.arrival[node]
-        for a, b in pairwise(polls):
-            state = a.nodes.get(node)
-            if state is None or not state.clock_warn:
-                continue
-            lo, hi = bisect.bisect_left(arrival, a.at), bisect.bisect_right(arrival, b.at)
-            warn_s += b.at - a.at
-            good = all(abs(errors[i] - medians[node]) <= GOOD for i in range(lo, hi))
-            if good:
-                good_s += b.at - a.at
-            for reason in {reason_kind(r) for r in state.reasons
-                           if "clock" in r or "line" in r}:
-                seconds = by_reason.setdefault(reason, [0.0, 0.0])
-                seconds[0] += b.at - a.at
-                seconds[1] += (b.at - a.at) * good
-        for poll in polls:
-            state = poll.nodes.get(node)
-            if state is None or state.late_ms is None:
-                continue
-            late_given += 1
-            lo = bisect.bisect_left(arrival, poll.asked - LATE_NEAR)
-            hi = bisect.bisect_right(arrival, poll.at + LATE_NEAR)
-            worst = max((errors[i] - medians[node] for i in range(lo, hi)), default=0.0)
-            if worst > state.late_ms * 1e-3 + LATE_TOLERANCE:
-                violations.append(f"node {node} at {poll.at - result.started:.1f} s: late_ms "
-                                  f"{state.late_ms:.2f}, truly {worst * 1e3:.2f}")
-    return Honesty(off, off_warned, warn_s, good_s, late_given, violations, by_reason)
-
-
-def reason_kind(reason: str) -> str:
-    """A reason without its figures: what the WARN time is counted by."""
-    return re.sub(r"[-+]?\d[\d.,]*", "N", reason.split(":")[0])
-
-
-@dataclass
-class Report:
-    lines: list[str]
-    invariants: dict[str, tuple[bool, str]]
-
-    @property
-    def passed(self) -> bool:
-        return all(ok for ok, _ in self.invariants.values())
-
-
-def pct(values: list[float], q: float) -> float:
-    d = sorted(values)
-    return d[int(q * (len(d) - 1))] if d else float("nan")
-
-
-def kind_rows(result: Result, medians: dict[int, float]) -> list[str]:
-    rows = ["| fault | count | recovery p50 / max (s) | never | time in its windows: "
-            "p99 / max / medians apart (ms) | samples | off / under a WARN |",
-            "|---|---|---|---|---|---|---|"]
-    for kind in dict.fromkeys(f.kind for f in result.faults):
-        faults = [f for f in result.faults if f.kind == kind]
-        times = [f.recovered for f in faults if f.recovered is not None]
-        spans = merged(fault_span(f, result.bound) for f in faults)
-        inside, _ = split(result, dict.fromkeys(ADDRESSES, spans))
-        fig = figures(result, medians, inside)
-        off, warned = warned_off(result, medians, inside)
-        rows.append(f"| {kind} | {len(faults)} | {pct(times, 0.5):.1f} / "
-                    f"{max(times, default=float('nan')):.1f} | {len(faults) - len(times)} | "
-                    f"{fig.p99 * 1e3:.3f} / {fig.worst * 1e3:.1f} / {fig.apart * 1e3:.3f} | "
-                    f"{fig.count:,} | {off:,} / {warned / off if off else 1:.0%} |")
-    return rows
-
-
-def analyse(result: Result) -> Report:
-    spans = {node: windows(result, node) for node in ADDRESSES}
-    inside, outside = split(result, spans)
-    medians = {node: statistics.median([result.samples.error[node][i] for i in outside[node]])
-               if outside[node] else 0.0 for node in ADDRESSES}
-    out, within = figures(result, medians, outside), figures(result, medians, inside)
-    honest = honesty(result, medians)
-    lines = kind_rows(result, medians)
-    for name, fig, chosen in (("all windows", within, inside), ("outside windows", out, outside)):
-        off, warned = warned_off(result, medians, chosen)
-        lines.append(f"| {name} | | | | {fig.p99 * 1e3:.3f} / {fig.worst * 1e3:.1f} / "
-                     f"{fig.apart * 1e3:.3f} | {fig.count:,} | {off:,} / "
-                     f"{warned / off if off else 1:.0%} |")
-    warned = honest.off_warned / honest.off if honest.off else 1.0
-    needless = honest.warn_good_seconds / honest.warn_seconds if honest.warn_seconds else 0.0
-    losses = result.losses
-    (rss0, fds0), (rss1, fds1) = result.resources
-    lines += [
-        "",
-        "nodes' median errors (ms): " + ", ".join(f"{a} {m * 1e3:+.3f}"
-                                                  for a, m in medians.items()),
-        f"off samples (> {OFF * 1e3:.1f} ms): {honest.off:,}, under a clock/line WARN "
-        f"{warned:.1%}; WARN time {honest.warn_seconds:.0f} s, on good samples "
-        f"{needless:.1%}; late_ms given {honest.late_given}, not a bound "
-        f"{len(honest.late_violations)}",
-        f"replies delivered {losses['delivered']:,}, received {losses['received']:,}, "
-        f"published {losses['published']:,}, got {losses['got']:,} (seq gaps "
-        f"{losses['seq_gaps']}); lost in the gateway {losses['in_gateway']}; "
-        f"records without truth {result.samples.untrue}",
-        f"RSS {rss0 / 1024:.1f} -> {rss1 / 1024:.1f} MiB, open fds {fds0} -> {fds1}",
-    ]
-    lines += [f"  WARN {warn:.0f} s, {good / warn if warn else 0:.0%} on good samples: {kind}"
-              for kind, (warn, good) in sorted(honest.by_reason.items(),
-                                                key=lambda item: -item[1][0])]
-    lines += [f"  late_ms not a bound: {v}" for v in honest.late_violations[:10]]
-    lines += [f"  off, no clock/line WARN: {v}"
-              for v in unwarned(result, medians)[:UNWARNED_LISTED]]
-    lines += [f"  an operator's op failed: {op}" for op in result.ops_failed[:10]]
-    slow = [f for f in result.faults if f.recovered is None or f.recovered > result.bound]
-    lines += [f"  not recovered within {result.bound:.0f} s: {f.kind} {f.detail} at "
-              f"{f.start - result.started:.0f} s; last reasons: {last_reasons(result, f)}"
-              for f in slow[:10]]
-    invariants = {
-        "recovery": (not slow, f"{len(result.faults) - len(slow)} of {len(result.faults)} "
-                               f"within {result.bound:.0f} s"),
-        "time outside windows": (out.p99 <= P99_TARGET and out.apart <= APART_TARGET,
-                                 f"p99 {out.p99 * 1e3:.3f} ms, apart {out.apart * 1e3:.3f} ms"),
-        "off samples warned": (warned >= HONEST_SHARE, f"{warned:.1%}"),
-        "needless WARN": (needless <= NEEDLESS_SHARE, f"{needless:.1%}"),
-        "late_ms a bound": (not honest.late_violations,
-                            f"{len(honest.late_violations)} of {honest.late_given}"),
-        "nothing lost in the gateway": (losses["in_gateway"] == 0 and not losses["seq_gaps"],
-                                        f"{losses['in_gateway']}"),
-        "RSS and fds flat": (rss1 - rss0 <= RSS_FLAT_KIB and fds1 <= fds0,
-                             f"RSS {(rss1 - rss0) / 1024:+.1f} MiB, fds {fds1 - fds0:+d}"),
-    }
-    return Report(lines, invariants)
-
-
-def last_reasons(result: Result, fault: Fault) -> str:
-    """What the last poll within the bound after the fault said, for the reader."""
-    end = (fault.end or fault.due) + result.bound
-    polls = [p for p in result.polls if p.at <= end]
-    if not polls:
-        return "no status"
-    poll = polls[-1]
-    said = [f"gateway: {'; '.join(poll.gateway_reasons)}"] if poll.gateway_reasons else []
-    said += [f"{a} {s.health} {'; '.join(s.reasons)}{'' if s.locked else ' (unlocked)'}"
-             for a, s in poll.nodes.items() if s.health != "OK" or not s.locked]
-    return " | ".join(said) or "OK"
-
-
-def print_report(result: Result, report: Report) -> None:
-    print(f"\nfault soak: {result.seconds / 60:.1f} min of faults after "
-          f"{result.warmed - result.started:.0f} s of warm-up, {len(result.faults)} faults, "
-          f"{len(result.polls):,} polls; health window {result.window_s:.0f} s, recovery "
-          f"bound {result.bound:.0f} s")
-    for line in report.lines:
-        print(line)
-    print()
-    for name, (ok, text) in report.invariants.items():
-        print(f"{'PASS' if ok else 'FAIL'}  {name}: {text}")
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, default=60.0)
@@ -949,9 +532,7 @@ def main() -> int:
             for fault in result.faults:
                 fault.undo = None  # (a closure over the run's processes)
             args.save.write_bytes(pickle.dumps(result))
-    global UNWARNED_LISTED
-    UNWARNED_LISTED = args.unwarned
-    report = analyse(result)
+    report = analyse(result, listed=args.unwarned)
     print_report(result, report)
     if args.keep:
         print(f"work directory (gateway.log): {result.work}")

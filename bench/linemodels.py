@@ -39,6 +39,10 @@ try:
     from aspp.clock import waited
 except ImportError:  # (a tree from before the floor's sighting took the line's waits)
     waited = None  # type: ignore[assignment]
+try:
+    from aspp.refine import refine
+except ImportError:  # (a tree from before the time placed after the fact)
+    refine = None  # type: ignore[assignment]
 from aspp.frame import HEADER_SIZE, REPLY_OVERHEAD
 from aspp.records import BY_NAME
 from aspp.timing import (
@@ -125,6 +129,10 @@ class Streams:
     bounds: dict[tuple[int, int], list[float | None]] = field(default_factory=dict)
     """The bound status gives at each packet after WARM_UP (``late_ms``, seconds): None
     unless the floor went FLOOR_UNSEEN_S unseen after it was seen."""
+    refined: dict[tuple[int, int], list[tuple[float, float, float | None]]] = field(
+        default_factory=dict)
+    """Per stream, after WARM_UP: (true instant, error of the time placed after the fact
+    from the whole run, aspp.refine, and its bound; None: unplaceable or live)."""
 
 
 def feed(model: Model, clock: type[NodeClock] = NodeClock) -> Streams:
@@ -140,6 +148,7 @@ def feed(model: Model, clock: type[NodeClock] = NodeClock) -> Streams:
     counts: dict[tuple[int, int], list[int]] = {}
     shown: dict[tuple[int, int], dict[int, bool]] = {}
     line_free = -math.inf
+    series: dict[tuple[int, int], list[tuple[float, float, bool, float, float]]] = {}
     for packet in model.packets:
         node = packet.node
         arrival = packet.read - packet.size * BYTE_TIME
@@ -157,6 +166,7 @@ def feed(model: Model, clock: type[NodeClock] = NodeClock) -> Streams:
         time = clocks[node].update(device, arrival, behind) if behind \
             else clocks[node].update(device, arrival)
         key = (node, packet.segment)
+        series.setdefault(key, []).append((device, arrival, behind, packet.truth, time))
         start = starts.setdefault(key, packet.truth)
         tally = counts.setdefault(key, [0, 0])
         tally[0] += 1
@@ -172,6 +182,15 @@ def feed(model: Model, clock: type[NodeClock] = NodeClock) -> Streams:
             given = age is not None and age >= FLOOR_UNSEEN_S and clocks[node].floor_seen
             out.bounds.setdefault(key, []).append(clocks[node].late_bound() if given else None)
     out.queued = {key: q / n for key, (n, q) in counts.items()}
+    if refine is not None:
+        for key, points in series.items():
+            placed = refine([(d, a, w) for d, a, w, _, _ in points],
+                            [t for *_, t in points])
+            start = starts[key]
+            out.refined[key] = [(truth, at - truth, bound)
+                                for (_, _, _, truth, _), at, bound
+                                in zip(points, placed.line, placed.bound, strict=True)
+                                if truth - start >= WARM_UP]
     out.visible = {key: sum(bins.values()) / len(bins) for key, bins in shown.items()}
     return out
 
@@ -220,6 +239,14 @@ def _moved(errors: list[tuple[float, float]]) -> float:
         return 0.0
     reach = min(round(MINUTE / DRIFT_BIN), max(level) - min(level))
     return max(abs(level[b + reach] - level[b]) for b in level if b + reach in level)
+
+
+def refined_streams(streams: Streams) -> Streams:
+    """The same streams with the time placed after the fact in place of the live one
+    (``bounds`` the refined bounds), for :func:`measure`."""
+    return Streams({k: [(t, e) for t, e, _ in v] for k, v in streams.refined.items()},
+                   streams.queued, streams.visible, streams.ages,
+                   {k: [b for _, _, b in v] for k, v in streams.refined.items()})
 
 
 def measure(streams: Streams) -> Figures:

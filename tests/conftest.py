@@ -33,6 +33,7 @@ SHARED_FIXTURE = re.compile(r"scope=[\"'](?:class|module|package|session)[\"']")
 """A fixture made once for several tests of its module."""
 
 
+@pytest.hookimpl(optionalhook=True)  # (the suite runs without xdist too: -p no:xdist)
 def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
     """The suite runs in several processes (pyproject.toml's addopts, pytest-xdist), each
     test handed to whichever process is free. A module whose tests share a fixture of

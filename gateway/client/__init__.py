@@ -28,18 +28,21 @@ from .subscriber import GatewayError, Subscriber
 if TYPE_CHECKING:
     from gateway.recording.files import RecordingError
     from gateway.recording.parquetfile import MissingExtra
+    from gateway.recording.refined import Unrefinable
     from gateway.recording.window import WindowError
 
     from .frames import to_pandas
     from .recorded import Recording
 
 __all__ = ["BOOKKEEPING", "Event", "GatewayError", "Malformed", "Message", "MissingExtra",
-           "Recording", "RecordingError", "Status", "Subscriber", "WindowError", "to_pandas"]
+           "Recording", "RecordingError", "Status", "Subscriber", "Unrefinable", "WindowError",
+           "to_pandas"]
 
 _LATER = {"Recording": ("gateway.client.recorded", "Recording"),
           "to_pandas": ("gateway.client.frames", "to_pandas"),
           "RecordingError": ("gateway.recording.files", "RecordingError"),
           "WindowError": ("gateway.recording.window", "WindowError"),
+          "Unrefinable": ("gateway.recording.refined", "Unrefinable"),
           "MissingExtra": ("gateway.recording.parquetfile", "MissingExtra")}
 """Names imported when first used (the recordings' reader costs some 100 ms to load)."""
 

@@ -2,7 +2,8 @@
 columns ``gx2ctl export`` gives (vectors as ``accel_x``.., matrices as
 ``orientation_11``..), ``time`` and ``host_time`` as UTC timestamps (to the
 nanosecond the message wrote; NaT where a record has none, as an untimed reply),
-``device_time`` a duration. pandas is optional.
+``device_time`` a duration; a Recording's with its time refined, ``time_placed`` and
+``time_bound_ms`` after ``time``, as export's. pandas is optional.
 
 The instants are whole nanoseconds from start to end, never a float: a column of
 nanoseconds holding one None (an untimed record's ``time``) would be made float64 by
@@ -16,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from gateway.recording.columns import nanoseconds
 from gateway.recording.parquetfile import MissingExtra
-from gateway.recording.tables import element, field_columns
+from gateway.recording.tables import BOUND, PLACED, element, field_columns
 
 from .messages import Event, Message
 
@@ -65,8 +66,10 @@ def to_pandas(events: Iterable[Event]) -> pandas.DataFrame:
             instants[name].append(NOT_A_TIME if found is None else found)
         row = {"gateway": event.gateway, "node": event.node, "record": event.record,
                "seq": event.seq, "gap": event.gap, "restarted": event.restarted,
-               "time": None, "host_time": None, "device_time": None, "lqi": event.lqi,
-               "rssi": event.rssi}  # (the instants in their places, set below)
+               "time": None}  # (the instants in their places, set below)
+        if PLACED in event.payload:  # (a Recording's, its time refined: export's columns)
+            row[PLACED], row[BOUND] = event.payload[PLACED], event.payload[BOUND]
+        row.update(host_time=None, device_time=None, lqi=event.lqi, rssi=event.rssi)
         for column, name, index in layout:
             row[column] = element(event.payload.get(name), index)
         rows.append(row)

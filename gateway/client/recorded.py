@@ -33,6 +33,7 @@ from gateway.recording.catalogue import catalogue
 from gateway.recording.files import MARK, STATUS, RecordingError, usable_files
 from gateway.recording.marks import Mark
 from gateway.recording.reader import Entry, read_all
+from gateway.recording.refined import Refinement, check_refinable, check_time, for_window
 from gateway.recording.reports import Reading
 from gateway.recording.window import Asked, Reader, Window, check_held, touched, windows
 
@@ -51,17 +52,23 @@ class Recording:
     recorded heartbeats. A window as gx2ctl takes one: ``start`` and ``stop`` (ISO 8601
     with a zone, seconds from the recordings' start, or a mark's text), or
     ``between_marks=(START, STOP)`` (every trial; ``trial=N`` the Nth, 1 the first).
+    ``time="refined"``: each record's ``time`` placed after the fact, as ``gx2ctl export
+    --time refined`` places it (the recordings are read once more for it, a window at
+    a time, when iterated); ``"live"`` (the default), as recorded.
 
     RecordingError if no path is a recording; WindowError (a ValueError) for a window
     that cannot be taken, or nodes or records the recordings do not hold (a typo:
-    ``records=["eulr"]``); both say why in one line, as gx2ctl does. The files are those
-    found when it is made; iterating reads them again each time.
+    ``records=["eulr"]``); ValueError for a ``time`` that is neither; Unrefinable (a
+    RecordingError) for ``time="refined"`` of recordings without serial reads; each
+    says why in one line, as gx2ctl does. The files are those found when it is made;
+    iterating reads them again each time.
     """
 
     def __init__(self, paths: str | Path | Iterable[str | Path], nodes: Iterable[int] = (),
                  records: Iterable[str] = (), *, start: str | None = None,
                  stop: str | None = None, between_marks: tuple[str, str] | None = None,
-                 trial: int | None = None, status: bool = False) -> None:
+                 trial: int | None = None, status: bool = False, time: str = "live") -> None:
+        check_time(time)
         given = [paths] if isinstance(paths, (str, Path)) else list(paths)
         self.source = ", ".join(map(str, given))
         """What each message's ``gateway`` says: the paths as given."""
@@ -76,6 +83,13 @@ class Recording:
         # refuses both); the windows keep every record of the nodes asked, so a node's
         # seq is followed across the records left out, never taken for a gap
         check_held(replace(asked, records=tuple(sorted(self.records))), self.files)
+        self.time = time
+        """``live``: each record's ``time`` as recorded; ``refined``: placed after the
+        fact from the recordings around it (:mod:`gateway.recording.refined`), each
+        payload with ``time_placed`` and ``time_bound_ms``, as ``gx2ctl export --time
+        refined`` writes them."""
+        if time == "refined":
+            check_refinable(self.files)
         self.windows: list[Window] = windows(asked, self.files)
         """One window, or one per trial (its ``label`` names it as export's folder)."""
         self.reading = Reading()
@@ -95,14 +109,15 @@ class Recording:
         try:
             for window in self.windows:
                 self._numbering.forget()  # (what lies between windows is not lost)
+                refined = for_window(self.files, window) if self.time == "refined" else None
                 for entry in reader.entries(window):
-                    event = self._event(entry)
+                    event = self._event(entry, refined)
                     if event is not None:
                         yield event
         finally:
             self.duplicates += reader.duplicates
 
-    def _event(self, entry: Entry) -> Event | None:
+    def _event(self, entry: Entry, refined: Refinement | None = None) -> Event | None:
         topic = entry.topic
         if topic == STATUS:
             return self.numbered_status(entry) if self.yield_status else None
@@ -112,6 +127,8 @@ class Recording:
         node, record = where
         try:
             payload = as_published(entry.payload())
+            if refined is not None:
+                payload = refined.apply(entry, payload)
             return self._numbering.message(self.source, node, record, payload, topic,
                                            not self.records or record in self.records)
         except (RecordingError, Malformed) as problem:

@@ -20,8 +20,9 @@ import math
 from typing import Any
 
 BOOKKEEPING = frozenset(("node", "record", "command", "seq", "host_time", "time",
-                         "device_time", "lqi", "rssi"))
-"""Keys every record carries besides its own fields."""
+                         "device_time", "lqi", "rssi", "time_placed", "time_bound_ms"))
+"""Keys every record carries besides its own fields (and the two a recording's record
+read with its time refined after the fact gains: gateway.recording.refined)."""
 MATRIX = "orientation"
 """The field of the records with an orientation matrix (:data:`aspp.records.ORIENTED`),
 the one the derived fields are computed from."""

@@ -24,6 +24,7 @@ from . import PROG
 from .client import Client, CtlError
 from .offline import add_commands as add_offline_commands
 from .output import json_line, show
+from .recordings import add_commands as add_recording_commands
 from .site import CLIENT_KEY_ENV, SERVER_KEY_ENV, gateways
 from .where import Endpoints, Gateway
 
@@ -109,6 +110,7 @@ def build_parser() -> ArgumentParser:
     recorder.add_argument("--seconds", type=bounded(float, 0.1, 1e7), metavar="S",
                           help="stop after S seconds (default: until interrupted)")
     add_offline_commands(commands)
+    add_recording_commands(commands)
     commands.add_parser(
         "keygen", help="write a new CURVE key pair: PREFIX.key (public, 0644) and "
         "PREFIX.key_secret (0600); never overwrites").add_argument("prefix", metavar="PREFIX")

@@ -1,5 +1,6 @@
-"""gx2ctl's commands that read recordings and need no gateway: ``recordings``,
-``export`` and ``plot``; export and plot read a window of them (:mod:`gateway.recording.window`).
+"""gx2ctl's commands that read a window of recordings and need no gateway: ``export``
+and ``plot`` (:mod:`gateway.recording.window`); ``recordings``, ``trials`` and
+``dataset`` are :mod:`.recordings`'.
 
 Exit status: 0 written; 1 ("partial") written, but something unreadable was skipped
 (a file among others that is empty or not MCAP, a damaged chunk: one line each on
@@ -24,10 +25,13 @@ from gateway.common.protocol import Exit
 
 from . import PROG
 from .client import CtlError
+from .progress import ProgressBar
 
 FORMATS = ("csv", "parquet", "mat", "ros2")
 """export's formats (gateway.recording.export.FORMATS, which this module does not import
 before a command runs: gx2ctl's start stays light)."""
+TIMES = ("live", "refined")
+"""--time's choices (gateway.recording.refined.TIMES)."""
 FRAMES = ("enu", "ned")
 """--frame's choices (gateway.recording.rep103.FRAMES)."""
 
@@ -64,7 +68,8 @@ def add_commands(commands: Any) -> None:
         "ROS 2 bag",
         description="Write DIR/<address>_<record>.csv (or .parquet, .mat): a row per record, "
         "columns time, host_time, device_time, seq, lqi, rssi, then the record's fields "
-        "(vectors as _x/_y/_z, matrices as _11.._33), and DIR/marks.csv (its header "
+        "(vectors as _x/_y/_z, matrices as _11.._33; with --time refined, time_placed "
+        "and time_bound_ms after time), and DIR/marks.csv (its header "
         "alone if there are no marks). With --format ros2, DIR is a rosbag2 (metadata.yaml "
         "and one .mcap): sensor_msgs/msg/Imu on /gx2/<node name>/imu, "
         "sensor_msgs/msg/MagneticField on /gx2/<node name>/mag, tf2_msgs/msg/TFMessage "
@@ -82,6 +87,13 @@ def add_commands(commands: Any) -> None:
                           help="ros2: enu (default): REP-103's ENU world and FLU body, "
                           "converted from the device's; ned: the device's own NED world "
                           "and sensor frame")
+    exporter.add_argument("--time", choices=TIMES, default="live",
+                          help="live (default): time as the gateway gave it while "
+                          "recording; refined: placed after the fact from the whole "
+                          "recording (the node's floor seen on both sides of a stretch "
+                          "whose packets all waited on the line), with columns time_placed "
+                          "and time_bound_ms; needs the gateway's own recording (its serial "
+                          "reads)")
     exporter.add_argument("--force", action="store_true",
                           help="remove the tables of an earlier export in DIR first, "
                           "every one (without it, export refuses to write over them, as "
@@ -105,46 +117,6 @@ def add_commands(commands: Any) -> None:
                          help="a PNG or a PDF, by its ending (default: "
                          "<address>_<record>.png here)")
     add_window_options(plotter, nodes=False)
-    catalogue = commands.add_parser(
-        "recordings", help="list what recordings hold, from their summaries",
-        description="Per file, sorted by time: its span, size, stations, nodes and records "
-        "with message counts, and marks; overlapping and repeated files said. A finished "
-        "file is described from its summary (its messages unread); one without (its "
-        "writer killed, cut short, damaged) is read through and says so. Default: the "
-        "record directory of the gateway's --config, else the gateway's default record "
-        "directory. Exit 1 if a file is damaged, 2 if none is a recording.")
-    catalogue.add_argument("paths", nargs="*", metavar="DIR | FILE.mcap")
-    # (SUPPRESS: given before the command, as in ``gx2ctl --json status``, it holds too)
-    catalogue.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
-                           help='one line: {"files": [{"path", "start", "end", ...}]}')
-    lister = commands.add_parser(
-        "trials", help="list the trials the marks define, with their fields and rows",
-        description="Each trial from a mark START to the next mark STOP (--between-marks, "
-        "default start stop), numbered as export's --trial numbers them, the one not yet "
-        "stopped last (its stop null): its start and stop, duration, its start mark's "
-        "fields (gx2ctl mark --field), the rows of each node and record in it, and the "
-        "files it spans. Default: as recordings. Exit 1 if something unreadable was "
-        "skipped, 2 if no file is a recording.")
-    lister.add_argument("paths", nargs="*", metavar="DIR | FILE.mcap")
-    lister.add_argument("--between-marks", dest="between", nargs=2, default=["start", "stop"],
-                        metavar=("START", "STOP"), help="the marks that start and stop a "
-                        "trial (default: start stop)")
-    lister.add_argument("--from", dest="start", metavar="WHEN",
-                        help="only the trials that start at or after this time (as --from)")
-    lister.add_argument("--to", dest="stop", metavar="WHEN",
-                        help="only the trials that start before this time (as export's --to)")
-    lister.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
-                        help='one line: {"trials": [{"trial", "start", "stop", ...}]}')
-    converter = commands.add_parser(
-        "dataset", help="convert finished recordings into a Parquet dataset (incremental)",
-        description="Convert the finished recordings of RECORDINGS (a directory, or a "
-        "file) not yet converted, or changed since, into OUT, partitioned Hive-style by "
-        "record, node and day (OUT/record=R/node=N/date=D/ a part per recording), the "
-        "columns and types of export --format parquet; and OUT/trials.parquet. A file "
-        "being written is left for a later run. Needs gx2-gateway[parquet]. Exit 1 if "
-        "something unreadable was skipped, 2 if no file is a recording.")
-    converter.add_argument("recordings", metavar="RECORDINGS")
-    converter.add_argument("out", metavar="OUT")
 
 
 def _files(given: list[str]) -> list[Path]:
@@ -222,10 +194,14 @@ def run_export(args: argparse.Namespace) -> int:
     if args.frame is not None and args.form != "ros2":
         raise CtlError(f"--frame is for --format ros2 (--format {args.form} keeps the "
                        "device's frames, as recorded)", Exit.USAGE)
+    if args.time != "live" and args.form == "ros2":
+        raise CtlError("--time refined is for the tables (csv, parquet, mat); a ROS 2 bag "
+                       "keeps the time as recorded", Exit.USAGE)
     paths = _files(args.files)
     files, chosen = _windows(args, paths)
     if args.form == "ros2":
         return _export_bags(args, paths, files, chosen)
+    _refined(args, files)  # (refused before --force removes an earlier export's tables)
     _replace_earlier([Path(args.out) / window.label for window in chosen], args.form,
                      args.force)
     reading = Reading()
@@ -237,7 +213,7 @@ def run_export(args: argparse.Namespace) -> int:
         # (one window of nodes asked that holds none of them: no marks.csv alone either)
         alone = len(chosen) == 1 and bool(args.nodes or args.records)
         written, marks = _export_window(args, paths, out, reading, reader.entries(window),
-                                        total, alone)
+                                        total, alone, _refined(args, files, window))
         if window.label and written + marks:
             _trial_json(args, files, window, out)
         found += written + marks
@@ -332,9 +308,25 @@ def _trial_json(args: argparse.Namespace, files: list[Described], window: Window
             return
 
 
+def _refined(args: argparse.Namespace, files: list[Described],
+             window: Window | None = None) -> Any:
+    """``--time refined``: the window's times placed after the fact (exit 2 for
+    recordings that cannot be refined; without a window, only that checked); None for
+    ``--time live``."""
+    if args.time == "live":
+        return None
+    from gateway.recording.files import RecordingError
+    from gateway.recording.refined import check_refinable, for_window
+    try:
+        check_refinable(files)
+        return None if window is None else for_window(files, window)
+    except RecordingError as error:
+        raise CtlError(str(error), Exit.USAGE) from None
+
+
 def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
-                   reading: Reading, entries: Any, total: int, tables_only: bool = False
-                   ) -> tuple[int, int]:
+                   reading: Reading, entries: Any, total: int, tables_only: bool = False,
+                   refined: Any = None) -> tuple[int, int]:
     """One window's tables written to ``out``, a line each; how many, and how many
     marks."""
     from gateway.recording.export import MARKS, MissingExtra, NoTables, RecordingError, export
@@ -342,7 +334,7 @@ def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
     try:
         with ProgressBar(total, sys.stderr.isatty()) as bar:
             tables, marks = export(paths, out, reading, args.form, bar.advance,
-                                   written, entries, tables_only)
+                                   written, entries, tables_only, refined)
     except NoTables:
         return 0, 0
     except MissingExtra as error:
@@ -402,29 +394,3 @@ def run_plot(args: argparse.Namespace) -> int:
     print(out)
     return status
 
-
-class ProgressBar:
-    """rich's progress bar over the bytes of the recordings, on a terminal only (an
-    entry advances it by its message's size, a fair share of the file's)."""
-
-    def __init__(self, total: int, terminal: bool) -> None:
-        self._progress: Any = None
-        self._task: Any = None
-        self._total = max(total, 1)
-        if terminal:
-            from rich.progress import Progress
-            self._progress = Progress(transient=True)
-            self._task = self._progress.add_task("exporting", total=self._total)
-
-    def advance(self, entry: Any) -> None:
-        if self._progress is not None:
-            self._progress.advance(self._task, len(entry.data) // 2)
-
-    def __enter__(self) -> ProgressBar:
-        if self._progress is not None:
-            self._progress.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self._progress is not None:
-            self._progress.stop()

@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from gateway.common.jsontext import json_line
 from gateway.common.protocol import Exit
@@ -18,6 +18,53 @@ from .client import CtlError
 
 if TYPE_CHECKING:
     from gateway.recording.catalogue import Described
+
+
+def add_commands(commands: Any) -> None:
+    """The parsers of ``recordings``, ``trials`` and ``dataset`` (after export's and
+    plot's: :func:`.offline.add_commands`)."""
+    catalogue = commands.add_parser(
+        "recordings", help="list what recordings hold, from their summaries",
+        description="Per file, sorted by time: its span, size, stations, nodes and records "
+        "with message counts, and marks; overlapping and repeated files said. A finished "
+        "file is described from its summary (its messages unread); one without (its "
+        "writer killed, cut short, damaged) is read through and says so. Default: the "
+        "record directory of the gateway's --config, else the gateway's default record "
+        "directory. Exit 1 if a file is damaged, 2 if none is a recording.")
+    catalogue.add_argument("paths", nargs="*", metavar="DIR | FILE.mcap")
+    # (SUPPRESS: given before the command, as in ``gx2ctl --json status``, it holds too)
+    catalogue.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
+                           help='one line: {"files": [{"path", "start", "end", ...}]}')
+    lister = commands.add_parser(
+        "trials", help="list the trials the marks define, with their fields and rows",
+        description="Each trial from a mark START to the next mark STOP (--between-marks, "
+        "default start stop), numbered as export's --trial numbers them, the one not yet "
+        "stopped last (its stop null): its start and stop, duration, its start mark's "
+        "fields (gx2ctl mark --field), the rows of each node and record in it, and the "
+        "files it spans. Default: as recordings. Exit 1 if something unreadable was "
+        "skipped, 2 if no file is a recording.")
+    lister.add_argument("paths", nargs="*", metavar="DIR | FILE.mcap")
+    lister.add_argument("--between-marks", dest="between", nargs=2, default=["start", "stop"],
+                        metavar=("START", "STOP"), help="the marks that start and stop a "
+                        "trial (default: start stop)")
+    lister.add_argument("--from", dest="start", metavar="WHEN",
+                        help="only the trials that start at or after this time (as --from)")
+    lister.add_argument("--to", dest="stop", metavar="WHEN",
+                        help="only the trials that start before this time (as export's --to)")
+    lister.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
+                        help='one line: {"trials": [{"trial", "start", "stop", ...}]}')
+    converter = commands.add_parser(
+        "dataset", help="convert finished recordings into a Parquet dataset (incremental)",
+        description="Convert the finished recordings of RECORDINGS (a directory, or a "
+        "file) not yet converted, or changed since, into OUT, partitioned Hive-style by "
+        "record, node and day (OUT/record=R/node=N/date=D/ a part per recording), the "
+        "columns and types of export --format parquet; and OUT/trials.parquet. A file "
+        "being written is left for a later run. Needs gx2-gateway[parquet]. Exit 1 if "
+        "something unreadable was skipped (it is tried again next run), 2 if no file is a "
+        "recording or OUT holds another directory's recordings, 75 if another run is "
+        "converting into OUT (it holds OUT/.lock; this one did nothing).")
+    converter.add_argument("recordings", metavar="RECORDINGS")
+    converter.add_argument("out", metavar="OUT")
 
 
 def default_directory(args: argparse.Namespace) -> str:
@@ -141,24 +188,33 @@ def run_trials(args: argparse.Namespace) -> int:
 
 def run_dataset(args: argparse.Namespace) -> int:
     """``gx2ctl dataset RECORDINGS OUT``: the recordings not yet converted, converted (a
-    line each); exit 1 if something unreadable was skipped, 2 if no file is a recording
-    or pyarrow is missing."""
-    from gateway.recording.dataset import convert
+    line each); exit 1 if something unreadable was skipped, 2 if no file is a recording,
+    OUT holds another directory's recordings or pyarrow is missing, 75 (EX_TEMPFAIL) if
+    another run is converting into OUT."""
+    from gateway.recording.dataset import BUSY, Busy, OtherRecordings, convert
     from gateway.recording.files import PARTIAL, RecordingError, usable_files
     from gateway.recording.parquetfile import MissingExtra
     from gateway.recording.reports import Reading
     reading = Reading()
     try:
         paths = usable_files([args.recordings])
-        done = convert(paths, Path(args.out), reading, lambda line: print(line, flush=True))
-    except (RecordingError, MissingExtra) as error:
+        done = convert(paths, Path(args.out), reading, lambda line: print(line, flush=True),
+                       Path(args.recordings))
+    except (RecordingError, MissingExtra, OtherRecordings) as error:
         raise CtlError(str(error), Exit.USAGE) from None
+    except Busy as error:
+        raise CtlError(str(error), BUSY) from None
     except OSError as error:
-        raise CtlError(f"{args.out}: {error.strerror or error}", Exit.USAGE) from None
-    for line in dict.fromkeys(reading.lines()):
+        raise CtlError(f"{error.filename or args.out}: {error.strerror or error}",
+                       Exit.USAGE) from None
+    for line in dict.fromkeys([*reading.lines(), *done.failed, *done.warnings]):
         print(f"gx2ctl: {line}", file=sys.stderr, flush=True)
     writing = f", {len(done.writing)} being written (left for a later run)" \
         if done.writing else ""
-    print(f"{len(done.files)} converted, {done.current} up to date{writing}; "
+    failed = f", {len(done.failed)} not converted (unreadable: tried again next run)" \
+        if done.failed else ""
+    gone = f", {len(done.gone)} gone (deleted while the run ran)" if done.gone else ""
+    gone += f", {len(done.same)} the same as one converted (skipped)" if done.same else ""
+    print(f"{len(done.files)} converted, {done.current} up to date{writing}{failed}{gone}; "
           f"{done.trials} trials in {Path(args.out) / 'trials.parquet'}", flush=True)
-    return PARTIAL if reading.partial else Exit.OK
+    return PARTIAL if reading.partial or done.failed else Exit.OK

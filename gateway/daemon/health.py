@@ -45,6 +45,8 @@ from .station.lineload import LineLoad
 from .station.nodes import Node, State
 
 log = logging.getLogger("gx2.health")
+NOT_LOCKED = "clock not locked"
+"""A node's reason while its clock's line stands on its first second of packets."""
 
 SAMPLE_PERIOD = 1.0
 """Seconds between samples of the counters (the daemon's tick)."""
@@ -206,7 +208,7 @@ def judge(node: Node, recent: Recent, now: float, limits: HealthConfig) -> Verdi
         # soak, nodes powered up together or released from a queue were 0.5 to 3.4 ms
         # late in that second, "floor seen" by packets as late as the line; a start
         # WARNs for that second, as a receiver says "no fix" until it has one)
-        reasons.append("clock not locked")
+        reasons.append(NOT_LOCKED)
     if expected is not None:
         # (what the clock says is true from its first packets: a node back from a reboot
         # behind another's packets was 3.9 ms late, and said nothing while it settled)
@@ -333,8 +335,16 @@ class Health:
             verdict = self.verdict(node, now)
             before = self._verdicts.get(node.address)
             self._verdicts[node.address] = verdict
-            if before is not None and verdict.level != before.level:
-                log.log(logging.INFO if verdict.level is Level.OK else logging.WARNING,
+            # (a line's first second, said not locked alone, is a node acquiring its
+            # clock, as a receiver's "no fix": every start, power-up and release has
+            # one; a warning each time taught users to ignore them. Logged at INFO,
+            # and a WARN that grows another reason during it warns then)
+            acquiring = (NOT_LOCKED,)
+            grew = before is not None and before.reasons == acquiring \
+                and verdict.level is Level.WARN and verdict.reasons != acquiring
+            if before is not None and (verdict.level != before.level or grew):
+                quiet = verdict.level is Level.OK or verdict.reasons == acquiring
+                log.log(logging.INFO if quiet else logging.WARNING,
                         "node %s health %s -> %s%s", node.label, before.level,
                         verdict.level, f": {'; '.join(verdict.reasons)}"
                         if verdict.reasons else "")

@@ -188,7 +188,11 @@ async def mark(gw: Operations, request: Any) -> Result:
                       "what is happening now, on a live gateway")
     nodes = [gw.node(address).address for address in request.nodes]
     now = time.time()
-    fields = dict(field.partition("=")[::2] for field in request.fields or ())
+    pairs = [field.partition("=")[::2] for field in request.fields or ()]
+    fields = dict(pairs)
+    if len(fields) < len(pairs):  # (the last would win unseen: say which)
+        twice = sorted({key for key, _ in pairs if [k for k, _ in pairs].count(key) > 1})
+        raise Refused(f"mark: field {', '.join(twice)} given more than once")
     payload = {"text": request.text, "time": now, "host_time": now, "nodes": nodes,
                "fields": fields}
     if gw.publish_mark is None or not await gw.publish_mark(payload):

@@ -21,6 +21,13 @@ UNSIGNED = (("uint8", 0xFF), ("uint16", 0xFFFF), ("uint32", 0xFFFF_FFFF))
 LOST_BEFORE = ("samples of the node's stream missing just before this row, by its "
                "timer's steps; null where not known", "samples")
 """export's own column (not a published field): its meaning is said here, once."""
+PLACED = ("how time was placed when refined after the fact: between (sightings of "
+          "the node's floor on both sides), one_side, live (as recorded), unplaceable "
+          "(no packet of its power-up showed the floor)", "")
+BOUND_MS = ("how far time may be from the sample instant, as refined (the floor's "
+            "noise and the drift's bend across the sightings around it); null where none "
+            "is known (live, unplaceable)", "ms")
+"""The columns of a refined export (:mod:`.refined`), said here, once."""
 NODES_TEXT = "the addresses it concerns, space-separated; empty: the whole experiment"
 """A mark's ``nodes`` as a table holds them: one text, not a list."""
 
@@ -36,7 +43,8 @@ class Column:
 
 
 _LEADING_KINDS = {"time": "time", "host_time": "time", "device_time": "duration",
-                  "seq": "int64", "lost_before": "int64", "lqi": "uint8", "rssi": "int8"}
+                  "seq": "int64", "lost_before": "int64", "lqi": "uint8", "rssi": "int8",
+                  "time_placed": "text", "time_bound_ms": "float"}
 
 
 def record_columns(record: str, leading: Sequence[str],
@@ -48,6 +56,7 @@ def record_columns(record: str, leading: Sequence[str],
     for a string, else float (JSON does not tell 1 from 1.0)."""
     notes = record_notes(record)
     notes["lost_before"] = LOST_BEFORE
+    notes["time_placed"], notes["time_bound_ms"] = PLACED, BOUND_MS
     spec = BY_NAME.get(record)
     types = ({f.name: f.type for f in (*spec.reply, *derived(spec))}
              if spec is not None and spec.reply else {})

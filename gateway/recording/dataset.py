@@ -3,44 +3,66 @@ Hive-style as DuckDB, Polars, Spark, Trino and Athena read it as it is:
 ``OUT/record=<record>/node=<address>/date=<YYYY-MM-DD>/part-<file>.parquet``, the
 columns and types of ``export --format parquet`` (:mod:`.columnexport`), a part per
 recording, node, record and UTC day of its rows' ``time``; and ``OUT/trials.parquet``,
-the trials the marks define (:mod:`.trials`), made again each run.
+the trials the marks define (:mod:`.trials`), each run's merged into the earlier ones
+(a trial whose recording retention deleted keeps its row and number: see _trials).
 
-Incremental and idempotent: ``OUT/_converted.json`` names each recording converted
-(its size and modification time); a run converts only the finished recordings not in
-it, or changed since (their old parts replaced), so a timer running it keeps the
-dataset minutes behind the recorder. Every part is written in the hidden work folder
-and renamed into its partition when whole: a partition's folder holds nothing but whole
-parts, even after a run killed half way (a Polars scan of a folder reads every file in
-it, hidden or not; tests/recording/test_dataset_killed.py). The list of what was
-converted is replaced after each recording. A recording gone (retention, a move)
+Incremental and idempotent: ``OUT/_converted.json`` names the RECORDINGS directory
+(an OUT takes one: parts are named by file name) and each recording converted (its size
+and modification time); a run converts only the finished recordings not in it, or
+changed since (their old parts replaced), so a timer running it keeps the dataset
+minutes behind the recorder. One run at a time (an exclusive flock on ``OUT/.lock``: a
+second says so and does nothing), which first removes what a killed run left. A
+recording that cannot be read is said and left for the next run, the rest converted; a
+copy of one converted (the catalogue's same_as) is skipped. Every part is written in
+the hidden work folder, a batch at a time, and renamed into its partition when whole: a
+partition's folder holds nothing but whole parts, even after a run killed half way (a
+Polars scan of a folder reads every file in it, hidden or not;
+tests/recording/test_dataset_killed.py). The list of what was converted is replaced
+after each recording. A recording gone (retention, a move)
 leaves its parts: the dataset is never trimmed by what the recorder deletes.
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
 import shutil
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from .catalogue import Described, catalogue
 from .columnexport import export_batches
-from .columns import nanoseconds
-from .parquetfile import parquet_modules
+from .files import RecordingError
+from .parquetfile import BATCH, converted, parquet_modules
 from .reports import Reading
 from .tables import TEMPORARY
 from .trials import listed
 from .window import _marks
 
 CONVERTED = "_converted.json"
+BUSY = 75
+"""gx2ctl dataset's exit status when another run holds OUT's lock (EX_TEMPFAIL: try again
+later; the timer's next run does)."""
 TRIALS = "trials.parquet"
 WORK = ".converting"
 """Where a recording's tables are exported before they are parted (hidden: no query's
 glob takes it)."""
+LOCK = ".lock"
+"""Held (flock, exclusive) by the run converting into OUT: one run at a time."""
+
+
+class Busy(Exception):
+    """Another run is converting into OUT (it holds OUT/.lock): this one did nothing."""
+
+
+class OtherRecordings(Exception):
+    """OUT holds the recordings of another directory (_converted.json's
+    ``recordings``): a part is named by its recording's file name alone, so two
+    directories' same-named recordings would replace each other's parts."""
 
 
 @dataclass
@@ -54,31 +76,136 @@ class Converted:
     writing: list[Path]
     """Recordings a writer still has open: converted by a later run."""
     trials: int
+    failed: list[str] = field(default_factory=list)
+    """A line for each recording that could not be converted (naming it): left
+    unstamped, tried again by the next run; the run is partial."""
+    gone: list[Path] = field(default_factory=list)
+    """Recordings deleted (retention, a move) while the run ran: skipped."""
+    same: list[tuple[Path, str]] = field(default_factory=list)
+    """Recordings the same as one converted (a copy: the catalogue's same_as), and the
+    name of that one: skipped (stamped, with it named)."""
+    warnings: list[str] = field(default_factory=list)
+    """A line for each recording converted that overlaps one converted before it (the
+    rows recorded in both are in the dataset twice)."""
 
 
 def convert(paths: list[Path], out: Path, reading: Reading,
-            said: Callable[[str], None] = lambda line: None) -> Converted:
-    """Convert the recordings ``paths`` not yet converted into the dataset ``out``."""
+            said: Callable[[str], None] = lambda line: None,
+            recordings: Path | None = None) -> Converted:
+    """Convert the recordings ``paths`` (of the directory ``recordings``: by default
+    the first's) not yet converted into the dataset ``out``; OtherRecordings if ``out``
+    holds another directory's."""
     pa, pq = parquet_modules()
     out.mkdir(parents=True, exist_ok=True)
-    done = _load(out / CONVERTED)
+    with _locked(out):
+        _cleared(out)
+        return _converted(paths, out, reading, said, pa, pq, _folder(recordings, paths))
+
+
+@contextlib.contextmanager
+def _locked(out: Path) -> Iterator[None]:
+    """OUT/.lock held for the run (released when the run ends, or dies: the kernel's
+    flock); Busy if another run holds it (the timer's, and one by hand)."""
+    descriptor = os.open(out / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise Busy(f"{out}: another gx2ctl dataset is converting into it (it holds "
+                       f"{out / LOCK}); this run did nothing") from None
+        yield
+    finally:
+        os.close(descriptor)
+
+
+def _cleared(out: Path) -> None:
+    """What a run killed (SIGTERM, SIGKILL, a power cut) left half made: the work
+    folder, and the hidden partial files of OUT and of its partitions (an earlier
+    version's). Only under the lock: no other run is making them."""
+    shutil.rmtree(out / WORK, ignore_errors=True)
+    for stale in [*out.glob(".*.partial"), *out.glob("record=*/node=*/date=*/.*.partial")]:
+        with contextlib.suppress(FileNotFoundError):
+            stale.unlink()
+
+
+def _folder(recordings: Path | None, paths: list[Path]) -> str:
+    """The directory of the recordings, resolved (a file given: its directory)."""
+    given = recordings if recordings is not None else paths[0]
+    return str(given.resolve() if given.is_dir() else given.resolve().parent)
+
+
+def _converted(paths: list[Path], out: Path, reading: Reading,
+               said: Callable[[str], None], pa: Any, pq: Any, folder: str) -> Converted:
+    state = _load(out / CONVERTED)
+    kept = state.setdefault("recordings", folder)
+    if kept != folder:
+        raise OtherRecordings(
+            f"{out} holds the recordings of {kept} ({out / CONVERTED}), and {folder} is "
+            "another directory: its same-named recordings would replace those parts; "
+            "give it an OUT of its own")
+    done: dict[str, Any] = state["files"]
     files = catalogue(paths, read_writing=False)
     result = Converted([], 0, [], 0)
     for described in files:
-        key, stamp = described.path.name, _stamp(described.path)
+        key = described.path.name
         if described.writing:
             result.writing.append(described.path)
             continue
-        if done.get(key) == stamp:
-            result.current += 1
+        try:
+            stamp = _stamp(described.path)
+            if _unchanged(done.get(key), stamp):
+                result.current += 1
+                continue
+            twin = next((p.name for p in described.same_as
+                         if p.name != key and _holds(done, p.name)), None)
+            if twin is not None:
+                done[key] = {**stamp, "same_as": twin}
+                _save(out / CONVERTED, state)
+                result.same.append((described.path, twin))
+                said(f"{described.path}  the same as {twin} (converted): skipped")
+                continue
+            rows = _convert_one(described, out, reading, pq)
+        except (RecordingError, OSError) as error:
+            if not described.path.exists():  # (retention deleted it while we ran)
+                result.gone.append(described.path)
+                said(f"{described.path}  gone (deleted while converted), skipped")
+                continue
+            if isinstance(error, OSError) and not _names(error, described.path):
+                raise  # (OUT's trouble, not the recording's: the run cannot go on)
+            why = str(error) if isinstance(error, RecordingError) else \
+                (error.strerror or str(error))
+            result.failed.append(why if str(described.path) in why
+                                 else f"{described.path}: {why}")
             continue
-        rows = _convert_one(described, out, reading, pq)
+        overlapped = [p.name for p in described.overlaps
+                      if p.name != key and _holds(done, p.name)]
+        if overlapped:
+            result.warnings.append(
+                f"{described.path} overlaps {', '.join(overlapped)} (converted): the rows "
+                "recorded in both are in the dataset twice")
         done[key] = stamp
-        _save(out / CONVERTED, done)
+        _save(out / CONVERTED, state)
         result.files.append((described.path, rows))
         said(f"{described.path}  {rows:,} rows")
     result.trials = _trials(files, out, pa, pq)
     return result
+
+
+def _names(error: OSError, path: Path) -> bool:
+    """Whether ``error`` is about the recording ``path`` (not about OUT)."""
+    return any(name is not None and os.fspath(name) == os.fspath(path)
+               for name in (error.filename, error.filename2))
+
+
+def _unchanged(kept: Any, stamp: dict[str, int]) -> bool:
+    return isinstance(kept, dict) and all(kept.get(k) == v for k, v in stamp.items())
+
+
+def _holds(done: dict[str, Any], name: str) -> bool:
+    """Whether the recording ``name`` has its own parts (converted, not skipped as the
+    same as another)."""
+    kept = done.get(name)
+    return isinstance(kept, dict) and "same_as" not in kept
 
 
 def _stamp(path: Path) -> dict[str, int]:
@@ -87,11 +214,17 @@ def _stamp(path: Path) -> dict[str, int]:
 
 
 def _load(path: Path) -> dict[str, Any]:
+    """``{"recordings": DIR, "files": {NAME: STAMP}}``; an earlier version's
+    ``{NAME: STAMP}`` read as the files (its directory the one given now)."""
     try:
         loaded = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
-        return {}
-    return loaded if isinstance(loaded, dict) else {}
+        return {"files": {}}
+    if not isinstance(loaded, dict):
+        return {"files": {}}
+    if isinstance(loaded.get("files"), dict) and isinstance(loaded.get("recordings"), str):
+        return loaded
+    return {"files": loaded}
 
 
 def _save(path: Path, done: dict[str, Any]) -> None:
@@ -107,12 +240,14 @@ def _convert_one(described: Described, out: Path, reading: Reading, pq: Any) -> 
     try:
         tables, _ = export_batches([described.path], work, reading, "parquet")
         part = f"part-{described.path.stem}.parquet"
-        for stale in out.glob(f"record=*/node=*/date=*/{part}"):
-            stale.unlink()  # (a recording changed since: its parts made again)
+        for folder in out.glob("record=*/node=*/date=*/"):
+            # (a recording changed since: its parts made again; the name matched
+            # exactly, never as a pattern: a file named s[12].mcap is not s1.mcap)
+            with contextlib.suppress(FileNotFoundError):
+                (folder / part).unlink()
         rows = 0
         for path, table in tables:
-            rows += _parted(pq.read_table(path), out, work, table.record, table.node,
-                            part, pq)
+            rows += _parted(path, out, work, table.record, table.node, part, pq)
         return rows
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -120,45 +255,87 @@ def _convert_one(described: Described, out: Path, reading: Reading, pq: Any) -> 
             (out / WORK).rmdir()
 
 
-def _parted(table: Any, out: Path, work: Path, record: str, node: int, part: str,
+def _parted(source: Path, out: Path, work: Path, record: str, node: int, part: str,
             pq: Any) -> int:
-    """A table's rows written to the day partitions of their time (else host_time),
-    each day's part made in ``work`` (on the dataset's file system) and renamed there."""
+    """A table's rows (the exported file ``source``, read a batch at a time: memory
+    flat however long the recording) written to the day partitions of their time (else
+    host_time), each day's part made in ``work`` (on the dataset's file system), a
+    batch at a time, and renamed there when whole."""
     import pyarrow.compute as pc
-    when = pc.coalesce(table.column("time"), table.column("host_time"))
-    days = pc.strftime(when, format="%Y-%m-%d")
-    for day in pc.unique(days).to_pylist():
-        rows = table.filter(pc.is_null(days) if day is None else pc.equal(days, day))
+    exported = pq.ParquetFile(source)
+    writers: dict[str | None, tuple[Any, Path]] = {}
+    rows = 0
+    try:
+        for batch in exported.iter_batches(batch_size=BATCH):  # (export's batch)
+            when = pc.coalesce(batch.column("time"), batch.column("host_time"))
+            days = pc.strftime(when, format="%Y-%m-%d")
+            for day in pc.unique(days).to_pylist():
+                if day not in writers:
+                    hidden = work / TEMPORARY.format(name=f"{record}.{node}.{day}.{part}")
+                    writers[day] = (pq.ParquetWriter(hidden, exported.schema_arrow), hidden)
+                writers[day][0].write_batch(
+                    batch.filter(pc.is_null(days) if day is None else pc.equal(days, day)))
+            rows += batch.num_rows
+    finally:
+        for writer, _ in writers.values():
+            writer.close()
+    for day, (_, hidden) in writers.items():
         folder = out / f"record={record}" / f"node={node}" / f"date={day or 'unknown'}"
-        hidden = work / TEMPORARY.format(name=f"{record}.{node}.{day}.{part}")
-        pq.write_table(rows, hidden)
         folder.mkdir(parents=True, exist_ok=True)
         os.replace(hidden, folder / part)
-    return table.num_rows
+    return rows
 
 
 def _trials(files: list[Described], out: Path, pa: Any, pq: Any) -> int:
     """``trials.parquet``: each trial between marks ``start`` and ``stop`` (their
     ``time``, on the clock of every record's ``time``: a query's ``time BETWEEN start
     AND stop``), a column per field its start mark carries (a field named as a column
-    is left out)."""
+    is left out).
+
+    Merged with the trials.parquet of earlier runs, never dropping one: a trial is
+    known by its start mark (its ``time`` and text); one in the recordings now replaces
+    its row (an open trial gets its stop), one whose recording retention deleted keeps
+    its row. A trial keeps the number it was first given; a new one is numbered on from
+    the highest (so numbers follow the marks' order as recordings arrive in order)."""
     found = listed(("start", "stop"), _marks(files))
-    columns: dict[str, list[Any]] = {
-        "trial": [t.number for t in found],
-        "start": [nanoseconds(t.start_mark.time) for t in found],
-        "stop": [None if t.stop_mark is None else nanoseconds(t.stop_mark.time)
-                 for t in found],
-        "start_mark": [t.start_mark.text for t in found],
-        "stop_mark": [None if t.stop_mark is None else t.stop_mark.text for t in found]}
-    keys = dict.fromkeys(k for t in found for k, _ in t.start_mark.fields)
-    for key in keys:
-        if key not in columns:
-            columns[key] = [dict(t.start_mark.fields).get(key) for t in found]
+    # (as export converts a time: one beyond timestamp[ns], a foreign mark's, null)
+    starts = converted("time", tuple(t.start_mark.time for t in found))
+    stops = converted("time", tuple(None if t.stop_mark is None else t.stop_mark.time
+                                    for t in found))
+    rows = {(row["start"], row["start_mark"]): row for row in _earlier(out / TRIALS, pa, pq)}
+    number = max((row["trial"] for row in rows.values()), default=0)
+    for trial, start, stop in zip(found, starts, stops, strict=True):
+        key = (start, trial.start_mark.text)
+        kept = rows.get(key)
+        if kept is None:
+            number += 1
+        row = {"trial": number if kept is None else kept["trial"], "start": start,
+               "stop": stop, "start_mark": trial.start_mark.text,
+               "stop_mark": None if trial.stop_mark is None else trial.stop_mark.text}
+        for name, value in trial.start_mark.fields:
+            row.setdefault(name, value)
+        rows[key] = row
+    ordered = sorted(rows.values(), key=lambda row: row["trial"])
+    names = dict.fromkeys(name for row in ordered for name in row)
     types = {"trial": pa.int64(), "start": pa.timestamp("ns", tz="UTC"),
              "stop": pa.timestamp("ns", tz="UTC")}
-    table = pa.table({name: pa.array(values, types.get(name, pa.string()))
-                      for name, values in columns.items()})
+    table = pa.table({name: pa.array([row.get(name) for row in ordered],
+                                     types.get(name, pa.string())) for name in names})
     hidden = out / TEMPORARY.format(name=TRIALS)
     pq.write_table(table, hidden)
     os.replace(hidden, out / TRIALS)
-    return len(found)
+    return len(ordered)
+
+
+def _earlier(path: Path, pa: Any, pq: Any) -> list[dict[str, Any]]:
+    """The rows of an earlier run's trials.parquet, times as ns; none if there is none
+    (or it cannot be read: made again from the recordings present)."""
+    try:
+        table = pq.read_table(path)
+    except (OSError, pa.ArrowException):
+        return []
+    for name in ("start", "stop"):
+        if name in table.column_names:
+            table = table.set_column(table.column_names.index(name), name,
+                                     table.column(name).cast(pa.int64()))
+    return [row for row in table.to_pylist() if isinstance(row.get("trial"), int)]

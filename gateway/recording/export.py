@@ -1,13 +1,14 @@
 """Tables from recordings: one per node and record, a row per record.
 
-Columns: ``time``, ``host_time``, ``device_time``, ``seq``, ``lost_before``, ``lqi``,
-``rssi``, then the record's fields in the order of its layout (:mod:`aspp.records`),
-vectors as ``<field>_x/_y/_z``, matrices as ``<field>_11`` .. ``<field>_33`` (row,
-column), a record's list of integers as ``<field>_1`` .. ``<field>_n``; then the fields
-the gateway adds (a matrix's ``roll``, ``pitch``, ``yaw``, and ``quaternion_w`` ..
-``quaternion_z``: :data:`aspp.records.DERIVED_FROM_MATRIX`). A value a record
-does not have (an untimed record's ``time``) or NaN (JSON's null) is an empty cell or a
-null.
+Columns: ``time`` (with ``time_placed`` and ``time_bound_ms`` after it when the time is
+refined after the fact: :mod:`.refined`), ``host_time``, ``device_time``, ``seq``,
+``lost_before``, ``lqi``, ``rssi``, then the record's fields in the order of its
+layout (:mod:`aspp.records`), vectors as ``<field>_x/_y/_z``, matrices as ``<field>_11``
+.. ``<field>_33`` (row, column), a record's list of integers as ``<field>_1`` ..
+``<field>_n``; then the fields the gateway adds (a matrix's ``roll``, ``pitch``,
+``yaw``, and ``quaternion_w`` .. ``quaternion_z``: :data:`aspp.records.DERIVED_FROM_MATRIX`).
+A value a record does not have (an untimed record's ``time``) or NaN (JSON's null) is an
+empty cell or a null.
 
 ``lost_before`` is the samples of the node's stream missing just before the row, by its
 timer's steps (:mod:`.losses`): 0 normally, for rows that are not a stream's (polled
@@ -47,9 +48,10 @@ from .marks import Mark
 from .matfile import mat_modules
 from .parquetfile import MissingExtra, parquet_modules
 from .reader import Entry, read_all
+from .refined import Refinement
 from .reports import Reading
 from .rosbag import Bag, export_bag, ros2_modules
-from .tables import LOST_BEFORE, MARKS, WRITERS, NoTables, Output, Table, mark_row, table_name
+from .tables import MARKS, WRITERS, NoTables, Output, Table, mark_row, table_name
 
 FORMATS = ("csv", "parquet", "mat", "ros2")
 """Every format, each in a module of its own (:mod:`.parquetfile`, :mod:`.matfile`,
@@ -85,7 +87,8 @@ EXTRAS: dict[str, Callable[[], object]] = {"parquet": parquet_modules, "mat": ma
 def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv",
            progress: Callable[[Entry], None] | None = None,
            written: list[Path] | None = None, entries: Iterable[Entry] | None = None,
-           tables_only: bool = False) -> tuple[list[tuple[Path, Table]], int]:
+           tables_only: bool = False, refined: Refinement | None = None
+           ) -> tuple[list[tuple[Path, Table]], int]:
     """Write the tables of the recordings ``paths`` into ``out``: (path, table) of each
     node's table, in the order first seen, and the number of marks (in ``marks.csv``).
     Each table written whole is added to ``written`` as it is. What reading skipped is
@@ -96,7 +99,9 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
     message of ``paths``. ``tables_only``: NoTables, and nothing written, if there is
     no table (only marks: the nodes asked are not in the recordings). ValueError, and
     nothing written, for a format that is not a table's (``ros2`` writes a window
-    whole: WHOLE's function, :func:`.rosbag.export_bag`)."""
+    whole: WHOLE's function, :func:`.rosbag.export_bag`). ``refined``: each row's
+    ``time`` refined after the fact (:mod:`.refined`), with its ``time_placed`` and
+    ``time_bound_ms`` beside it."""
     if form in WHOLE:
         raise ValueError(f"export writes tables; format {form!r} writes a window whole: "
                          f"call {WHOLE[form].__module__}.{WHOLE[form].__name__}")
@@ -105,7 +110,10 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
     if form in EXTRAS:
         EXTRAS[form]()
     from .columnexport import BATCH_WRITERS, export_batches
-    if form in BATCH_WRITERS:  # (a batch at a time: the same tables, 7x faster or more)
+    # a batch at a time: the same tables, 7x faster or more; a refined time is not
+    # carried there (the batch is typed from the messages' own JSON, and the losses are
+    # counted on their recorded time), so a refined export goes row by row, Parquet too
+    if form in BATCH_WRITERS and refined is None:
         return export_batches(paths, out, reading, form, progress, written, entries,
                               tables_only)
     out.mkdir(parents=True, exist_ok=True)
@@ -135,9 +143,11 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
             if where is None:
                 continue
             payload = entry.payload()
+            if refined is not None:
+                payload = refined.apply(entry, payload)
             open_table = tables.get(where)
             if open_table is None:
-                table = Table(*where, payload)
+                table = Table(*where, payload, refined=refined is not None)
                 output = Output(out, table_name(*where, form), form, table.columns,
                                 outputs)
                 open_table = tables[where] = (table, output)
@@ -164,7 +174,7 @@ def _write(counted: list[Counted[tuple[Table, Output, list[Any]]]],
     """Write rows whose ``lost_before`` is now known."""
     for row in counted:
         table, output, values = row.item
-        values[LOST_BEFORE] = row.lost
+        values[table.lost_at] = row.lost
         output.add(values)
         table.losses.add(row, period=losses.period(table.node, table.record))
 

@@ -23,8 +23,12 @@ if TYPE_CHECKING:
     from .marks import Mark
 
 LEADING = ("time", "host_time", "device_time", "seq", "lost_before", "lqi", "rssi")
-LOST_BEFORE = LEADING.index("lost_before")
-BOOKKEEPING = frozenset((*LEADING, "node", "record", "command"))
+PLACED = "time_placed"
+BOUND = "time_bound_ms"
+REFINED_LEADING = (LEADING[0], PLACED, BOUND, *LEADING[1:])
+"""With ``time`` refined after the fact (:mod:`.refined`): how each row's time was
+placed, and its bound, beside it."""
+BOOKKEEPING = frozenset((*REFINED_LEADING, "node", "record", "command"))
 AXES = ("x", "y", "z")
 MATRIX = tuple(f"{row}{column}" for row in (1, 2, 3) for column in (1, 2, 3))
 MARKS = "marks"
@@ -86,10 +90,15 @@ def element(value: Any, index: int) -> Any:
 class Table:
     """One node's one record: its columns, fixed by its first row."""
 
-    def __init__(self, node: int, record: str, first: Mapping[str, Any]) -> None:
+    def __init__(self, node: int, record: str, first: Mapping[str, Any],
+                 refined: bool = False) -> None:
         self.node, self.record = node, record
+        self.leading = REFINED_LEADING if refined else LEADING
+        """Its columns before the record's fields (``refined``: with ``time_placed`` and
+        ``time_bound_ms`` after ``time``)."""
+        self.lost_at = self.leading.index("lost_before")
         self.fields = field_columns(record, first)
-        self.columns = record_columns(record, LEADING, self.fields, first)
+        self.columns = record_columns(record, self.leading, self.fields, first)
         """Its columns' names, kinds, meanings and units."""
         self.losses = Summary()
         """Its rows (``received``), what was missed while its base station was down,
@@ -101,7 +110,7 @@ class Table:
         return self.losses.received
 
     def row(self, payload: Mapping[str, Any]) -> list[Any]:
-        return [*(payload.get(name) for name in LEADING),
+        return [*(payload.get(name) for name in self.leading),
                 *(element(payload.get(name), index) for _, name, index in self.fields)]
 
 

@@ -229,6 +229,26 @@ def test_health_logs_each_change_of_a_nodes_level_once(caplog) -> None:
     assert (status["health"], status["reasons"], status["expected_hz"]) == ("OK", [], 100.0)
 
 
+def test_a_clock_being_locked_is_logged_as_information_not_a_warning(caplog) -> None:
+    """Every start has a first second "not locked" (WARN in status); the log says it
+    at INFO, and warns once anything else is wrong too."""
+    node = streaming_node()
+    health = Health([node], HealthConfig(window_s=5.0, settle_s=2.0))
+    caplog.set_level(logging.INFO, "gx2.health")
+    health.sample(node.stream_started)  # (before its first packet: OK)
+    node.clock.update(1.0, 1.0)
+    health.sample(node.stream_started + 0.5)
+    node.lost_gateway += 300  # (still WARN, for one more reason)
+    health.sample(node.stream_started + 1.0)
+    node._state = State.LINK_DOWN
+    health.sample(node.stream_started + 1.5)
+    levels = [(r.levelno, r.getMessage()) for r in caplog.records]
+    assert levels == [(logging.INFO, "node 76 health OK -> WARN: clock not locked"),
+                      (logging.WARNING, "node 76 health WARN -> WARN: clock not locked; "
+                                        "300 not published in 1 s"),
+                      (logging.WARNING, "node 76 health WARN -> ERROR: link down")], levels
+
+
 class FakeRecorder:
     """What the gateway's health reads of its recorder."""
 

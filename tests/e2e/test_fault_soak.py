@@ -24,6 +24,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 try:
     import faultsoak
+    import soakreport
 finally:
     sys.path.pop(0)
 
@@ -32,18 +33,18 @@ KINDS = ("stall", "unplug", "power_one", "radio")
 
 
 @pytest.fixture(scope="module")
-def report() -> faultsoak.Report:
+def report() -> soakreport.Report:
     result = faultsoak.run(60.0, SEED, kinds=KINDS, window_s=8.0, settle_s=3.0,
                            quiet=(2.0, 4.0))
     assert {f.kind for f in result.faults} == set(KINDS), result.faults
-    report = faultsoak.analyse(result)
-    faultsoak.print_report(result, report)  # (pytest shows it when a test fails)
+    report = soakreport.analyse(result)
+    soakreport.print_report(result, report)  # (pytest shows it when a test fails)
     return report
 
 
 @pytest.mark.parametrize("invariant", ["recovery", "late_ms a bound",
                                        "nothing lost in the gateway"])
-def test_the_gateway_holds_through_ordinary_faults(report: faultsoak.Report,
+def test_the_gateway_holds_through_ordinary_faults(report: soakreport.Report,
                                                    invariant: str) -> None:
     ok, figures = report.invariants[invariant]
     assert ok, f"{invariant}: {figures}\n" + "\n".join(report.lines)

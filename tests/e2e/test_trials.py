@@ -51,6 +51,10 @@ def test_marks_carry_fields_and_trials_are_listed(simulator, gateway, tmp_path):
     wrong = gx2ctl(*control, "mark", "start", "--field", "subject")
     assert wrong.status == 2 and len(wrong.stderr.splitlines()) == 1, wrong
     assert "KEY=VALUE" in wrong.stderr and "Traceback" not in wrong.stderr, wrong
+    # a key given twice: the last would have won unseen
+    twice = gx2ctl(*control, "mark", "start", "--field", "subject=S1", "--field", "subject=S2")
+    assert twice.status != 0 and len(twice.stderr.splitlines()) == 1, twice
+    assert "subject given more than once" in twice.stderr, twice
 
     # listed from the file the gateway is writing, once the open trial's rows are on
     # the disk (a mark's chunk is flushed as the mark is taken, the rows after it with

@@ -144,6 +144,8 @@ class Recorder(Output):
         self._unflushed = 0
         self._retry_at = 0.0
         self._closing = False
+        self._ended = False
+        """A file was finished while closing: no other is opened (see _flush)."""
         self._drain_until = 0.0
         """Once closing, the time.monotonic() past which no more of the queue is written."""
         self.cut = 0
@@ -314,7 +316,7 @@ class Recorder(Output):
             if now >= until or (self._closing and now >= self._drain_until):
                 return True
             item = queue.popleft()
-            writer = self._writer or self._open()
+            writer = self._writer or (None if self._ended else self._open())
             marked = item[0] == QUEUED_MESSAGE and item[1] == MARK_TOPIC
             if writer is None or not self._guarded(self._write, writer, item):
                 self.lost += 1
@@ -367,11 +369,15 @@ class Recorder(Output):
                 self._resumed()
         # Once closing, the file is finished as it is: a disk slower than close()'s
         # time leaves the thread writing after close() returned, and a rotation or the
-        # retention then opened a new file and deleted the one being closed.
+        # retention then opened a new file and deleted the one being closed. A rotation
+        # that close() came during (the summary's write is the slow part) ends there.
         if not self._closing and (time.monotonic() - self._opened >= self.rotate_s
                                   or self._output.tell() >= self.rotate_bytes):
             self._finish()
-            self._open()
+            if self._closing:
+                self._ended = True
+            else:
+                self._open()
 
     def _open(self) -> RecordingWriter | None:
         """A new file, or None while the last failure's retry time has not come."""

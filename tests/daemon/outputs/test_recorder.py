@@ -315,6 +315,38 @@ def test_a_recorder_closing_opens_no_file_and_deletes_none(tmp_path, monkeypatch
                 if "deleted" in r.message or "recording to" in r.message]
 
 
+def test_a_rotation_close_comes_during_ends_with_the_file_it_finished(
+        tmp_path, monkeypatch, caplog):
+    """close() while a rotation writes the old file's summary (a slow disk): that file
+    is finished and no new one is opened after close() has returned."""
+    monkeypatch.setattr(recorder_module, "FLUSH_S", 0.05)
+    recorder = Recorder(RecordConfig(directory=str(tmp_path), rotate_mb=1e-6), {})
+    gate, inside = threading.Event(), threading.Event()
+    finish = recorder._finish
+
+    def slow_finish() -> None:  # (the summary's write, held until the test lets it go)
+        if not recorder._closing and not gate.is_set():
+            inside.set()
+            gate.wait()
+        finish()
+    recorder._finish = slow_finish  # type: ignore[method-assign]
+    recorder.start()
+    try:
+        sent = 0
+        while not inside.is_set() and sent < 10_000:  # (until a rotation has begun)
+            sent += feed(recorder, 0.05, sent)
+        assert inside.is_set()
+        caplog.set_level(logging.INFO, "gx2.record")
+        before = set(tmp_path.iterdir())
+        recorder.close(timeout=0.2)
+        assert recorder._thread.is_alive()  # (still in the summary's write)
+    finally:
+        gate.set()
+    wait_for(lambda: not recorder._thread.is_alive(), 10, "the thread's end")
+    assert set(tmp_path.iterdir()) == before
+    assert not [r.message for r in caplog.records if "recording to" in r.message]
+
+
 class FullDisk:
     """Files on a disk that fills up (every write to the OS fails with ENOSPC while
     ``full`` is set) and frees again; buffered as a file opened by Python is."""
