@@ -19,6 +19,7 @@ from gateway.client import Recording
 from gateway.recording.columns import nanoseconds
 from gateway.recording.writer import RecordingWriter
 from tests.helpers.recorded import T0, hourly_files
+from tests.recording.test_refined import written
 from tests.test_client_recorded import DOC, payload, recorded
 
 TEXT = pa.dictionary(pa.int32(), pa.string())
@@ -127,6 +128,21 @@ def test_what_the_one_call_path_cannot_take_is_taken_as_the_iteration_takes_it(
     assert oriented["yaw"].to_pylist() == pytest.approx([math.pi / 2] * 2)
     assert oriented["time"].cast(pa.int64()).to_pylist() == [
         nanoseconds(T0 + seq / 100 + 0.000123457) for seq in (5, 6)]
+
+
+def test_a_refined_time_is_to_pandas_s_with_its_two_columns(tmp_path: Path) -> None:
+    """``time="refined"``: the refined times, to the ns, and how each was placed, after
+    ``time`` as to_pandas has them (the refinement is the loop's)."""
+    path = written(tmp_path / "line.mcap")
+    table = _same_as_to_pandas(lambda: Recording(path, time="refined"))
+    assert table.column_names[6:9] == ["time", "time_placed", "time_bound_ms"]
+    assert (table.schema.field("time_placed").type, table.schema.field(
+        "time_bound_ms").type) == (pa.string(), pa.float64())
+    looped = [m for m in Recording(path, time="refined")]
+    assert table["time"].cast(pa.int64()).to_pylist() == [nanoseconds(m.time)
+                                                          for m in looped]
+    assert table["time_placed"].to_pylist() == [m["time_placed"] for m in looped]
+    assert set(table["time_placed"].to_pylist()) == {"live", "unplaceable", None}
 
 
 def test_an_empty_window_is_to_pandas_columns(recordings: Path) -> None:

@@ -16,7 +16,9 @@ followed over every record, those ``records`` leaves out too, a window at a time
 A batch the one-call path cannot take as a message is read one at a time (one that is
 not a record's JSON object or has no integer ``seq``, a file of before the matrix's
 derived fields) is taken message by message through the iteration's steps: slower,
-never different.
+never different. A Recording whose ``time`` is refined is taken from its loop (the
+refinement is handed out message by message), ``time_placed`` and ``time_bound_ms``
+after ``time`` as in to_pandas.
 """
 
 from __future__ import annotations
@@ -34,11 +36,11 @@ from gateway.recording.columns import record_columns
 from gateway.recording.files import STATUS, RecordingError
 from gateway.recording.parquetfile import BATCH, MissingExtra, arrow_schema
 from gateway.recording.reader import Entry
-from gateway.recording.tables import field_columns
+from gateway.recording.tables import BOUND, PLACED, field_columns
 from gateway.recording.window import Reader
 
 from .frames import LEADING
-from .messages import Malformed, seq_of
+from .messages import Malformed, Message, seq_of
 
 if TYPE_CHECKING:
     import pyarrow
@@ -50,6 +52,11 @@ table, and the two would import each other round a loop, tests/ctl/test_imports.
 INSTALL_ARROW = "pip install 'gx2-gateway[arrow]'"
 BOOKKEEPING = ("time", "host_time", "device_time", "seq", "lqi", "rssi")
 """The columns of LEADING that export's columnar path reads from each message."""
+REFINED = (*LEADING[:LEADING.index("time") + 1], PLACED, BOUND,
+           *LEADING[LEADING.index("time") + 1:])
+"""LEADING of a Recording whose time is refined: export's two columns after ``time``,
+as to_pandas has them."""
+REFINED_BOOKKEEPING = (BOOKKEEPING[0], PLACED, BOUND, *BOOKKEEPING[1:])
 DERIVED = frozenset(field.name for field in DERIVED_FROM_MATRIX)
 POSITION = "position"
 """Each row's place in the order read (the rows are put back in it, then it goes)."""
@@ -152,6 +159,8 @@ def to_arrow(recording: Recording) -> pyarrow.Table:
     """The records of ``recording`` (its windows, nodes and records) as one Table;
     MissingExtra, saying how to install it, without pyarrow."""
     pa = _pyarrow()
+    if recording.time == "refined":
+        return _refined(pa, recording)
     reader = Reader(recording.files, recording.reading)
     topics: dict[str, _Topic | None] = {}
     wanted: list[_Part] = []
@@ -179,7 +188,52 @@ def to_arrow(recording: Recording) -> pyarrow.Table:
             wanted += [part for part in parts if part.table is not None]
     finally:
         recording.duplicates += reader.duplicates
-    return _joined(pa, recording.source, wanted)
+    return _joined(pa, recording.source, wanted, LEADING)
+
+
+class _Loop:
+    """One topic's messages as the loop gave them, waiting for a batch."""
+
+    def __init__(self, message: Message) -> None:
+        self.node, self.record = message.node, message.record
+        fields = field_columns(message.record, dict(message.payload))
+        self.columns = Columns(f"gx2/{self.node}/{self.record}", record_columns(
+            self.record, REFINED_BOOKKEEPING, fields, dict(message.payload)), fields,
+            REFINED_BOOKKEEPING)
+        self.messages: list[Message] = []
+        self.positions: list[int] = []
+
+    def add(self, message: Message, position: int) -> _Part | None:
+        self.messages.append(message)
+        self.positions.append(position)
+        return self.part() if len(self.messages) >= BATCH else None
+
+    def part(self) -> _Part:
+        messages, self.messages = self.messages, []
+        part = _Part(self.node, self.record, np.array(self.positions, np.int64),
+                     np.array([m.seq for m in messages], np.int64),
+                     self.columns.rows([dict(m.payload) for m in messages]))
+        part.gap = np.array([m.gap for m in messages], np.int64)
+        part.restarted = np.array([m.restarted for m in messages], bool)
+        self.positions = []
+        return part
+
+
+def _refined(pa: Any, recording: Recording) -> Any:
+    """A Recording whose time is refined: the loop's messages (the refinement is handed
+    out message by message, as ``export --time refined`` goes row by row), each
+    topic's typed as export types them, a batch at a time."""
+    topics: dict[tuple[int, str], _Loop] = {}
+    parts: list[_Part] = []
+    messages = (event for event in recording if isinstance(event, Message))
+    for position, message in enumerate(messages):
+        key = (message.node, message.record)
+        held = topics.get(key) or topics.setdefault(key, _Loop(message))
+        part = held.add(message, position)
+        if part is not None:
+            parts.append(part)
+    parts += [held.part() for held in topics.values() if held.messages]
+    return _joined(pa, recording.source, parts, REFINED)
 
 
 def _opened(recording: Recording, topics: dict[str, _Topic | None], entry: Entry
@@ -225,12 +279,12 @@ def _numbered(recording: Recording, parts: list[_Part]) -> None:
             recording.lost[key] = recording.lost.get(key, 0) + lost
 
 
-def _joined(pa: Any, source: str, parts: list[_Part]) -> Any:
-    """The parts as one table: LEADING, then each record's fields as they first come,
-    the rows in the order read."""
+def _joined(pa: Any, source: str, parts: list[_Part], first: tuple[str, ...]) -> Any:
+    """The parts as one table: ``first`` (LEADING, or REFINED), then each record's
+    fields as they first come, the rows in the order read."""
     import pyarrow.compute as pc
-    leading = _leading(pa)
-    names = list(LEADING)
+    leading = _leading(pa, first)
+    names = list(first)
     tables = []
     for part in sorted((p for p in parts if len(p.seq)), key=lambda p: p.positions[0]):
         table, n = part.table, len(part.seq)
@@ -239,26 +293,27 @@ def _joined(pa: Any, source: str, parts: list[_Part]) -> Any:
             part.node, pa.int64()), n), "record": _text(pa, part.record, n),
                 "gap": pa.array(part.gap), "restarted": pa.array(part.restarted)}
         columns = [(leading.field(name), made[name]) if name in made else
-                   (table.schema.field(name), table[name]) for name in LEADING]
+                   (table.schema.field(name), table[name]) for name in first]
         columns += [(field, table[field.name]) for field in table.schema
-                    if field.name not in LEADING]
+                    if field.name not in first]
         columns.append((pa.field(POSITION, pa.int64()), pa.array(part.positions)))
         tables.append(pa.Table.from_arrays([c for _, c in columns],
                                            schema=pa.schema([f for f, _ in columns])))
-    if not tables:
-        return leading.empty_table()
+    if not tables:  # (as to_pandas: the columns every row has)
+        return _leading(pa, LEADING).empty_table()
     whole = pa.concat_tables(tables, promote_options="permissive")
     return whole.take(pc.sort_indices(whole[POSITION])).select(names)
 
 
-def _leading(pa: Any) -> Any:
-    """LEADING's fields: the bookkeeping as export types it, the rest the iteration's."""
-    read = arrow_schema(pa, record_columns("", BOOKKEEPING, [], {}))
+def _leading(pa: Any, first: tuple[str, ...]) -> Any:
+    """The fields of ``first``: the bookkeeping as export types it, the rest the
+    iteration's."""
+    read = arrow_schema(pa, record_columns("", REFINED_BOOKKEEPING, [], {}))
     text = pa.dictionary(pa.int32(), pa.string())
     own = {"gateway": text, "node": pa.int64(), "record": text, "gap": pa.int64(),
            "restarted": pa.bool_()}
     return pa.schema([pa.field(name, own[name]) if name in own else read.field(name)
-                      for name in LEADING])
+                      for name in first])
 
 
 def _text(pa: Any, value: str, rows: int) -> Any:
