@@ -73,6 +73,23 @@ class Ran:
     seconds: float
 
 
+def interrupted(command: list[str], begun: Callable[[], bool], what: str,
+                timeout: float = 30.0) -> tuple[int, str, str]:
+    """``command`` run until ``begun()`` (or its end), then Ctrl-C'd (SIGINT); its exit
+    status, stdout and stderr. Killed if it outlives ``timeout`` after that."""
+    from tests.helpers.waiting import wait_for
+    run = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for(lambda: run.poll() is not None or begun(), timeout, what)
+        run.send_signal(signal.SIGINT)
+        stdout, stderr = run.communicate(timeout=timeout)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    return run.returncode, stdout, stderr
+
+
 def gx2ctl(*args: str, timeout: float = 60.0) -> Ran:
     """``gx2ctl ARGS``, timed from just before it starts until it exits."""
     start = time.monotonic()

@@ -5,9 +5,7 @@ and the run exits 1 ("partial"). Ctrl-C during an export leaves no table cut."""
 
 from __future__ import annotations
 
-import signal
 import struct
-import subprocess
 from pathlib import Path
 
 import pytest
@@ -19,7 +17,7 @@ from gateway.recording.plot import picture, records_of
 from gateway.recording.reader import read_all
 from gateway.recording.reports import Reading
 from gateway.recording.writer import RecordingWriter
-from tests.helpers.processes import gx2ctl, script
+from tests.helpers.processes import gx2ctl, interrupted, script
 from tests.helpers.waiting import wait_for
 from tests.recording.test_offline import T0, payload, rows
 
@@ -200,19 +198,11 @@ def test_ctrl_c_during_export_leaves_no_table_cut(tmp_path):
     def writing() -> bool:
         """Anything but the earlier table in ``out``: the export has begun writing its
         tables."""
-        return run.poll() is not None or any(p != earlier for p in out.iterdir())
-    run = subprocess.Popen([script("gx2ctl"), "export", str(path), "--out", str(out),
-                            "--force"],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        wait_for(writing, 30, "the export to begin writing")
-        run.send_signal(signal.SIGINT)
-        stdout, stderr = run.communicate(timeout=30)
-    finally:
-        if run.poll() is None:
-            run.kill()
-            run.wait()
-    assert run.returncode == 130, (stdout, stderr)
+        return any(p != earlier for p in out.iterdir())
+    status, stdout, stderr = interrupted(
+        [script("gx2ctl"), "export", str(path), "--out", str(out), "--force"], writing,
+        "the export to begin writing")
+    assert status == 130, (stdout, stderr)
     [line] = stderr.splitlines()
     assert line.startswith("gx2ctl: interrupted: wrote "), line
     assert line.endswith(f"; nothing else was left in {out}"), line

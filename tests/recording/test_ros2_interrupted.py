@@ -4,34 +4,20 @@ replace untouched (it is replaced only by a whole one)."""
 
 from __future__ import annotations
 
-import signal
-import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
-from gateway.recording.writer import RecordingWriter
-from tests.helpers.processes import script
-from tests.helpers.waiting import wait_for
+from tests.helpers.processes import interrupted, script
 
 pytest.importorskip("rosbags.rosbag2")
 
-T0 = 1_795_000_000.0
-
-
-def recording(path: Path, rows: int) -> Path:
-    with path.open("wb") as output:
-        writer = RecordingWriter(output)
-        for i in range(rows):
-            at = T0 + i / 100
-            writer.message("gx2/76/accel_angrate_mag", {
-                "accel": [0.001 * i, 0.002, -1.0], "ang_rate": [0.01, 0.02, 0.03],
-                "mag": [0.2, 0.1, 0.4], "timer": i * 196_608, "node": 76,
-                "record": "accel_angrate_mag", "command": 0xCB, "seq": i + 1,
-                "host_time": at + 0.004, "lqi": 200, "rssi": -50,
-                "device_time": i / 100, "time": at})
-        writer.finish()
-    return path
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+try:
+    from exportformats import recording  # (the bench's 60,000-row recording, made alike)
+finally:
+    sys.path.pop(0)
 
 
 def test_ctrl_c_leaves_no_bag_and_the_earlier_one_whole(tmp_path: Path) -> None:
@@ -43,19 +29,10 @@ def test_ctrl_c_leaves_no_bag_and_the_earlier_one_whole(tmp_path: Path) -> None:
     for name, text in earlier.items():
         (bag / name).write_text(text)
     temporary = tmp_path / ".bag.partial"
-    run = subprocess.Popen([script("gx2ctl"), "export", str(source), "--out", str(bag),
-                            "--format", "ros2", "--force"],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        wait_for(lambda: run.poll() is not None or temporary.exists(), 30,
-                 "the export to begin its bag")
-        run.send_signal(signal.SIGINT)
-        stdout, stderr = run.communicate(timeout=30)
-    finally:
-        if run.poll() is None:
-            run.kill()
-            run.wait()
-    assert (run.returncode, stdout) == (130, ""), stderr
+    status, stdout, stderr = interrupted(
+        [script("gx2ctl"), "export", str(source), "--out", str(bag), "--format", "ros2",
+         "--force"], temporary.exists, "the export to begin its bag")
+    assert (status, stdout) == (130, ""), stderr
     assert stderr == f"gx2ctl: interrupted: nothing was left at {bag}\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bag", "big.mcap"]
     assert {p.name: p.read_text() for p in bag.iterdir()} == earlier
