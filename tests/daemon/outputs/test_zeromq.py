@@ -4,6 +4,8 @@ pyzmq has one and through its plain send where it does not."""
 from __future__ import annotations
 
 import math
+import threading
+import time
 
 import msgpack
 import pytest
@@ -67,3 +69,39 @@ def test_without_a_compiled_send_the_plain_one_publishes(monkeypatch) -> None:
         context.term()
     (topic, _), _ = published()
     assert topic == b"gx2/76/euler"
+
+
+def test_what_was_published_before_close_reaches_a_slow_subscriber_within_the_budget():
+    """A replay that exits (``exit=true``) publishes its last records just before it
+    closes: a subscriber still reading them gets them all if it reads within the
+    seconds close was given, not the last only of what the socket's buffers held."""
+    count, budget = 20000, 3.0
+    gateway, reader = zmq.Context(), zmq.Context()
+    sub = reader.socket(zmq.SUB)
+    sub.setsockopt(zmq.RCVHWM, 10)  # the rest waits at the publisher, as with a slow
+    sub.setsockopt(zmq.RCVBUF, 4096)  # subscriber on a busy host
+    sub.setsockopt(zmq.SUBSCRIBE, b"gx2/")
+    try:
+        publisher = Publisher(gateway, "tcp://127.0.0.1:*", count + 10)
+        sub.connect(publisher.socket.getsockopt(zmq.LAST_ENDPOINT).decode())
+        while not sub.poll(10):  # until the subscription has reached the PUB
+            publisher.send(b"gx2/76/euler", {"seq": 0})
+        while sub.poll(100):
+            sub.recv_multipart()
+        padding = "x" * 500
+        for seq in range(1, count + 1):
+            assert publisher.send(b"gx2/76/euler", {"seq": seq, "padding": padding})
+        publisher.close(budget)
+        closed = threading.Thread(target=gateway.term)
+        started = time.monotonic()
+        closed.start()
+        time.sleep(0.5)  # the subscriber, busy elsewhere, comes back to read
+        got = []
+        while sub.poll(1000):
+            got.append(msgpack.unpackb(sub.recv_multipart()[1])["seq"])
+        closed.join(budget)
+        assert not closed.is_alive() and time.monotonic() - started < budget + 1.0
+        assert got == list(range(1, count + 1))
+    finally:
+        sub.close(0)
+        reader.term()
