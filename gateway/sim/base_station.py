@@ -47,7 +47,8 @@ BUFFER_BYTES = 4096
 
 @dataclass
 class LineFaults:
-    """Faults on the serial line, each a probability per packet sent to the host."""
+    """Faults on the serial line, each a probability per packet sent to the host, and
+    the base station's serial output as a model of it describes it."""
 
     garbage: float = 0.0
     bad_checksum: float = 0.0
@@ -61,6 +62,17 @@ class LineFaults:
     """Stalls per second: the base station holds its output back for ``stall_ms``, then
     sends what it held (packets beyond its buffer are lost meanwhile)."""
     stall_ms: float = 50.0
+    buffer_bytes: int | None = BUFFER_BYTES
+    """The serial output buffer (None: without bound, every packet queued however
+    late): what a packet arriving to it full is lost for."""
+    throughput: float = 1.0
+    """The share of the baud rate the output reaches with a backlog: below 1, an idle
+    gap follows each packet (a base station or USB adapter that leaves the line idle
+    between packets), and a saturated line reads under its baud rate."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.throughput <= 1.0:
+            raise ValueError(f"throughput {self.throughput} is not in (0, 1]")
 
 
 @dataclass
@@ -314,13 +326,15 @@ class BaseStation:
             self.stats.stalls += 1
             self._next_stall = self._stall_after(stall)
         backlog = (self._line_free_at - t) / self.byte_time
-        if backlog + len(chunk) > BUFFER_BYTES and not control:
+        limit = self.line.buffer_bytes
+        if limit is not None and backlog + len(chunk) > limit and not control:
             return False
         if t > self._line_free_at > 0.0:
             self.stats.line_idle += t - self._line_free_at
         start = max(t, self._line_free_at)
-        self._line_free_at = start + len(chunk) * self.byte_time
-        self._out.append((self._line_free_at, chunk))
+        written = start + len(chunk) * self.byte_time
+        self._line_free_at = start + len(chunk) * self.byte_time / self.line.throughput
+        self._out.append((written, chunk))
         return True
 
     @property

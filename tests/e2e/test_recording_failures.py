@@ -3,7 +3,8 @@ real gateway and gx2-sim (issue 20): the gateway itself is an ERROR while it can
 write (status, ``gx2ctl status --check``, the metric), publishing goes on, no empty or
 unreadable file is left, and recording resumes in a new file by itself.
 
-The disk is a real 1 MiB tmpfs in a mount namespace of its own (unshare(1), as root),
+The disk is a real 1 MiB tmpfs in a mount namespace of its own (unshare(1), as root;
+tests/helpers/smalldisk.py),
 held by a process that lives as long as the test: the gateway joins that namespace
 (setns(2), before it starts), and the test reaches the same tmpfs through the holder's
 ``/proc/PID/root``. The tmpfs fills with a file the test writes until the kernel says
@@ -15,12 +16,7 @@ disk gives. Files are read back with the ``mcap`` package's own readers and
 from __future__ import annotations
 
 import csv
-import ctypes
-import errno
 import json
-import os
-import shutil
-import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -32,82 +28,30 @@ from gateway.sim.node import NodeSettings
 from tests.e2e.test_watching import Scraper
 from tests.helpers.ports import free_port
 from tests.helpers.processes import gx2ctl
+from tests.helpers.smalldisk import PAGE, SmallDisk, Unavailable
 from tests.helpers.waiting import wait_for
 
-CLONE_NEWNS = 0x00020000
-"""setns(2)'s flag for a mount namespace (<sched.h>)."""
 NODES = [{"address": 76, "stream": "accel_angrate"}]
 TOPIC = "gx2/76/accel_angrate"
-HOLD = 'mount -t tmpfs -o "$2" gx2-test "$1" && echo mounted && exec cat >/dev/null'
-"""The holder: mounts the tmpfs in its own namespace, says so, and keeps it until its
-standard input closes (the test ends, or dies)."""
 
 
-PAGE = 4096
-"""tmpfs gives and takes space in pages."""
-
-
-class SmallDisk:
-    """A tmpfs at ``inside`` that only the gateway (and the test, through ``outside``)
-    sees."""
-
-    def __init__(self, tmp_path: Path, options: str) -> None:
-        unshare = shutil.which("unshare")
-        if os.geteuid() != 0 or unshare is None:
-            pytest.skip("a tmpfs of its own needs root and unshare(1)")
-        self.inside = tmp_path / "disk"
-        self.inside.mkdir()
-        self._holder = subprocess.Popen(
-            [unshare, "--mount", "--propagation", "private", "sh", "-c", HOLD, "sh",
-             str(self.inside), options], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE, text=True)
-        if self._holder.stdout.readline().strip() != "mounted":  # type: ignore[union-attr]
-            why = self._holder.communicate(timeout=10)[1].strip()
-            pytest.skip(f"no tmpfs of its own here: {why}")
-        self.outside = Path(f"/proc/{self._holder.pid}/root{self.inside}")
-        self._namespace = os.open(f"/proc/{self._holder.pid}/ns/mnt", os.O_RDONLY)
-        self._setns = ctypes.CDLL(None, use_errno=True).setns
-
-    def enter(self) -> None:
-        """In the gateway's process, before it starts: the holder's mount namespace."""
-        if self._setns(self._namespace, CLONE_NEWNS) != 0:
-            os._exit(126)
-
-    def fill(self) -> int:
-        """Fill what is left of the disk (the filler grows); the bytes added."""
-        added = 0
-        with (self.outside / "filler").open("ab", buffering=0) as filler:
-            for block in (65536, 4096, 512, 1):
-                try:
-                    while True:
-                        added += filler.write(bytes(block))
-                except OSError as error:
-                    assert error.errno == errno.ENOSPC, error
-        return added
-
-    def free(self, size: int | None = None) -> None:
-        """Free the disk, or only ``size`` bytes of it."""
-        filler = self.outside / "filler"
-        if size is None:
-            filler.unlink()
-        else:
-            os.truncate(filler, filler.stat().st_size - size)
-
-    def close(self) -> None:
-        os.close(self._namespace)
-        self._holder.communicate(timeout=10)  # (stdin closed: the tmpfs goes with it)
+def small(tmp_path: Path, options: str) -> SmallDisk:
+    try:
+        return SmallDisk(tmp_path, options)
+    except Unavailable as why:
+        pytest.skip(str(why))
 
 
 @pytest.fixture
 def small_disk(tmp_path: Path) -> Iterator[SmallDisk]:
-    disk = SmallDisk(tmp_path, "size=1m")
+    disk = small(tmp_path, "size=1m")
     yield disk
     disk.close()
 
 
 @pytest.fixture
 def read_only_disk(tmp_path: Path) -> Iterator[SmallDisk]:
-    disk = SmallDisk(tmp_path, "ro")
+    disk = small(tmp_path, "ro")
     yield disk
     disk.close()
 

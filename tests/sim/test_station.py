@@ -130,6 +130,23 @@ def test_the_line_is_paced_at_the_baud_rate_and_a_full_buffer_drops():
     assert backlog <= BUFFER_BYTES
 
 
+def test_a_station_that_leaves_gaps_reads_under_the_baud_rate_and_one_without_bound_keeps_all():
+    """The FIFO line of the fault soak's second model: a saturated output reaching 90%
+    of the baud rate, and a buffer without bound that queues what the line cannot carry
+    (every packet kept, however late), where a bounded one drops."""
+    settings = [NodeSettings(a, stream="accel_angrate_mag_orientation", divider=170)
+                for a in (76, 77, 78)]
+    bench = Bench(*settings, line=LineFaults(throughput=0.9, buffer_bytes=None))
+    bench.run(0.5)
+    start = sum(map(len, bench.chunks))
+    bench.run(1.0)
+    assert sum(map(len, bench.chunks)) - start == pytest.approx(0.9 * 11_520, rel=0.02)
+    assert bench.station.stats.packets_dropped_full == 0
+    assert bench.station.backlog > 10 * BUFFER_BYTES
+    with pytest.raises(ValueError, match="throughput"):
+        LineFaults(throughput=0.0)
+
+
 def test_glued_ack_arrives_in_one_chunk_with_the_next_packet():
     bench = Bench(NodeSettings(76, stream="euler"), line=LineFaults(glue_ack=True))
     bench.run(0.05)
