@@ -2,6 +2,7 @@
 """Fault soak against ground truth: a week of ordinary faults in an hour. Run by hand:
 
     python bench/faultsoak.py --minutes 60 --seed 1
+    python bench/faultsoak.py --minutes 60 --seed 2 --model fifo
     python bench/faultsoak.py --minutes 3 --seed 1 --kinds stall unplug   # a few kinds
 
 gx2-sim runs in this process on a pty (three nodes streaming accel_angrate at about
@@ -25,11 +26,21 @@ covers them evenly):
   gateway's ``rate`` op), then back;
 - ``overload``: 110-140% of the line for 10-60 s (node 76 streaming
   accel_angrate_orientation at a faster rate, by ``start`` and ``rate``), then back;
-- ``reload``: node 77's name changed in the configuration, then SIGHUP.
+- ``reload``: node 77's name changed in the configuration, then SIGHUP;
+- ``mqtt``: the MQTT broker (mosquitto, the gateway's ``mqtt`` output) stopped for
+  2-15 s, then started again on its port;
+- ``disk``: the recording's disk (a tmpfs of 16 MiB of its own, tests/helpers/
+  smalldisk.py, root only) filled to ENOSPC for 3-15 s, then freed.
 
-Not covered: an MQTT broker restart and a full disk (the run has neither MQTT nor a
-recording), and ``--model fifo`` (the FIFO line exists only in bench/linemodels.py's
-simulated time, not behind a pty).
+With ``mqtt`` or ``disk`` among the kinds, the gateway publishes to mosquitto or
+records (1 MB files, 6 MB kept) throughout, as a deployment does.
+
+Two models of the base station (``--model``): ``gx2sim``, gx2-sim's own (a 4 KiB
+output buffer that drops when full, the line at its baud rate), and ``fifo``, the
+FIFO line of bench/linemodels.py and bench/linequeue.py behind the same pty: a 16 KiB
+buffer that queues what the line cannot carry and a gap after each packet, so that a
+saturated line reads at 90.6% of its baud rate. The loads and overloads are shares of
+what that line carries.
 
 Checked at the end, from the records, the truth and the polls:
 
@@ -49,6 +60,9 @@ Checked at the end, from the records, the truth and the polls:
   the node's samples arriving around that poll, within LATE_TOLERANCE;
 - losses: the replies delivered into the pty, received, published and got (the
   tap of bench/soak.py); nothing may be lost in the gateway;
+- the recording (with ``disk``): every record got, from the first the files left by
+  retention hold, is in them (read by the ``mcap`` package's reader), but those got
+  within a full disk's window (from TAKEN_BACK_S before it filled to its recovery);
 - the gateway's RSS and open descriptors after the warm-up and at the end: flat.
 
 The exit status is 1 if an invariant fails.
@@ -72,6 +86,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import orjson
 import yaml
 import zmq
 from benchutil import (
@@ -84,21 +99,35 @@ from benchutil import (
     rss_kib,
     unix_minus_monotonic,
 )
+from mcap.reader import make_reader
 from soakrecords import ADDRESSES, NODES, RECOVERY_SLACK, Fault, NodePoll, Poll, Result, Samples
 from soakreport import analyse, print_report
 
 from aspp import Reply
 from aspp.frame import REPLY_OVERHEAD
 from aspp.records import BY_NAME, lookup
-from gateway.sim.base_station import RADIO_LATENCY, BaseStation
+from gateway.common.topics import parse
+from gateway.daemon.outputs.recorder import FLUSH_S, WAKE_S
+from gateway.sim.base_station import RADIO_LATENCY, BaseStation, LineFaults
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
+from tests.helpers.broker import Broker
+from tests.helpers.smalldisk import SmallDisk
 
 STREAM, BIG_STREAM = "accel_angrate", "accel_angrate_orientation"
 LINE_BYTES = 11520.0
 """Bytes a second a 115200-baud line carries."""
 KINDS = ("stall", "cpu", "unplug", "power_one", "power_all", "radio", "load", "overload",
-         "reload")
+         "reload", "mqtt", "disk")
+MODELS: dict[str, LineFaults] = {
+    "gx2sim": LineFaults(),
+    "fifo": LineFaults(buffer_bytes=16384, throughput=0.906)}
+"""The base station's output, by ``--model``."""
+DISK = "size=16m"
+TAKEN_BACK_S = FLUSH_S + WAKE_S
+"""Seconds before a disk fills whose records a file cut short loses: back to its last
+flush (gateway.daemon.outputs.recorder), and those the thread had not yet taken."""
+RECORD = {"rotate_mb": 1.0, "keep_gb": 0.006}
 POLL_PERIOD = 0.5
 UNMATCHED_S = 2.0
 """Seconds a record waits for the tap to decode its packet (the simulator's thread may
@@ -117,6 +146,12 @@ def rate_hz(node: NodeSettings) -> float:
 def others_load() -> float:
     """Bytes a second nodes 77 and 78 send: what node 76's rate is set against."""
     return sum(bytes_per_second(STREAM, rate_hz(n)) for n in NODES[1:])
+
+
+def node76_hz(rig: Rig, share: float, stream: str) -> float:
+    """Node 76's rate that makes the line carry ``share`` of what it can."""
+    return (share * LINE_BYTES * rig.line.throughput - others_load()) / \
+        bytes_per_second(stream, 1.0)
 
 
 # -- the rig: simulator, gateway, subscriber ----------------------------------------
@@ -163,10 +198,12 @@ TIMED = frozenset(spec.code for spec in BY_NAME.values() if spec.timed)
 class Rig:
     """gx2-sim on a pty, the installed gateway on it, and a watcher of both."""
 
-    def __init__(self, seed: int, window_s: float, settle_s: float) -> None:
+    def __init__(self, seed: int, window_s: float, settle_s: float, model: str,
+                 kinds: tuple[str, ...]) -> None:
         self.work = Path(tempfile.mkdtemp(prefix="gx2-faultsoak-"))
         self.link = self.work / "gx2"
-        self.sim = Simulator(list(NODES), link=self.link, seed=seed).start()
+        self.line = MODELS[model]
+        self.sim = Simulator(list(NODES), link=self.link, seed=seed, line=self.line).start()
         self.truths = Truths(self.sim)
         self.tap = Tap(self.sim, self.truths.on_reply)
         self.samples = Samples()
@@ -179,21 +216,35 @@ class Rig:
             "control": {"endpoint": control, "allow_eeprom_write": True},
             "health": {"window_s": window_s, "settle_s": settle_s},
             "nodes": [{"address": a, "stream": STREAM, "name": f"n{a}"} for a in ADDRESSES]}
+        self.broker = Broker(self.work) if "mqtt" in kinds else None
+        if self.broker is not None:
+            self.settings["mqtt"] = {"url": self.broker.url}
+        self.disk = SmallDisk(self.work, DISK) if "disk" in kinds else None
+        if self.disk is not None:
+            self.settings["record"] = {
+                "directory": str(self.disk.inside / "recordings"), **RECORD}
         self.write_config()
         self.log = (self.work / "gateway.log").open("w")
         self.gateway = subprocess.Popen(
             [gateway_command(), "--config", str(self.config), "--log-level", "INFO"],
-            stdout=self.log, stderr=subprocess.STDOUT)
+            stdout=self.log, stderr=subprocess.STDOUT,
+            preexec_fn=self.disk.enter if self.disk is not None else None)
         self.context = zmq.Context()
         self.watch = Watcher(self.context, publish, control, self.on_record)
         self.hogs: list[subprocess.Popen[bytes]] = []
         self.unmatched: list[tuple[float, int, int, float]] = []
         """(arrival, node, timer, time on the monotonic clock) awaiting their truth."""
+        self.got: list[tuple[int, int, float, float]] = []
+        """(node, seq, host_time, arrival) of every record got, for the recording's
+        check (with ``disk`` only)."""
 
     def write_config(self) -> None:
         self.config.write_text(yaml.safe_dump(self.settings))
 
     def on_record(self, _topic: bytes, message: dict[str, Any]) -> None:
+        if self.disk is not None and "seq" in message:
+            self.got.append((message["node"], message["seq"], message["host_time"],
+                             time.monotonic()))
         if "time" not in message or "timer" not in message:
             return
         node = message["node"]
@@ -219,10 +270,8 @@ class Rig:
             else:
                 self.samples.untrue += 1
 
-    def close(self) -> None:
-        for hog in self.hogs:
-            hog.kill()
-            hog.wait()
+    def stop_gateway(self) -> None:
+        """SIGTERM (after SIGCONT: it may be stopped), as systemd stops it."""
         if self.gateway.poll() is None:
             self.gateway.send_signal(signal.SIGCONT)
             self.gateway.terminate()
@@ -231,9 +280,31 @@ class Rig:
             except subprocess.TimeoutExpired:
                 self.gateway.kill()
                 self.gateway.wait()
+
+    def recorded(self) -> set[tuple[int, int, float]]:
+        """(node, seq, host_time) of every record in the recording's files."""
+        assert self.disk is not None
+        keys = set()
+        for path in sorted((self.disk.outside / "recordings").glob("*.mcap")):
+            with path.open("rb") as stream:
+                for _, channel, message in make_reader(stream).iter_messages():
+                    if parse(channel.topic) is not None:  # (a node's record)
+                        record = orjson.loads(message.data)
+                        keys.add((record["node"], record["seq"], record["host_time"]))
+        return keys
+
+    def close(self) -> None:
+        for hog in self.hogs:
+            hog.kill()
+            hog.wait()
+        self.stop_gateway()
         self.sim.stop()
         self.context.destroy(linger=0)
         self.log.close()
+        if self.broker is not None:
+            self.broker.stop()
+        if self.disk is not None:
+            self.disk.close()
 
 
 # -- the faults -----------------------------------------------------------------------
@@ -307,14 +378,14 @@ def restore76(rig: Rig) -> Callable[[], None]:
 
 def load(rig: Rig, rng: random.Random) -> tuple[float, str, Callable[[], None]]:
     seconds, share = rng.uniform(10.0, 30.0), rng.uniform(0.50, 0.98)
-    hz = (share * LINE_BYTES - others_load()) / bytes_per_second(STREAM, 1.0)
+    hz = node76_hz(rig, share, STREAM)
     node76(rig, STREAM, hz)
     return seconds, f"{share:.0%} ({hz:.1f} Hz) for {seconds:.0f} s", restore76(rig)
 
 
 def overload(rig: Rig, rng: random.Random) -> tuple[float, str, Callable[[], None]]:
     seconds, share = rng.uniform(10.0, 60.0), rng.uniform(1.10, 1.40)
-    hz = (share * LINE_BYTES - others_load()) / bytes_per_second(BIG_STREAM, 1.0)
+    hz = node76_hz(rig, share, BIG_STREAM)
     node76(rig, BIG_STREAM, hz)
     return seconds, f"{share:.0%} ({BIG_STREAM} {hz:.1f} Hz) for {seconds:.0f} s", \
         restore76(rig)
@@ -328,10 +399,24 @@ def reload(rig: Rig, _rng: random.Random) -> tuple[float, str, None]:
     return 0.0, f"node 77 named {node['name']}, SIGHUP", None
 
 
+def mqtt(rig: Rig, rng: random.Random) -> tuple[float, str, Callable[[], None]]:
+    assert rig.broker is not None
+    seconds = rng.uniform(2.0, 15.0)
+    rig.broker.stop()
+    return seconds, f"broker stopped {seconds:.1f} s", rig.broker.start
+
+
+def disk(rig: Rig, rng: random.Random) -> tuple[float, str, Callable[[], None]]:
+    assert rig.disk is not None
+    seconds = rng.uniform(3.0, 15.0)
+    rig.disk.fill()
+    return seconds, f"full {seconds:.1f} s", rig.disk.free
+
+
 BEGIN: dict[str, Begin] = {
     "stall": stall, "cpu": cpu, "unplug": unplug, "power_one": power((77,)),
     "power_all": power(ADDRESSES), "radio": radio, "load": load, "overload": overload,
-    "reload": reload}
+    "reload": reload, "mqtt": mqtt, "disk": disk}
 
 
 def deck(rng: random.Random, kinds: tuple[str, ...]) -> Iterable[str]:
@@ -468,12 +553,34 @@ def stop_and_settle(rig: Rig, poller: Poller) -> dict[str, Any] | None:
     return status
 
 
+def recording_check(rig: Rig, faults: list[Fault], bound: float) -> tuple[int, int, int]:
+    """(records checked, of them missing from the recording, got within a full disk's
+    window and not checked): every record got from the first the files hold."""
+    recorded = rig.recorded()
+    if not recorded:
+        return 0, 0, 0
+    first = min(host for _, _, host in recorded)
+    full = [(f.start - TAKEN_BACK_S,
+             (f.end or f.due) + (f.recovered if f.recovered is not None else bound))
+            for f in faults if f.kind == "disk"]
+    checked = missing = skipped = 0
+    for node, seq, host, arrival in rig.got:
+        if host < first:
+            continue
+        if any(start <= arrival <= end for start, end in full):
+            skipped += 1
+            continue
+        checked += 1
+        missing += (node, seq, host) not in recorded
+    return checked, missing, skipped
+
+
 def run(seconds: float, seed: int, *, kinds: tuple[str, ...] = KINDS, window_s: float = 20.0,
         settle_s: float = 5.0, quiet: tuple[float, float] = (5.0, 20.0),
-        keep: bool = False) -> Result:
+        keep: bool = False, model: str = "gx2sim") -> Result:
     """The soak: warm-up, then faults for ``seconds``, then the final counts."""
     rng = random.Random(seed)
-    rig = Rig(seed, window_s, settle_s)
+    rig = Rig(seed, window_s, settle_s, model, kinds)
     poller = Poller(rig.watch)
     try:
         started = time.monotonic()
@@ -499,13 +606,17 @@ def run(seconds: float, seed: int, *, kinds: tuple[str, ...] = KINDS, window_s: 
         if status is None:
             raise RuntimeError("the gateway stopped answering")
         losses = gateway_losses(status, rig.tap, rig.watch, ADDRESSES)
+        rig.stop_gateway()
+        recording = recording_check(rig, schedule.faults, schedule.bound) \
+            if rig.disk is not None else None
     finally:
         rig.close()
     if not keep:
         shutil.rmtree(rig.work, ignore_errors=True)
     rig.samples.sort()
     return Result(seconds, window_s, started, warmed, schedule.faults, poller.polls,
-                  rig.samples, losses, resources, poller.ops_failed, rig.work)
+                  rig.samples, losses, resources, poller.ops_failed, rig.work, model,
+                  recording)
 
 
 def main() -> int:
@@ -513,6 +624,8 @@ def main() -> int:
     parser.add_argument("--minutes", type=float, default=60.0)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS))
+    parser.add_argument("--model", choices=tuple(MODELS), default="gx2sim",
+                        help="the base station's output (the module's docstring)")
     parser.add_argument("--health-window", type=float, default=20.0,
                         help="the gateway's health.window_s (the recovery bound's base)")
     parser.add_argument("--keep", action="store_true", help="keep the work directory")
@@ -524,10 +637,10 @@ def main() -> int:
     if args.load:
         result = pickle.loads(args.load.read_bytes())
     else:
-        print(f"fault soak: {args.minutes:g} min, seed {args.seed}, pid {os.getpid()}",
-              flush=True)
+        print(f"fault soak: {args.minutes:g} min, seed {args.seed}, model {args.model}, "
+              f"pid {os.getpid()}", flush=True)
         result = run(args.minutes * 60, args.seed, kinds=tuple(args.kinds),
-                     window_s=args.health_window, keep=args.keep)
+                     window_s=args.health_window, keep=args.keep, model=args.model)
         if args.save:
             for fault in result.faults:
                 fault.undo = None  # (a closure over the run's processes)

@@ -105,6 +105,11 @@ class Result:
     """(RSS KiB, open fds) after the warm-up and at the end."""
     ops_failed: list[str]
     work: Path
+    model: str = "gx2sim"
+    """The base station's output (faultsoak.MODELS)."""
+    recording: tuple[int, int, int] | None = None
+    """(records checked, missing from the recording, not checked: within a full disk's
+    window); None without a recording."""
 
     @property
     def bound(self) -> float:

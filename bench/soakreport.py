@@ -277,6 +277,11 @@ def analyse(result: Result, listed: int = UNWARNED_LISTED) -> Report:
         f"records without truth {result.samples.untrue}",
         f"RSS {rss0 / 1024:.1f} -> {rss1 / 1024:.1f} MiB, open fds {fds0} -> {fds1}",
     ]
+    if result.recording is not None:
+        checked, missing, skipped = result.recording
+        lines.append(f"recording: {checked:,} records got checked against the files, "
+                     f"{missing:,} missing; {skipped:,} got while the disk was full not "
+                     "checked")
     lines += [f"  WARN {warn:.0f} s, {good / warn if warn else 0:.0%} on good samples: {kind}"
               for kind, (warn, good) in sorted(honest.by_reason.items(),
                                                 key=lambda item: -item[1][0])]
@@ -299,6 +304,10 @@ def analyse(result: Result, listed: int = UNWARNED_LISTED) -> Report:
                             f"{len(honest.late_violations)} of {honest.late_given}"),
         "nothing lost in the gateway": (losses["in_gateway"] == 0 and not losses["seq_gaps"],
                                         f"{losses['in_gateway']}"),
+        "the recording holds what was published": (
+            result.recording is None or (result.recording[1] == 0 and result.recording[0] > 0),
+            "no recording" if result.recording is None else
+            f"{result.recording[1]:,} of {result.recording[0]:,} missing"),
         "RSS and fds flat": (rss1 - rss0 <= RSS_FLAT_KIB and fds1 <= fds0,
                              f"RSS {(rss1 - rss0) / 1024:+.1f} MiB, fds {fds1 - fds0:+d}"),
     }
@@ -319,7 +328,7 @@ def last_reasons(result: Result, fault: Fault) -> str:
 
 
 def print_report(result: Result, report: Report) -> None:
-    print(f"\nfault soak: {result.seconds / 60:.1f} min of faults after "
+    print(f"\nfault soak ({result.model}): {result.seconds / 60:.1f} min of faults after "
           f"{result.warmed - result.started:.0f} s of warm-up, {len(result.faults)} faults, "
           f"{len(result.polls):,} polls; health window {result.window_s:.0f} s, recovery "
           f"bound {result.bound:.0f} s")
