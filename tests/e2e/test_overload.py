@@ -4,7 +4,8 @@ simulated base station's buffer fills and drops, as a real one's does, and every
 read waits behind up to a buffer's worth of others: the delay the clock estimate sees is
 the backlog's, not the clock's. The gateway must say so (the gateway and the nodes it
 affects WARN, their clocks unlocked), keep ``time`` smooth against ``device_time``
-meanwhile, and be back on the truth within 10 s of the line having room."""
+meanwhile, and be back on the truth within 10 s of the line having room. The same on a
+base station whose gaps keep the saturated line's reads at 90.6% of its baud rate."""
 
 from __future__ import annotations
 
@@ -12,8 +13,10 @@ import time
 from dataclasses import replace
 from itertools import pairwise
 
+import pytest
+
 from aspp.timing import TICKS_PER_SECOND, sample_period
-from gateway.sim.base_station import RADIO_LATENCY, RadioLink
+from gateway.sim.base_station import RADIO_LATENCY, LineFaults, RadioLink
 from gateway.sim.node import NodeSettings
 from tests.e2e.test_sample_time import errors
 from tests.helpers.waiting import wait_for
@@ -25,24 +28,37 @@ ROOM_S = 10.0
 """Seconds from the line having room to the estimate being back within 1 ms."""
 
 
-def test_an_overloaded_line_is_said_and_time_stays_smooth(simulator, gateway):
+FIFO = LineFaults(buffer_bytes=16384, throughput=0.906)
+"""A base station that leaves a gap after each packet (a saturated line read at 90.6% of
+its baud rate, which bytes a second never called full) and queues up to 16 KiB: the
+FIFO line of bench/linequeue.py, behind the pty (issue 38)."""
+
+
+@pytest.mark.parametrize("line", [None, FIFO], ids=["gx2sim", "fifo"])
+def test_an_overloaded_line_is_said_and_time_stays_smooth(simulator, gateway, line):
     sim = simulator(NodeSettings(76, divider=DIVIDER, stream="accel_angrate", ppm=30.0),
                     NodeSettings(77, divider=DIVIDER, stream="accel_angrate", ppm=-20.0),
-                    NodeSettings(78, divider=DIVIDER, stream="accel_angrate_orientation"))
+                    NodeSettings(78, divider=DIVIDER, stream="accel_angrate_orientation"),
+                    line=line)
     gw = gateway(sim.path, [{"address": 76}, {"address": 77}, {"address": 78}],
                  base_station={"latency_ms": RADIO_LATENCY * 1000})
     sub = gw.subscribe("gx2/76/accel_angrate", "gx2/77/accel_angrate")
+    read_shares: list[float] = []
 
     def over_capacity() -> bool:
         status = gw.status()
         nodes = {n["node"]: n for n in status["nodes"]}
-        return (status["link"].get("over_capacity") is True
+        link = status["link"]
+        read_shares.append(link["bytes_per_s"] / link["line_bytes_per_s"])
+        return (link.get("over_capacity") is True
                 and any(r.startswith("line over capacity") for r in status["gateway"]["reasons"])
                 and all(OVER in nodes[n]["reasons"] and nodes[n]["health"] == "WARN"
                         and nodes[n]["clock"]["locked"] is False for n in (76, 77, 78)))
 
     wait_for(over_capacity, 30, "the line said to be over capacity, its nodes WARN, unlocked")
     assert sim.station.stats.packets_dropped_full > 0, "the simulated line was not full"
+    if line is not None:  # (said from the queue's evidence, the reads under 95%)
+        assert read_shares[-1] < 0.95, read_shares
     sub.drain(3.0)  # a while over capacity
     gw.control.result("stop", timeout=30, node=78)
     room = time.monotonic()
