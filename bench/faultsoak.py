@@ -36,11 +36,11 @@ With ``mqtt`` or ``disk`` among the kinds, the gateway publishes to mosquitto or
 records (1 MB files, 6 MB kept) throughout, as a deployment does.
 
 Two models of the base station (``--model``): ``gx2sim``, gx2-sim's own (a 4 KiB
-output buffer that drops when full, the line at its baud rate), and ``fifo``, the
-FIFO line of bench/linemodels.py and bench/linequeue.py behind the same pty: a 16 KiB
-buffer that queues what the line cannot carry and a gap after each packet, so that a
-saturated line reads at 90.6% of its baud rate. The loads and overloads are shares of
-what that line carries.
+output buffer that drops when full, the line at its baud rate), and ``fifo``, a FIFO
+base station as bench/linequeue.py's, behind the same pty: a gap after each packet, so
+that a saturated line reads at 90.6% of its baud rate, and a buffer of 16 KiB (1.6 s
+of that line) that queues what the line cannot carry. The loads and overloads are
+shares of what that line carries (node 76 at 1 Hz at least).
 
 Checked at the end, from the records, the truth and the polls:
 
@@ -60,9 +60,10 @@ Checked at the end, from the records, the truth and the polls:
   the node's samples arriving around that poll, within LATE_TOLERANCE;
 - losses: the replies delivered into the pty, received, published and got (the
   tap of bench/soak.py); nothing may be lost in the gateway;
-- the recording (with ``disk``): every record got, from the first the files left by
-  retention hold, is in them (read by the ``mcap`` package's reader), but those got
-  within a full disk's window (from TAKEN_BACK_S before it filled to its recovery);
+- the recording (with ``disk``): every record got is in the files (read by the
+  ``mcap`` package's reader as each is finished, before retention deletes it), but
+  those got within a full disk's window (from TAKEN_BACK_S before it filled to its
+  recovery) and before the first file read;
 - the gateway's RSS and open descriptors after the warm-up and at the end: flat.
 
 The exit status is 1 if an invariant fails.
@@ -71,6 +72,7 @@ The exit status is 1 if an invariant fails.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import pickle
 import random
@@ -81,6 +83,7 @@ import sys
 import tempfile
 import threading
 import time
+from array import array
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -99,7 +102,7 @@ from benchutil import (
     rss_kib,
     unix_minus_monotonic,
 )
-from mcap.reader import make_reader
+from mcap.reader import NonSeekingReader
 from soakrecords import ADDRESSES, NODES, RECOVERY_SLACK, Fault, NodePoll, Poll, Result, Samples
 from soakreport import analyse, print_report
 
@@ -111,8 +114,8 @@ from gateway.daemon.outputs.recorder import FLUSH_S, WAKE_S
 from gateway.sim.base_station import RADIO_LATENCY, BaseStation, LineFaults
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
-from tests.helpers.broker import Broker
-from tests.helpers.smalldisk import SmallDisk
+from tests.helpers.broker import MOSQUITTO, Broker
+from tests.helpers.smalldisk import SmallDisk, Unavailable
 
 STREAM, BIG_STREAM = "accel_angrate", "accel_angrate_orientation"
 LINE_BYTES = 11520.0
@@ -124,9 +127,13 @@ MODELS: dict[str, LineFaults] = {
     "fifo": LineFaults(buffer_bytes=16384, throughput=0.906)}
 """The base station's output, by ``--model``."""
 DISK = "size=16m"
-TAKEN_BACK_S = FLUSH_S + WAKE_S
+TAKEN_BACK_S = 2 * FLUSH_S + WAKE_S
 """Seconds before a disk fills whose records a file cut short loses: back to its last
-flush (gateway.daemon.outputs.recorder), and those the thread had not yet taken."""
+flush (gateway.daemon.outputs.recorder, due FLUSH_S after the flush and retention
+before it ended), and those the thread had not yet taken."""
+HARVEST_PERIOD = 5.0
+"""Seconds between reads of the recording's finished files (retention keeps each one
+for minutes)."""
 RECORD = {"rotate_mb": 1.0, "keep_gb": 0.006}
 POLL_PERIOD = 0.5
 UNMATCHED_S = 2.0
@@ -149,9 +156,10 @@ def others_load() -> float:
 
 
 def node76_hz(rig: Rig, share: float, stream: str) -> float:
-    """Node 76's rate that makes the line carry ``share`` of what it can."""
-    return (share * LINE_BYTES * rig.line.throughput - others_load()) / \
-        bytes_per_second(stream, 1.0)
+    """Node 76's rate that makes the line carry ``share`` of what it can (1 Hz at
+    least: the others alone may carry more on the FIFO line)."""
+    return max(1.0, (share * LINE_BYTES * rig.line.throughput - others_load())
+               / bytes_per_second(stream, 1.0))
 
 
 # -- the rig: simulator, gateway, subscriber ----------------------------------------
@@ -203,48 +211,57 @@ class Rig:
         self.work = Path(tempfile.mkdtemp(prefix="gx2-faultsoak-"))
         self.link = self.work / "gx2"
         self.line = MODELS[model]
-        self.sim = Simulator(list(NODES), link=self.link, seed=seed, line=self.line).start()
-        self.truths = Truths(self.sim)
-        self.tap = Tap(self.sim, self.truths.on_reply)
-        self.samples = Samples()
-        self.shift = unix_minus_monotonic()
-        self.config = self.work / "nodes.yaml"
-        publish, control = (f"tcp://127.0.0.1:{free_port()}" for _ in range(2))
-        self.settings: dict[str, Any] = {
-            "base_station": {"port": str(self.link), "latency_ms": RADIO_LATENCY * 1000},
-            "publish": {"endpoint": publish},
-            "control": {"endpoint": control, "allow_eeprom_write": True},
-            "health": {"window_s": window_s, "settle_s": settle_s},
-            "nodes": [{"address": a, "stream": STREAM, "name": f"n{a}"} for a in ADDRESSES]}
-        self.broker = Broker(self.work) if "mqtt" in kinds else None
-        if self.broker is not None:
-            self.settings["mqtt"] = {"url": self.broker.url}
-        self.disk = SmallDisk(self.work, DISK) if "disk" in kinds else None
-        if self.disk is not None:
-            self.settings["record"] = {
-                "directory": str(self.disk.inside / "recordings"), **RECORD}
-        self.write_config()
-        self.log = (self.work / "gateway.log").open("w")
-        self.gateway = subprocess.Popen(
-            [gateway_command(), "--config", str(self.config), "--log-level", "INFO"],
-            stdout=self.log, stderr=subprocess.STDOUT,
-            preexec_fn=self.disk.enter if self.disk is not None else None)
+        with contextlib.ExitStack() as undo:  # (what started, stopped if the rest fails)
+            undo.callback(shutil.rmtree, self.work, ignore_errors=True)
+            self.disk = SmallDisk(self.work, DISK) if "disk" in kinds else None
+            if self.disk is not None:
+                undo.callback(self.disk.close)
+            self.broker = Broker(self.work) if "mqtt" in kinds else None
+            if self.broker is not None:
+                undo.callback(self.broker.stop)
+            self.sim = Simulator(list(NODES), link=self.link, seed=seed, line=self.line).start()
+            undo.callback(self.sim.stop)
+            self.truths = Truths(self.sim)
+            self.tap = Tap(self.sim, self.truths.on_reply)
+            self.samples = Samples()
+            self.shift = unix_minus_monotonic()
+            self.config = self.work / "nodes.yaml"
+            publish, control = (f"tcp://127.0.0.1:{free_port()}" for _ in range(2))
+            self.settings: dict[str, Any] = {
+                "base_station": {"port": str(self.link), "latency_ms": RADIO_LATENCY * 1000},
+                "publish": {"endpoint": publish},
+                "control": {"endpoint": control, "allow_eeprom_write": True},
+                "health": {"window_s": window_s, "settle_s": settle_s},
+                "nodes": [{"address": a, "stream": STREAM, "name": f"n{a}"}
+                          for a in ADDRESSES]}
+            if self.broker is not None:
+                self.settings["mqtt"] = {"url": self.broker.url}
+            command = [gateway_command(), "--config", str(self.config), "--log-level", "INFO"]
+            if self.disk is not None:
+                self.settings["record"] = {
+                    "directory": str(self.disk.inside / "recordings"), **RECORD}
+                # (nsenter, not a preexec_fn: the simulator's thread is running)
+                command = ["nsenter", f"--mount={self.disk.namespace}", "--", *command]
+            self.write_config()
+            self.log = (self.work / "gateway.log").open("w")
+            undo.callback(self.log.close)
+            self.gateway = subprocess.Popen(command, stdout=self.log, stderr=subprocess.STDOUT)
+            undo.pop_all()
         self.context = zmq.Context()
         self.watch = Watcher(self.context, publish, control, self.on_record)
         self.hogs: list[subprocess.Popen[bytes]] = []
         self.unmatched: list[tuple[float, int, int, float]] = []
         """(arrival, node, timer, time on the monotonic clock) awaiting their truth."""
-        self.got: list[tuple[int, int, float, float]] = []
-        """(node, seq, host_time, arrival) of every record got, for the recording's
-        check (with ``disk`` only)."""
+        self.got = Keys()
+        """Every record got, for the recording's check (with ``disk`` only)."""
+        self.recorded = Recorded()
 
     def write_config(self) -> None:
         self.config.write_text(yaml.safe_dump(self.settings))
 
     def on_record(self, _topic: bytes, message: dict[str, Any]) -> None:
         if self.disk is not None and "seq" in message:
-            self.got.append((message["node"], message["seq"], message["host_time"],
-                             time.monotonic()))
+            self.got.add(message, time.monotonic())
         if "time" not in message or "timer" not in message:
             return
         node = message["node"]
@@ -281,30 +298,72 @@ class Rig:
                 self.gateway.kill()
                 self.gateway.wait()
 
-    def recorded(self) -> set[tuple[int, int, float]]:
-        """(node, seq, host_time) of every record in the recording's files."""
+    def harvest(self, everything: bool = False) -> None:
+        """Read the recording's finished files not read yet (every file, once the
+        gateway has stopped)."""
         assert self.disk is not None
-        keys = set()
-        for path in sorted((self.disk.outside / "recordings").glob("*.mcap")):
-            with path.open("rb") as stream:
-                for _, channel, message in make_reader(stream).iter_messages():
-                    if parse(channel.topic) is not None:  # (a node's record)
-                        record = orjson.loads(message.data)
-                        keys.add((record["node"], record["seq"], record["host_time"]))
-        return keys
+        paths = sorted((self.disk.outside / "recordings").glob("*.mcap"))
+        self.recorded.read(paths if everything else paths[:-1])
 
     def close(self) -> None:
-        for hog in self.hogs:
-            hog.kill()
-            hog.wait()
-        self.stop_gateway()
-        self.sim.stop()
-        self.context.destroy(linger=0)
-        self.log.close()
-        if self.broker is not None:
-            self.broker.stop()
-        if self.disk is not None:
-            self.disk.close()
+        """Everything started, stopped (each whatever the others do)."""
+        with contextlib.ExitStack() as stack:
+            if self.disk is not None:
+                stack.callback(self.disk.close)
+            if self.broker is not None:
+                stack.callback(self.broker.stop)
+            stack.callback(self.log.close)
+            stack.callback(self.context.destroy, linger=0)
+            stack.callback(self.sim.stop)
+            stack.callback(self.stop_gateway)
+            for hog in self.hogs:
+                stack.callback(hog.wait)
+                stack.callback(hog.kill)
+
+
+class Keys:
+    """Records as (node, seq, host_time) hashed, with their arrival: an hour's are some
+    900,000 (16 bytes each here, not a tuple's 100)."""
+
+    def __init__(self) -> None:
+        self.hashes = array("q")
+        self.arrivals = array("d")
+
+    def add(self, message: dict[str, Any], arrival: float) -> None:
+        self.hashes.append(hash((message["node"], message["seq"], message["host_time"])))
+        self.arrivals.append(arrival)
+
+
+class Recorded:
+    """The records of the recording's files read so far, and the files that could not
+    be read to their end (a file cut short by a full disk may lack its end: read up to
+    where it stops, as every reader of a recording does)."""
+
+    def __init__(self) -> None:
+        self.hashes: set[int] = set()
+        self.first: float | None = None
+        """Host time of the first record read."""
+        self.done: set[str] = set()
+        self.cut: list[str] = []
+
+    def read(self, paths: list[Path]) -> None:
+        for path in paths:
+            if path.name in self.done:
+                continue
+            self.done.add(path.name)
+            try:
+                with path.open("rb") as stream:
+                    for _, channel, message in NonSeekingReader(stream).iter_messages():
+                        if parse(channel.topic) is not None:  # (a node's record)
+                            record = orjson.loads(message.data)
+                            self.hashes.add(hash((record["node"], record["seq"],
+                                                  record["host_time"])))
+                            if self.first is None:
+                                self.first = record["host_time"]
+            except FileNotFoundError:  # (retention was first)
+                continue
+            except Exception as error:  # (mcap's errors have no common base)
+                self.cut.append(f"{path.name}: {type(error).__name__}")
 
 
 # -- the faults -----------------------------------------------------------------------
@@ -440,7 +499,8 @@ def node_poll(node: dict[str, Any]) -> NodePoll:
 def make_poll(asked: float, status: dict[str, Any]) -> Poll:
     nodes = {n["node"]: node_poll(n) for n in status["nodes"]}
     gateway = status["gateway"]
-    healthy = gateway["health"] == "OK" and all(
+    mqtt = status.get("mqtt") or {}
+    healthy = gateway["health"] == "OK" and mqtt.get("connected", True) and all(
         nodes.get(a) is not None and nodes[a].health == "OK" and nodes[a].locked
         for a in ADDRESSES)
     return Poll(asked, time.monotonic(), healthy, nodes, tuple(gateway.get("reasons") or ()))
@@ -556,22 +616,23 @@ def stop_and_settle(rig: Rig, poller: Poller) -> dict[str, Any] | None:
 def recording_check(rig: Rig, faults: list[Fault], bound: float) -> tuple[int, int, int]:
     """(records checked, of them missing from the recording, got within a full disk's
     window and not checked): every record got from the first the files hold."""
-    recorded = rig.recorded()
-    if not recorded:
+    rig.harvest(everything=True)
+    recorded = rig.recorded
+    if recorded.first is None:
         return 0, 0, 0
-    first = min(host for _, _, host in recorded)
+    first = recorded.first - rig.shift  # (host_time on the monotonic clock, roughly)
     full = [(f.start - TAKEN_BACK_S,
              (f.end or f.due) + (f.recovered if f.recovered is not None else bound))
             for f in faults if f.kind == "disk"]
     checked = missing = skipped = 0
-    for node, seq, host, arrival in rig.got:
-        if host < first:
+    for key, arrival in zip(rig.got.hashes, rig.got.arrivals, strict=True):
+        if arrival < first + 1.0:  # (the first file read, and the second before it)
             continue
         if any(start <= arrival <= end for start, end in full):
             skipped += 1
             continue
         checked += 1
-        missing += (node, seq, host) not in recorded
+        missing += key not in recorded.hashes
     return checked, missing, skipped
 
 
@@ -582,6 +643,7 @@ def run(seconds: float, seed: int, *, kinds: tuple[str, ...] = KINDS, window_s: 
     rng = random.Random(seed)
     rig = Rig(seed, window_s, settle_s, model, kinds)
     poller = Poller(rig.watch)
+    next_harvest = 0.0
     try:
         started = time.monotonic()
         warmed = warm_up(rig, poller, settle_s)
@@ -599,6 +661,9 @@ def run(seconds: float, seed: int, *, kinds: tuple[str, ...] = KINDS, window_s: 
             schedule.tick(now, may_begin=end - now > min(longest, seconds / 4))
             if now >= next_shift:
                 rig.shift, next_shift = unix_minus_monotonic(), now + 1.0
+            if rig.disk is not None and now >= next_harvest:
+                rig.harvest()
+                next_harvest = now + HARVEST_PERIOD
             if rig.gateway.poll() is not None:
                 raise RuntimeError(f"the gateway exited; its log: {rig.work / 'gateway.log'}")
         status = stop_and_settle(rig, poller)
@@ -616,7 +681,7 @@ def run(seconds: float, seed: int, *, kinds: tuple[str, ...] = KINDS, window_s: 
     rig.samples.sort()
     return Result(seconds, window_s, started, warmed, schedule.faults, poller.polls,
                   rig.samples, losses, resources, poller.ops_failed, rig.work, model,
-                  recording)
+                  recording, rig.recorded.cut)
 
 
 def main() -> int:
@@ -634,13 +699,20 @@ def main() -> int:
     parser.add_argument("--unwarned", type=int, default=10,
                         help="how many off samples with no WARN to list")
     args = parser.parse_args()
+    if "mqtt" in args.kinds and MOSQUITTO is None:
+        parser.exit(2, "faultsoak: the mqtt fault needs mosquitto (apt install "
+                       "mosquitto); or leave it out of --kinds\n")
     if args.load:
         result = pickle.loads(args.load.read_bytes())
     else:
         print(f"fault soak: {args.minutes:g} min, seed {args.seed}, model {args.model}, "
               f"pid {os.getpid()}", flush=True)
-        result = run(args.minutes * 60, args.seed, kinds=tuple(args.kinds),
-                     window_s=args.health_window, keep=args.keep, model=args.model)
+        try:
+            result = run(args.minutes * 60, args.seed, kinds=tuple(args.kinds),
+                         window_s=args.health_window, keep=args.keep, model=args.model)
+        except Unavailable as why:
+            parser.exit(2, f"faultsoak: the disk fault needs {why}; or leave it out of "
+                           "--kinds\n")
         if args.save:
             for fault in result.faults:
                 fault.undo = None  # (a closure over the run's processes)

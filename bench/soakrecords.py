@@ -110,6 +110,9 @@ class Result:
     recording: tuple[int, int, int] | None = None
     """(records checked, missing from the recording, not checked: within a full disk's
     window); None without a recording."""
+    recording_cut: list[str] = field(default_factory=list)
+    """The recording's files read only up to where they stop (a file cut short by a
+    full disk), each with what the reader said."""
 
     @property
     def bound(self) -> float:

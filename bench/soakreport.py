@@ -282,6 +282,8 @@ def analyse(result: Result, listed: int = UNWARNED_LISTED) -> Report:
         lines.append(f"recording: {checked:,} records got checked against the files, "
                      f"{missing:,} missing; {skipped:,} got while the disk was full not "
                      "checked")
+        lines += [f"  read up to where it stops: {cut}"
+                  for cut in getattr(result, "recording_cut", [])]
     lines += [f"  WARN {warn:.0f} s, {good / warn if warn else 0:.0%} on good samples: {kind}"
               for kind, (warn, good) in sorted(honest.by_reason.items(),
                                                 key=lambda item: -item[1][0])]

@@ -211,7 +211,9 @@ class Gateway:
         # the file holds if the disk is slower)
         await self.outputs.close(done_by)
         self._stop_auth()
-        self._context.destroy(linger=0)  # (the answers above: up to CLOSE_LINGER_MS)
+        # (waits for what the control socket and the publisher still send: up to
+        # CLOSE_LINGER_MS, and the publisher's seconds from outputs.close)
+        self._context.destroy(linger=0)
         log.info("stopped")
 
     def _stop_auth(self) -> None:

@@ -73,6 +73,8 @@ class LineFaults:
     def __post_init__(self) -> None:
         if not 0.0 < self.throughput <= 1.0:
             raise ValueError(f"throughput {self.throughput} is not in (0, 1]")
+        if self.buffer_bytes is not None and self.buffer_bytes <= 0:
+            raise ValueError(f"buffer_bytes {self.buffer_bytes} is not a size")
 
 
 @dataclass
@@ -325,7 +327,8 @@ class BaseStation:
             self._line_free_at = max(self._line_free_at, stall) + self.line.stall_ms / 1000
             self.stats.stalls += 1
             self._next_stall = self._stall_after(stall)
-        backlog = (self._line_free_at - t) / self.byte_time
+        # (the bytes queued: the line's time ahead, less the gaps between them)
+        backlog = (self._line_free_at - t) / self.byte_time * self.line.throughput
         limit = self.line.buffer_bytes
         if limit is not None and backlog + len(chunk) > limit and not control:
             return False

@@ -48,6 +48,9 @@ class SmallDisk:
             why = self._holder.communicate(timeout=10)[1].strip()
             raise Unavailable(f"no tmpfs of its own here: {why}")
         self.outside = Path(f"/proc/{self._holder.pid}/root{self.inside}")
+        self.namespace = f"/proc/{self._holder.pid}/ns/mnt"
+        """The mount namespace, for ``nsenter --mount=`` (a program started from a
+        process with threads running, where a preexec function is not safe)."""
         self._namespace = os.open(f"/proc/{self._holder.pid}/ns/mnt", os.O_RDONLY)
         self._setns = ctypes.CDLL(None, use_errno=True).setns
 
@@ -80,5 +83,3 @@ class SmallDisk:
     def close(self) -> None:
         os.close(self._namespace)
         self._holder.communicate(timeout=10)  # (stdin closed: the tmpfs goes with it)
-
-

@@ -145,6 +145,20 @@ def test_a_station_that_leaves_gaps_reads_under_the_baud_rate_and_one_without_bo
     assert bench.station.backlog > 10 * BUFFER_BYTES
     with pytest.raises(ValueError, match="throughput"):
         LineFaults(throughput=0.0)
+    with pytest.raises(ValueError, match="buffer_bytes"):
+        LineFaults(buffer_bytes=0)
+
+
+def test_a_buffer_with_gaps_holds_its_size_in_bytes():
+    settings = [NodeSettings(a, stream="accel_angrate_mag_orientation", divider=170)
+                for a in (76, 77, 78)]
+    bench = Bench(*settings, line=LineFaults(throughput=0.906, buffer_bytes=16384))
+    most = 0
+    for _ in range(300):
+        bench.run(0.01)
+        most = max(most, bench.station.backlog)
+    assert bench.station.stats.packets_dropped_full > 0
+    assert 16384 - 200 <= most <= 16384 + 200
 
 
 def test_glued_ack_arrives_in_one_chunk_with_the_next_packet():

@@ -44,7 +44,6 @@ class Publisher(Output):
         # and the asyncio wrapper would cost a future per record
         self.socket = context.socket(zmq.PUB, socket_class=zmq.Socket)
         self.socket.setsockopt(zmq.SNDHWM, high_water_mark)
-        self.socket.setsockopt(zmq.LINGER, 200)
         if server is not None:
             curve.serve(self.socket, server)
         self.socket.bind(endpoint)

@@ -105,3 +105,29 @@ def test_what_was_published_before_close_reaches_a_slow_subscriber_within_the_bu
     finally:
         sub.close(0)
         reader.term()
+
+
+def test_a_subscriber_that_never_reads_holds_the_close_no_longer_than_its_seconds():
+    """The other side of the linger: the gateway's exit stays within its promise."""
+    gateway, reader = zmq.Context(), zmq.Context()
+    sub = reader.socket(zmq.SUB)
+    sub.setsockopt(zmq.RCVHWM, 10)
+    sub.setsockopt(zmq.RCVBUF, 4096)
+    sub.setsockopt(zmq.SUBSCRIBE, b"gx2/")
+    try:
+        publisher = Publisher(gateway, "tcp://127.0.0.1:*", 30_000)
+        sub.connect(publisher.socket.getsockopt(zmq.LAST_ENDPOINT).decode())
+        while not sub.poll(10):
+            publisher.send(b"gx2/76/euler", {"seq": 0})
+        for seq in range(1, 20_001):
+            publisher.send(b"gx2/76/euler", {"seq": seq, "padding": "x" * 500})
+        closed_at = time.monotonic()
+        publisher.close(0.5)
+        ended = threading.Thread(target=gateway.term, daemon=True)
+        ended.start()
+        ended.join(3.0)
+        assert not ended.is_alive(), "the close held the context's end past its seconds"
+        assert 0.4 < time.monotonic() - closed_at < 1.5
+    finally:
+        sub.close(0)
+        reader.term()
