@@ -699,6 +699,8 @@ def main() -> int:
     parser.add_argument("--unwarned", type=int, default=10,
                         help="how many off samples with no WARN to list")
     args = parser.parse_args()
+    # (SIGTERM ends the run as Ctrl-C does: the gateway, broker and disk stopped)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     if "mqtt" in args.kinds and MOSQUITTO is None:
         parser.exit(2, "faultsoak: the mqtt fault needs mosquitto (apt install "
                        "mosquitto); or leave it out of --kinds\n")
