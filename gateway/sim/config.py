@@ -56,7 +56,7 @@ from gateway.common.strict import Strict, describe
 from gateway.common.topics import STATION_NAME
 from gateway.common.yamlfile import ConfigError, read_mapping
 
-from .base_station import LineFaults, RadioLink
+from .base_station import BUFFER_BYTES, LineFaults, RadioLink
 from .node import GX2, INERTIA_LINK, NodeSettings
 from .physics import MOTIONS
 
@@ -84,6 +84,11 @@ class LineConfig(Strict):
     false_header: float = Probability
     glue_ack: bool = False
     nack: float = Probability
+    buffer_bytes: int | None = Field(default=BUFFER_BYTES, gt=0)
+    """The base station's output buffer (null: without bound)."""
+    throughput: float = Field(default=1.0, gt=0.0, le=1.0)
+    """The share of the baud rate its output reaches with a backlog (gaps between
+    packets below 1)."""
 
     def build(self) -> LineFaults:
         return LineFaults(**self.model_dump())
@@ -236,7 +241,8 @@ def load_sim_config(path: str | Path) -> SimConfig | SimStationsConfig:
         raise ConfigError(describe(error, str(path), model=model)) from None
 
 
-_URL_KEYS = {"line": {"garbage", "bad_checksum", "false_header", "glue_ack", "nack"},
+_URL_KEYS = {"line": {"garbage", "bad_checksum", "false_header", "glue_ack", "nack",
+                      "buffer_bytes", "throughput"},
              "radio": {"command_loss", "data_loss", "stop_loss"},
              "node": {"motion"},
              "top": {"seed", "first_write_failure"}}

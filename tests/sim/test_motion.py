@@ -11,7 +11,7 @@ import pytest
 
 from aspp import decode
 from aspp.orientation import euler_from_matrix
-from gateway.sim.config import SimNodeEntry, from_url
+from gateway.sim.config import SimConfig, SimNodeEntry, from_url
 from gateway.sim.node import GX2, NodeSettings, SimNode
 from gateway.sim.physics import MOTIONS, Motion, multiply, rotate, transpose
 from tests.e2e.test_service import demo_sections
@@ -99,6 +99,17 @@ def test_the_swing_is_chosen_per_node_in_gx2_sim_and_for_every_node_in_sim_urls(
     assert [n.build().motion for n in config.nodes] == [MOTIONS["swing"]] * 2
     with pytest.raises(ValueError, match="wobble"):
         from_url("sim://?motion=wobble", [76])
+
+
+def test_a_base_station_that_leaves_gaps_is_asked_for_in_a_sim_url_or_file():
+    line = from_url("sim://?throughput=0.906&buffer_bytes=16384", [76]).line.build()
+    assert (line.throughput, line.buffer_bytes) == (0.906, 16384)
+    assert SimConfig.model_validate({"line": {"buffer_bytes": None}}).line.build() \
+        .buffer_bytes is None
+    for bad in ("throughput=0", "throughput=1.5", "buffer_bytes=0"):
+        with pytest.raises(ValueError, match=bad.split("=")[0]) as said:
+            from_url(f"sim://?{bad}", [76])
+        assert "\n" not in str(said.value)
 
 
 def test_the_demos_accel_moves_as_the_live_views_recipe_plots_it(gateway):
