@@ -6,6 +6,7 @@ on its way out."""
 from __future__ import annotations
 
 import pytest
+import zmq
 
 from gateway.sim.node import NodeSettings
 from tests.helpers.processes import EXIT, STARVED, Running
@@ -49,3 +50,27 @@ def test_sigterm_during_a_capture_answers_it_and_exits_within_the_promise(
     log = gw.log()
     assert "write failed" not in log, log
     assert "Traceback" not in log, log
+
+
+def test_a_subscriber_that_stopped_reading_never_holds_the_exit_past_the_promise(
+        simulator, gateway, zmq_context):
+    # what the publisher still holds for its subscribers has the shutdown's time left
+    # to reach them, and no more: this one reads nothing, its buffers full
+    sim = simulator(NodeSettings(76, divider=256), NodeSettings(77, divider=256))
+    gw = gateway(sim.path, [{"address": 76, "stream": "accel_angrate"},
+                            {"address": 77, "stream": "accel_angrate"}])
+    stalled = zmq_context.socket(zmq.SUB)
+    stalled.setsockopt(zmq.RCVHWM, 1)
+    stalled.setsockopt(zmq.RCVBUF, 1024)
+    stalled.setsockopt(zmq.LINGER, 0)
+    stalled.setsockopt(zmq.SUBSCRIBE, b"")
+    stalled.connect(gw.publish_endpoint)
+    try:
+        wait_for(lambda: stalled.poll(0), 10, "the subscription to reach the gateway")
+        sub = gw.subscribe("gx2/76/")
+        sub.until(lambda m: len(m) >= 400, 10, "two seconds more of node 76")
+        status, took = gw.terminate()
+        assert status == 0, gw.log()
+        assert took < EXIT + STARVED, f"exited after {took:.2f} s"
+    finally:
+        stalled.close()
