@@ -131,6 +131,11 @@ TAKEN_BACK_S = 2 * FLUSH_S + WAKE_S
 """Seconds before a disk fills whose records a file cut short loses: back to its last
 flush (gateway.daemon.outputs.recorder, due FLUSH_S after the flush and retention
 before it ended), and those the thread had not yet taken."""
+RSS_PERIOD = 60.0
+"""Seconds between readings of the gateway's RSS (whether it grows, or settles)."""
+UNSETTLED_S = 10.0
+"""Seconds since a file of the recording last changed before a read that stops short
+of its end counts it cut (a rotation finishes one file as the next begins)."""
 HARVEST_PERIOD = 5.0
 """Seconds between reads of the recording's finished files (retention keeps each one
 for minutes)."""
@@ -303,7 +308,7 @@ class Rig:
         gateway has stopped)."""
         assert self.disk is not None
         paths = sorted((self.disk.outside / "recordings").glob("*.mcap"))
-        self.recorded.read(paths if everything else paths[:-1])
+        self.recorded.read(paths if everything else paths[:-1], final=everything)
 
     def close(self) -> None:
         """Everything started, stopped (each whatever the others do)."""
@@ -346,9 +351,16 @@ class Recorded:
         self.done: set[str] = set()
         self.cut: list[str] = []
 
-    def read(self, paths: list[Path]) -> None:
+    def read(self, paths: list[Path], final: bool = False) -> None:
+        """``final``: the gateway has stopped, and a file that stops short is cut; before,
+        one changed within UNSETTLED_S may still be being finished (a rotation's), and
+        is read again at the next harvest."""
         for path in paths:
             if path.name in self.done:
+                continue
+            try:
+                settled = final or time.time() - path.stat().st_mtime > UNSETTLED_S
+            except FileNotFoundError:  # (retention was first)
                 continue
             self.done.add(path.name)
             try:
@@ -363,7 +375,10 @@ class Recorded:
             except FileNotFoundError:  # (retention was first)
                 continue
             except Exception as error:  # (mcap's errors have no common base)
-                self.cut.append(f"{path.name}: {type(error).__name__}")
+                if settled:
+                    self.cut.append(f"{path.name}: {type(error).__name__} {error}")
+                else:
+                    self.done.discard(path.name)
 
 
 # -- the faults -----------------------------------------------------------------------
@@ -648,6 +663,8 @@ def run(seconds: float, seed: int, *, kinds: tuple[str, ...] = KINDS, window_s: 
         started = time.monotonic()
         warmed = warm_up(rig, poller, settle_s)
         resources = [(rss_kib(rig.gateway.pid), open_fds(rig.gateway.pid))]
+        rss = [(0.0, resources[0][0])]
+        next_rss = warmed + RSS_PERIOD
         schedule = Schedule(rig, poller, rng, deck(rng, kinds), window_s + RECOVERY_SLACK,
                             quiet, next_start=warmed + rng.uniform(*quiet) / 2)
         schedule.rig_start = started
@@ -661,6 +678,9 @@ def run(seconds: float, seed: int, *, kinds: tuple[str, ...] = KINDS, window_s: 
             schedule.tick(now, may_begin=end - now > min(longest, seconds / 4))
             if now >= next_shift:
                 rig.shift, next_shift = unix_minus_monotonic(), now + 1.0
+            if now >= next_rss:
+                rss.append((now - warmed, rss_kib(rig.gateway.pid)))
+                next_rss = now + RSS_PERIOD
             if rig.disk is not None and now >= next_harvest:
                 rig.harvest()
                 next_harvest = now + HARVEST_PERIOD
@@ -681,7 +701,7 @@ def run(seconds: float, seed: int, *, kinds: tuple[str, ...] = KINDS, window_s: 
     rig.samples.sort()
     return Result(seconds, window_s, started, warmed, schedule.faults, poller.polls,
                   rig.samples, losses, resources, poller.ops_failed, rig.work, model,
-                  recording, rig.recorded.cut)
+                  recording, rig.recorded.cut, rss)
 
 
 def main() -> int:

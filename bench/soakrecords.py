@@ -113,6 +113,8 @@ class Result:
     recording_cut: list[str] = field(default_factory=list)
     """The recording's files read only up to where they stop (a file cut short by a
     full disk), each with what the reader said."""
+    rss: list[tuple[float, int]] = field(default_factory=list)
+    """(seconds after the warm-up, the gateway's RSS in KiB), each RSS_PERIOD."""
 
     @property
     def bound(self) -> float:

@@ -277,6 +277,12 @@ def analyse(result: Result, listed: int = UNWARNED_LISTED) -> Report:
         f"records without truth {result.samples.untrue}",
         f"RSS {rss0 / 1024:.1f} -> {rss1 / 1024:.1f} MiB, open fds {fds0} -> {fds1}",
     ]
+    series = getattr(result, "rss", [])
+    if len(series) >= 4:
+        quarter = len(series) // 4
+        lines.append("RSS each quarter of the run (MiB): " + ", ".join(
+            f"{series[i][0] / 60:.0f} min {series[i][1] / 1024:.1f}"
+            for i in (0, quarter, 2 * quarter, 3 * quarter, len(series) - 1)))
     if result.recording is not None:
         checked, missing, skipped = result.recording
         lines.append(f"recording: {checked:,} records got checked against the files, "
