@@ -133,9 +133,6 @@ flush (gateway.daemon.outputs.recorder, due FLUSH_S after the flush and retentio
 before it ended), and those the thread had not yet taken."""
 RSS_PERIOD = 60.0
 """Seconds between readings of the gateway's RSS (whether it grows, or settles)."""
-UNSETTLED_S = 10.0
-"""Seconds since a file of the recording last changed before a read that stops short
-of its end counts it cut (a rotation finishes one file as the next begins)."""
 HARVEST_PERIOD = 5.0
 """Seconds between reads of the recording's finished files (retention keeps each one
 for minutes)."""
@@ -251,9 +248,11 @@ class Rig:
             self.log = (self.work / "gateway.log").open("w")
             undo.callback(self.log.close)
             self.gateway = subprocess.Popen(command, stdout=self.log, stderr=subprocess.STDOUT)
+            undo.callback(self.stop_gateway)
+            self.context = zmq.Context()
+            undo.callback(self.context.destroy, linger=0)
+            self.watch = Watcher(self.context, publish, control, self.on_record)
             undo.pop_all()
-        self.context = zmq.Context()
-        self.watch = Watcher(self.context, publish, control, self.on_record)
         self.hogs: list[subprocess.Popen[bytes]] = []
         self.unmatched: list[tuple[float, int, int, float]] = []
         """(arrival, node, timer, time on the monotonic clock) awaiting their truth."""
@@ -308,7 +307,7 @@ class Rig:
         gateway has stopped)."""
         assert self.disk is not None
         paths = sorted((self.disk.outside / "recordings").glob("*.mcap"))
-        self.recorded.read(paths if everything else paths[:-1], final=everything)
+        self.recorded.read(paths if everything else paths[:-1])
 
     def close(self) -> None:
         """Everything started, stopped (each whatever the others do)."""
@@ -351,21 +350,20 @@ class Recorded:
         self.done: set[str] = set()
         self.cut: list[str] = []
 
-    def read(self, paths: list[Path], final: bool = False) -> None:
-        """``final``: the gateway has stopped, and a file that stops short is cut; before,
-        one changed within UNSETTLED_S may still be being finished (a rotation's), and
-        is read again at the next harvest."""
+    def read(self, paths: list[Path]) -> None:
+        """Each file once: a finished one (the recorder finishes a file before it
+        begins the next, so every file but the newest is), or any once the gateway has
+        stopped."""
         for path in paths:
             if path.name in self.done:
-                continue
-            try:
-                settled = final or time.time() - path.stat().st_mtime > UNSETTLED_S
-            except FileNotFoundError:  # (retention was first)
                 continue
             self.done.add(path.name)
             try:
                 with path.open("rb") as stream:
-                    for _, channel, message in NonSeekingReader(stream).iter_messages():
+                    # (in the file's order: in log time order the reader sorts the whole
+                    # file first, and a file cut short gave none of its records)
+                    messages = NonSeekingReader(stream).iter_messages(log_time_order=False)
+                    for _, channel, message in messages:
                         if parse(channel.topic) is not None:  # (a node's record)
                             record = orjson.loads(message.data)
                             self.hashes.add(hash((record["node"], record["seq"],
@@ -375,10 +373,7 @@ class Recorded:
             except FileNotFoundError:  # (retention was first)
                 continue
             except Exception as error:  # (mcap's errors have no common base)
-                if settled:
-                    self.cut.append(f"{path.name}: {type(error).__name__} {error}")
-                else:
-                    self.done.discard(path.name)
+                self.cut.append(f"{path.name}: {type(error).__name__} {error}")
 
 
 # -- the faults -----------------------------------------------------------------------
@@ -641,7 +636,7 @@ def recording_check(rig: Rig, faults: list[Fault], bound: float) -> tuple[int, i
             for f in faults if f.kind == "disk"]
     checked = missing = skipped = 0
     for key, arrival in zip(rig.got.hashes, rig.got.arrivals, strict=True):
-        if arrival < first + 1.0:  # (the first file read, and the second before it)
+        if arrival < first + 1.0:  # (got before the recorder's first record: not checked)
             continue
         if any(start <= arrival <= end for start, end in full):
             skipped += 1
@@ -680,7 +675,7 @@ def run(seconds: float, seed: int, *, kinds: tuple[str, ...] = KINDS, window_s: 
                 rig.shift, next_shift = unix_minus_monotonic(), now + 1.0
             if now >= next_rss:
                 rss.append((now - warmed, rss_kib(rig.gateway.pid)))
-                next_rss = now + RSS_PERIOD
+                next_rss += RSS_PERIOD
             if rig.disk is not None and now >= next_harvest:
                 rig.harvest()
                 next_harvest = now + HARVEST_PERIOD

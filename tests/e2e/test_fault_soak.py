@@ -16,10 +16,13 @@ about 75 s; the recovery bound follows it (bench/faultsoak.py, RECOVERY_SLACK)."
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
 import pytest
+
+from gateway.recording.writer import RecordingWriter
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 try:
@@ -48,3 +51,24 @@ def test_the_gateway_holds_through_ordinary_faults(report: soakreport.Report,
                                                    invariant: str) -> None:
     ok, figures = report.invariants[invariant]
     assert ok, f"{invariant}: {figures}\n" + "\n".join(report.lines)
+
+
+def test_the_soaks_recording_check_reads_a_file_cut_short_up_to_where_it_stops(tmp_path):
+    """A full disk cuts the file being written back to its last flush, and one whose
+    end the disk refused stops there: its records before that are the recording's, and
+    the check must count them (it once read none of such a file: 2,408 "missing")."""
+    path = tmp_path / "cut.mcap"
+    with path.open("xb") as out:
+        writer = RecordingWriter(out, {})
+        for seq in range(1, 301):
+            writer.message("gx2/76/accel_angrate",
+                           {"node": 76, "seq": seq, "host_time": 1.7e9 + seq / 100}, None,
+                           (1.7e9 + seq / 100, 1.7e9 + seq / 100))
+            if seq % 100 == 0:
+                writer.flush()
+        kept = writer._kept_at  # (the last flush: where a cut file is cut back to)
+        out.flush()
+    os.truncate(path, kept)
+    recorded = faultsoak.Recorded()
+    recorded.read([path])
+    assert len(recorded.hashes) == 300 and len(recorded.cut) == 1, recorded.cut
