@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import math
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pandas as pd
@@ -20,7 +18,7 @@ from gateway.recording.columns import nanoseconds
 from gateway.recording.writer import RecordingWriter
 from tests.helpers.recorded import T0, hourly_files
 from tests.recording.test_refined import written
-from tests.test_client_recorded import DOC, payload, recorded
+from tests.test_client_recorded import DOC, payload, recorded, said_without
 
 TEXT = pa.dictionary(pa.int32(), pa.string())
 
@@ -153,13 +151,8 @@ def test_an_empty_window_is_to_pandas_columns(recordings: Path) -> None:
 
 
 def test_to_arrow_without_pyarrow_says_how_to_install_it(recordings: Path) -> None:
-    code = ("import sys; sys.modules['pyarrow'] = None\n"
-            "from gateway.client import Recording, MissingExtra\n"
-            f"try:\n    Recording({str(recordings)!r}).to_arrow()\n"
-            "except MissingExtra as e:\n    print(e)\n")
-    ran = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=60, check=True)
-    assert ran.stdout == "to_arrow needs pyarrow: pip install 'gx2-gateway[arrow]'\n"
+    assert said_without("pyarrow", recordings, "to_arrow") == \
+        "to_arrow needs pyarrow: pip install 'gx2-gateway[arrow]'\n"
 
 
 def test_the_docs_arrow_example_runs_as_written(recordings: Path, capsys) -> None:

@@ -139,14 +139,20 @@ def test_to_pandas_gives_export_columns_and_utc_times(recordings: Path) -> None:
     assert to_pandas(list(sub)).equals(frame)
 
 
-def test_to_pandas_without_pandas_says_how_to_install_it(recordings: Path) -> None:
-    code = ("import sys; sys.modules['pandas'] = None\n"
+def said_without(module: str, recordings: Path, method: str) -> str:
+    """What ``Recording(recordings).method()`` says, in a Python without ``module``."""
+    code = (f"import sys; sys.modules[{module!r}] = None\n"
             "from gateway.client import Recording, MissingExtra\n"
-            f"try:\n    Recording({str(recordings)!r}).to_pandas()\n"
+            f"try:\n    Recording({str(recordings)!r}).{method}()\n"
             "except MissingExtra as e:\n    print(e)\n")
     ran = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=60, check=True)
-    assert ran.stdout == "to_pandas needs pandas: pip install 'gx2-gateway[pandas]'\n"
+    return ran.stdout
+
+
+def test_to_pandas_without_pandas_says_how_to_install_it(recordings: Path) -> None:
+    assert said_without("pandas", recordings, "to_pandas") == \
+        "to_pandas needs pandas: pip install 'gx2-gateway[pandas]'\n"
 
 
 def test_paths_and_windows_that_cannot_be_read_say_why_in_a_line(recordings: Path,
