@@ -153,6 +153,30 @@ def test_packets_that_all_waited_from_the_first_show_no_floor_however_close_to_t
     assert clock.floor_seen and clock.floor_age == 0.0
 
 
+def test_a_waiting_packet_read_late_before_the_lock_is_no_floor_seen() -> None:
+    """Every packet waited behind another's, but the host read the first ones late
+    against the packet before them (a gateway busy starting up), so the reader judged
+    them free, and they lay on the line of the few packets there were. The line drawn
+    from a second of packets lies below them by what the host added: at the lock the
+    floor is never seen, counted from the first packet (tests/e2e/test_clock_floor.py
+    found it seen for good in one run of ten). A free line's floor stays seen."""
+    rng = random.Random(7)
+    for late in (1, 2, 5):
+        clock = NodeClock()
+        for i in range(round(5.0 / PERIOD)):
+            device = i * PERIOD
+            startup = 0.0007 if i < late else 0.0  # (read late: judged free)
+            clock.update(device, host(device, PACKET - 0.0005 + startup
+                                      + rng.uniform(0.0, 0.0001)), i >= late)
+            if i < late:
+                assert clock.floor_seen  # (as they come: the line's judge takes them)
+        assert not clock.floor_seen, late
+        assert clock.floor_age == pytest.approx(device, abs=PERIOD)
+    clock = NodeClock()
+    feed(clock, 0.0, 5.0, lambda r: r.uniform(0.0, 0.0002), rng)
+    assert clock.floor_seen and clock.floor_age < 0.1
+
+
 def test_a_packet_near_the_line_shows_the_floor_whatever_drift_the_line_had_early() -> None:
     """A line whose first seconds drew a wrong drift (late packets early on) and then
     found its floor: ``time`` is right, and so is the age (FIFO seed 9's node 100 under
