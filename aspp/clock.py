@@ -188,7 +188,12 @@ DRIFT_ERROR = FLOOR_NOISE / (WINDOW / 4)
 # (so 0.5 ms is reached after about 60 s held). Against the truth in the fault soak
 # (bench/faultsoak.py), where DRIFT_ERROR said a held node's time may be off after 15 s
 # and 98% of that WARN's time fell on samples within 0.2 ms: docs/performance-history.md.
+# Only a drift fitted over a whole window (FRESH_SPAN) is measured that well: in the
+# fault soak's hour on the FIFO line a node held 13 s after its first packet had a drift
+# 18 ppm off, and time went past the 5 ppm allowed; a shorter fit keeps DRIFT_ERROR.
 HELD_DRIFT_ERROR = 5e-6
+FRESH_SPAN = WINDOW
+"""Device seconds a drift must have been fitted over for HELD_DRIFT_ERROR."""
 FLOOR_FRESH = 10.0
 """Device seconds within which a line saw its floor for its drift to count as measured
 when it is held."""
@@ -316,7 +321,7 @@ class NodeClock:
         self._state = after(self._state, event)
         if event is HOLD:
             self._held_at = self._held_last = self._last
-            self._held_fresh = (self._fitted >= SETTLE_SPAN and self._floor_seen
+            self._held_fresh = (self._fitted >= FRESH_SPAN and self._floor_seen
                                 and self._last - self._floor_at <= FLOOR_FRESH)
             if self._fitted < SETTLE_SPAN:  # (no line yet: _last is 0, nothing moves)
                 self._offset += self._drift * self._last  # the same line where it is now

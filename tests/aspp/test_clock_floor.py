@@ -211,6 +211,24 @@ def test_a_line_held_while_seeing_its_floor_says_the_true_error_and_no_more(seed
     assert max(map(abs, errors)) <= error + FLOOR_NOISE / 5  # (the floor's own noise)
 
 
+def test_a_line_held_before_a_window_of_fitting_keeps_the_wide_allowance() -> None:
+    """Held 13 s after its first packet, on a line whose floor fell 0.25 ms over those
+    seconds (a queue draining), so the drift its fit drew is about 19 ppm off: what
+    held_error says covers how far ``time`` goes held (the fault soak's hour on the
+    FIFO line held a node so, 18 ppm off, with 5 ppm allowed)."""
+    clock, rng = NodeClock(), random.Random(9)
+    for i in range(round(13.0 / PERIOD)):
+        device = i * PERIOD
+        clock.update(device, host(device, 0.00025 * (1 - device / 13.0)
+                                  + rng.uniform(0.0, 0.0001)))
+    clock.hold()
+    errors: list[float] = []
+    feed(clock, device + PERIOD, 30.0, lambda r: 0.5 + r.uniform(0, 0.1), rng, errors)
+    error = clock.held_error()
+    assert error is not None and max(map(abs, errors)) > 0.4e-3  # (it went that far)
+    assert max(map(abs, errors)) <= error + FLOOR_NOISE / 5
+
+
 def test_a_line_held_that_had_not_seen_its_floor_lately_keeps_the_wide_allowance() -> None:
     clock, rng = NodeClock(), random.Random(4)
     device = feed(clock, 0.0, 60.0, free, rng)
