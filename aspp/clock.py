@@ -267,6 +267,7 @@ class NodeClock:
         "_residuals",
         "_sightings",
         "_state",
+        "floors_taken_back",
         "last_wait",
     )
 
@@ -276,6 +277,9 @@ class NodeClock:
         """Device seconds over which the drift has been fitted (kept through a reset:
         the drift is the crystal's)."""
         self._state = FRESH
+        self.floors_taken_back = 0
+        """How many times a lock took back the floor its line had seen (_confirm_floor):
+        what was judged from that floor meanwhile rests on waiting packets."""
         self.last_wait = 0.0
         """How far above the line the newest packet arrived (seconds): its wait, if the
         line stands on the floor; held, above the line kept (what a queue on the
@@ -321,7 +325,9 @@ class NodeClock:
         self._state = after(self._state, event)
         if event is HOLD:
             self._held_at = self._held_last = self._last
-            self._held_fresh = (self._fitted >= FRESH_SPAN and self._floor_seen
+            # (locked: a sighting before the lock is not confirmed yet, _confirm_floor)
+            self._held_fresh = (self._locked_since is not None and self._fitted >= FRESH_SPAN
+                                and self._floor_seen
                                 and self._last - self._floor_at <= FLOOR_FRESH)
             if self._fitted < SETTLE_SPAN:  # (no line yet: _last is 0, nothing moves)
                 self._offset += self._drift * self._last  # the same line where it is now
@@ -451,6 +457,7 @@ class NodeClock:
             self._floor_at, self._floor_offset, self._floor_drift = kept[-1], offset, drift
         elif self._floor_seen:  # (none held: never seen, counted from the first packet)
             self._floor_seen = False
+            self.floors_taken_back += 1
             self._floor_at, self._floor_offset, self._floor_drift = self._first, offset, drift
 
     def _give(self, device: float, time: float) -> float:
@@ -560,7 +567,8 @@ class NodeClock:
     def floor_seen(self) -> bool:
         """Whether a packet has shown the floor since the line started (a reset, release
         or outage): a line that never saw it is late by a wait that no packet shows, and
-        :meth:`late_bound` counts only from its first packet."""
+        :meth:`late_bound` counts only from its first packet. Before the lock it says
+        what the packets so far show, and the lock may take it back (_confirm_floor)."""
         return self._floor_seen
 
     def late_bound(self) -> float | None:

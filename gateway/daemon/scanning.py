@@ -162,7 +162,10 @@ own record of the cycle (the reference), so on a full line its reply meets the b
 station's buffer at one phase against the other nodes' records, full or not, until
 their crystals drift it elsewhere: on gx2-sim's line with five nodes at 100 Hz one
 read went unanswered through two whole requests in a row here, and three in CI (3 was
-the count then, and the node was reported half read)."""
+the count then, and the node was reported half read). The cost: a node that answers
+pings but no read, on a line so full that its four attempts outlast a request, holds
+the scan for five requests (about 22 s at gx2ctl's 4.5 s) before it is reported; on a
+free line its attempts end within the first request, and it is reported then."""
 
 
 @dataclass

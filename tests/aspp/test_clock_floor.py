@@ -229,6 +229,24 @@ def test_a_line_held_before_a_window_of_fitting_keeps_the_wide_allowance() -> No
     assert max(map(abs, errors)) <= error + FLOOR_NOISE / 5
 
 
+def test_a_line_held_before_its_lock_after_a_reboot_keeps_the_wide_allowance() -> None:
+    """A node fitted for minutes reboots; its new line's first packet, read late, lies
+    on the line though it waited like every one after it (a sighting the lock would take
+    back), and the line is held within its first second: the drift is the crystal's,
+    measured long, but the floor is unconfirmed, so not the 5 ppm allowance."""
+    clock, rng = NodeClock(), random.Random(3)
+    device = feed(clock, 0.0, 70.0, free, rng)
+    clock.reset()
+    for i in range(50):
+        device = i * PERIOD
+        clock.update(device, host(device, PACKET - 0.0005 + (0.0007 if i == 0 else 0.0)
+                                  + rng.uniform(0.0, 0.0001)), i > 0)
+    assert not clock.locked and clock.floor_seen  # (as it came)
+    clock.hold()
+    feed(clock, device + PERIOD, 30.0, lambda r: 0.3, rng)
+    assert clock.held_error() == pytest.approx(DRIFT_ERROR * 30.0, rel=0.01)
+
+
 def test_a_line_held_that_had_not_seen_its_floor_lately_keeps_the_wide_allowance() -> None:
     clock, rng = NodeClock(), random.Random(4)
     device = feed(clock, 0.0, 60.0, free, rng)

@@ -148,8 +148,10 @@ class Node:
         what its serial line's queue is judged by (:mod:`.lineload`)."""
         self._epoch = next(_EPOCHS)
         """Its line's: new at each power-up, and for each Node made (a node a reload
-        removed and added again starts its device time over): waits are compared
-        within one."""
+        removed and added again starts its device time over), and when its clock took
+        back the floor it had seen (the waits before were measured from packets that
+        waited): waits are compared within one."""
+        self._floors_taken_back = 0
         self._last_stream_device: float | None = None
         self._down_from: tuple[float, float] | None = None
         """Its stream's last record before its base station went down, until the
@@ -287,6 +289,9 @@ class Node:
         (:mod:`.lineload`)."""
         wait, self._least_wait = self._least_wait, math.inf
         clock = self.clock
+        if clock.floors_taken_back != self._floors_taken_back:
+            self._floors_taken_back = clock.floors_taken_back
+            self._epoch = next(_EPOCHS)
         return Waited(self.address, wait, self._epoch, clock.floor_seen,
                       clock.held_error() or 0.0)
 

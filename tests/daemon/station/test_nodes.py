@@ -13,6 +13,7 @@ from aspp.frame import encode_reply_packet
 from aspp.records import decode, encode
 from aspp.timing import TICKS_PER_CLOCK, TICKS_PER_SECOND, TIMER_MODULUS, WRAP_SECONDS
 from gateway.daemon.config import NodeEntry
+from gateway.daemon.station.lineload import LineLoad
 from gateway.daemon.station.nodes import SILENCE_MIN, STEPS_CHECKED, Node, State
 
 
@@ -253,3 +254,34 @@ def test_no_station_down_gap_across_a_reboot_or_a_stop() -> None:
     node.streaming("accel_angrate", 512)
     stream_record(node, 5000 * step, 200.0)
     assert (node.lost_station_down, node.lost_radio) == (0, 0)
+
+
+def test_a_floor_the_lock_takes_back_is_no_floor_for_the_lines_judge() -> None:
+    """A 1 Hz node on a line already full: every packet waited behind the queue, but the
+    first was read late against the packet before it, so the reader judged it free and
+    its clock saw a floor until its lock (ten packets on) took it back. The line's judge
+    had taken bins of that floor meanwhile: the node's waits start a new line for it
+    (take_wait's epoch), and the judge, with no floor from any node, says the full line
+    over capacity by its bytes (before: the stale floor stood, and it was never said)."""
+    byte_time = 10 / 115200
+    slow = Node(NodeEntry(address=78), byte_time=byte_time, latency=0.003)
+    slow.streaming("accel_angrate", 65535)
+    load = LineLoad(11520.0, lambda: [slow.take_wait()])
+    first = slow.take_wait().epoch
+    queue, mono, bytes_read, said = 0.3, 5000.0, 0, False
+    for second in range(30):
+        raw = encode_reply_packet(78, encode(0xC2, accel=(0.0, 0.0, -1.0),
+                                             ang_rate=(0.0, 0.0, 0.0),
+                                             timer=round(second * 1.0 * TICKS_PER_SECOND)))
+        at = mono + second + 0.003 + queue + 40 * byte_time + (0.0007 if second == 0 else 0.0)
+        line_free = at - 40 * byte_time - (0.0007 if second == 0 else 0.0)  # (behind one)
+        slow.tally(raw, decode(raw, 7, len(raw) - 4), at + 1.7e9 - mono, at, line_free)
+        for tenth in range(10):  # the line full: bins of 0.1 s, the bytes at its rate
+            bytes_read += 1152
+            if load.sample(mono + second + (tenth + 1) / 10, bytes_read) and load.over:
+                said = True
+        if second == 0:
+            assert slow.clock.floor_seen  # (as its first packet showed it)
+    assert not slow.clock.floor_seen
+    assert said  # (the station then holds its clocks: not done here)
+    assert slow.take_wait().epoch != first
