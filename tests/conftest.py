@@ -16,7 +16,7 @@ from gateway.sim.base_station import LineFaults, RadioLink
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
 from tests.helpers.gateway import RunningGateway, gateway_config
-from tests.helpers.processes import STARTUP, restore_sigint
+from tests.helpers.processes import STARTUP, favoured, restore_sigint
 from tests.helpers.waiting import wait_for
 
 # GNU readline, which pytest imports (for pdb), exports the size of the terminal pytest
@@ -53,6 +53,13 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
             return module if module in shared else nodeid
 
     return Scheduling(config, log)
+
+
+@pytest.fixture
+def favoured_host() -> Iterator[None]:
+    """The test's simulator and gateway at a favoured niceness (processes.favoured)."""
+    with favoured():
+        yield
 
 
 @pytest.fixture
