@@ -102,7 +102,7 @@ async def run():
     cpu = time.process_time()
     for chunk in chunks:
         feed(chunk, *(time.time(),) * CLOCKS)
-    gw.publisher.close()
+    gw.publisher.close(5.0)  # (what is queued may take up to 5 s to go out)
     gw._context.destroy(linger=5000)
     return time.process_time() - cpu
 cpu = asyncio.run(run())

@@ -219,7 +219,7 @@ def pipeline_round(chunks: list[bytes], packets: int) -> tuple[float, float]:
         start, cpu = time.perf_counter(), time.process_time()
         for chunk in chunks:
             gateway.stations[0].reader.on_data(chunk, time.time(), time.monotonic())
-        gateway.publisher.close()
+        gateway.publisher.close(5.0)  # (what is queued may take up to 5 s to go out)
         gateway._context.destroy(linger=5000)  # returns once every message is out
         return start, time.process_time() - cpu
     start, cpu = asyncio.run(run())

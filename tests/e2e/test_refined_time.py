@@ -124,9 +124,12 @@ def test_refined_time_places_a_stretch_hidden_on_a_busy_line_better_than_live(
     assert hid["between"] > 4000, figures
     assert hid["worst refined where live was off"] < 0.2e-3, figures
     assert hid["p99 refined"] <= 0.15e-3, figures
-    # (and better than live by a margin, unless live met the mark too: on a host whose
-    # cores never idle, two runs of three kept live's p99 at 0.06 and 0.11 ms)
-    assert hid["p99 refined"] < hid["p99 live"] / 1.3 or hid["p99 live"] <= 0.15e-3, figures
+    # (and better than live by a margin, unless live met the mark too, and then no
+    # worse than it by more than 0.05 ms: on a host whose cores never idle, two runs of
+    # three kept live's p99 at 0.06 and 0.11 ms, refined's at 0.09)
+    assert (hid["p99 refined"] < hid["p99 live"] / 1.3
+            or (hid["p99 live"] <= 0.15e-3
+                and hid["p99 refined"] <= hid["p99 live"] + 0.05e-3)), figures
     # 76, hidden behind 77 from the crossing to the end (kept live there), is placed
     # between its sightings before it, from the noisier first seconds of its power-up
     # (their sightings up to 0.8 ms above its floor, some within the hull's trust): in

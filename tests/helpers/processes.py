@@ -45,9 +45,10 @@ def favoured() -> Iterator[None]:
     cores: in one run of two the reads came in batches that hid every sighting of node
     77, so nothing was placed between them). Linux keeps a niceness per thread, and a
     thread or child takes its parent thread's. Without the right to raise priority
-    (not root), nothing changes."""
+    (not root), nothing changes. Afterwards every thread of the process is back at its
+    niceness, one started meanwhile at the main thread's."""
     before: dict[int, int] = {}
-    for tid in map(int, os.listdir("/proc/self/task")):
+    for tid in _threads():
         try:
             was = os.getpriority(os.PRIO_PROCESS, tid)
             os.setpriority(os.PRIO_PROCESS, tid, FAVOURED)
@@ -57,9 +58,15 @@ def favoured() -> Iterator[None]:
     try:
         yield
     finally:
-        for tid, was in before.items():
-            with contextlib.suppress(OSError):
-                os.setpriority(os.PRIO_PROCESS, tid, was)
+        if before:
+            usual = before.get(threading.get_native_id(), 0)
+            for tid in _threads():  # (this process's only, as they are now)
+                with contextlib.suppress(OSError):
+                    os.setpriority(os.PRIO_PROCESS, tid, before.get(tid, usual))
+
+
+def _threads() -> list[int]:
+    return [int(tid) for tid in os.listdir("/proc/self/task")]
 
 
 def restore_sigint() -> None:

@@ -93,7 +93,8 @@ class Waited(NamedTuple):
     wait: float
     """The least wait above its clock's line (seconds; inf: no timed record)."""
     epoch: object
-    """Its line's: waits of two epochs (a reboot, the node made anew) never compare."""
+    """Its line's: waits of two epochs (a reboot, the node made anew, the floor its clock
+    had seen taken back at the lock) never compare."""
     floor_seen: bool
     """Whether its clock has seen its floor on this line."""
     held_error: float

@@ -149,8 +149,8 @@ class Node:
         self._epoch = next(_EPOCHS)
         """Its line's: new at each power-up, and for each Node made (a node a reload
         removed and added again starts its device time over), and when its clock took
-        back the floor it had seen (the waits before were measured from packets that
-        waited): waits are compared within one."""
+        back the floor it had seen (the line's judge took floor bins from packets that
+        waited meanwhile): waits are compared within one."""
         self._floors_taken_back = 0
         self._last_stream_device: float | None = None
         self._down_from: tuple[float, float] | None = None
