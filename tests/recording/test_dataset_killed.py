@@ -117,21 +117,31 @@ def clean(recordings: Path) -> Path:
     return out
 
 
+def _found(out: Path, pattern: str, deep: bool = False) -> bool:
+    """Whether ``pattern`` matches under ``out`` now; not yet, when a directory the run
+    renames or removes went as it was looked through (FileNotFoundError from scandir:
+    one full run of five)."""
+    try:
+        return any(out.rglob(pattern) if deep else out.glob(pattern))
+    except FileNotFoundError:
+        return False
+
+
 def _first_part(out: Path) -> bool:
-    return any(out.glob("record=*/node=*/date=*/part-*.parquet"))
+    return _found(out, "record=*/node=*/date=*/part-*.parquet")
 
 
 def _first_temporary(out: Path) -> bool:
-    return any(out.rglob(".*.partial"))
+    return _found(out, ".*.partial", deep=True)
 
 
 def _a_part_being_written(out: Path) -> bool:
     """A part's temporary, waited for from when the first recording's tables are
     exported (the wait's polls start short again: a part takes milliseconds)."""
-    if not any(out.glob(".*/*/*.parquet")):
+    if not _found(out, ".*/*/*.parquet"):
         return False
-    wait_for(lambda: any(out.rglob(".part-*.partial")) or any(out.rglob(".*.part-*.partial"))
-             or _first_part(out), RUN, "a part")
+    wait_for(lambda: _found(out, ".part-*.partial", deep=True)
+             or _found(out, ".*.part-*.partial", deep=True) or _first_part(out), RUN, "a part")
     return True
 
 
