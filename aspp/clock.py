@@ -188,15 +188,24 @@ DRIFT_ERROR = FLOOR_NOISE / (WINDOW / 4)
 # (so 0.5 ms is reached after about 60 s held). Against the truth in the fault soak
 # (bench/faultsoak.py), where DRIFT_ERROR said a held node's time may be off after 15 s
 # and 98% of that WARN's time fell on samples within 0.2 ms: docs/performance-history.md.
-# Only a drift fitted over a whole window (FRESH_SPAN) is measured that well: in the
-# fault soak's hour on the FIFO line a node held 13 s after its first packet had a drift
-# 18 ppm off, and time went past the 5 ppm allowed; a shorter fit keeps DRIFT_ERROR.
+# Those streams had fitted their drift over a whole window. One fitted over T < WINDOW
+# seconds is uncertain by about FLOOR_NOISE / T (see SETTLE_SPAN), DRIFT_ERROR at most
+# (held_drift_error): in the fault soak's hour on the FIFO line a node held 13 s after
+# its first packet had a drift 18 ppm off where 5 ppm was allowed (38 ppm by this
+# rule, so DRIFT_ERROR). The rule before this one stepped from DRIFT_ERROR to 5 ppm at
+# a window's fitting, and so said a node held half a minute after a power cycle may be
+# off after 15 s held (docs/performance-history.md measures both rules).
 HELD_DRIFT_ERROR = 5e-6
-FRESH_SPAN = WINDOW
-"""Device seconds a drift must have been fitted over for HELD_DRIFT_ERROR."""
 FLOOR_FRESH = 10.0
 """Device seconds within which a line saw its floor for its drift to count as measured
 when it is held."""
+
+
+def held_drift_error(fitted: float) -> float:
+    """How far from the crystal's the drift of a line held while seeing its floor may
+    be, fitted over ``fitted`` device seconds (see HELD_DRIFT_ERROR)."""
+    return HELD_DRIFT_ERROR if fitted >= WINDOW else min(DRIFT_ERROR, FLOOR_NOISE / fitted)
+
 
 Point = tuple[float, float]
 
@@ -257,8 +266,8 @@ class NodeClock:
         "_floor_seen",
         "_given",
         "_held_at",
+        "_held_drift_error",
         "_held_first",
-        "_held_fresh",
         "_held_last",
         "_last",
         "_locked_since",
@@ -287,8 +296,9 @@ class NodeClock:
         self._held_at = self._held_last = self._held_first = 0.0
         """Device time of the newest packet when the line was last held, and of the
         newest since."""
-        self._held_fresh = False
-        """Whether the line held had seen its floor within FLOOR_FRESH (held_error)."""
+        self._held_drift_error: float | None = None
+        """The drift's allowance of a line held while seeing its floor (within
+        FLOOR_FRESH, locked, settled: held_drift_error); None for any other."""
         self._start_over()
         self._given: tuple[float, float] | None = None
         """The last (device, host) time given: times are strictly increasing (until a
@@ -326,9 +336,9 @@ class NodeClock:
         if event is HOLD:
             self._held_at = self._held_last = self._last
             # (locked: a sighting before the lock is not confirmed yet, _confirm_floor)
-            self._held_fresh = (self._locked_since is not None and self._fitted >= FRESH_SPAN
-                                and self._floor_seen
-                                and self._last - self._floor_at <= FLOOR_FRESH)
+            fresh = (self._locked_since is not None and self._fitted >= SETTLE_SPAN
+                     and self._floor_seen and self._last - self._floor_at <= FLOOR_FRESH)
+            self._held_drift_error = held_drift_error(self._fitted) if fresh else None
             if self._fitted < SETTLE_SPAN:  # (no line yet: _last is 0, nothing moves)
                 self._offset += self._drift * self._last  # the same line where it is now
                 self._drift = self._fitted = 0.0
@@ -543,7 +553,7 @@ class NodeClock:
 
     def held_error(self) -> float | None:
         """How far ``time`` may have gone from the line kept since the hold (seconds):
-        its drift's uncertainty times the device seconds held (HELD_DRIFT_ERROR, with
+        its drift's uncertainty times the device seconds held (held_drift_error, with
         the crystal's own wander, for a line seeing its floor when held; DRIFT_ERROR for
         one that had not lately; a drift not settled was dropped for the nominal rate:
         any a crystal can have); inf with no line of this power-up to keep (HELD_FRESH:
@@ -553,8 +563,8 @@ class NodeClock:
         if self._state not in HELD_STATES:
             return None
         held = max(self._held_last - self._held_at, 0.0)
-        if self._held_fresh:
-            return HELD_DRIFT_ERROR * held + DRIFT_RATE * held * held / 2
+        if self._held_drift_error is not None:
+            return self._held_drift_error * held + DRIFT_RATE * held * held / 2
         return (DRIFT_ERROR if self._fitted >= SETTLE_SPAN else MAX_DRIFT) * held
 
     @property

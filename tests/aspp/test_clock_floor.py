@@ -229,6 +229,23 @@ def test_a_line_held_before_a_window_of_fitting_keeps_the_wide_allowance() -> No
     assert max(map(abs, errors)) <= error + FLOOR_NOISE / 5
 
 
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_line_held_after_half_a_window_is_allowed_what_its_span_measures(seed: int) -> None:
+    """Held 30 s after its first packet, seeing its floor: the drift is allowed
+    FLOOR_NOISE over the 30 s fitted (17 ppm), so 20 s held says less than the floor's
+    noise (DRIFT_ERROR, the rule before, said 0.67 ms: a WARN on a node whose time had
+    not moved; 75 s of a 15-minute fault soak's WARN), and still bounds what ``time``
+    did against the truth."""
+    clock, rng = NodeClock(), random.Random(seed)
+    device = feed(clock, 0.0, 30.0, free, rng)
+    clock.hold()
+    errors: list[float] = []
+    feed(clock, device, 20.0, lambda r: 0.5 + r.uniform(0, 0.1), rng, errors)
+    error = clock.held_error()
+    assert error is not None and DRIFT_ERROR * 20.0 > FLOOR_NOISE > error
+    assert max(map(abs, errors)) <= error + FLOOR_NOISE / 5
+
+
 def test_a_line_held_before_its_lock_after_a_reboot_keeps_the_wide_allowance() -> None:
     """A node fitted for minutes reboots; its new line's first packet, read late, lies
     on the line though it waited like every one after it (a sighting the lock would take
