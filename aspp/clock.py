@@ -204,6 +204,8 @@ when it is held."""
 def held_drift_error(fitted: float) -> float:
     """How far from the crystal's the drift of a line held while seeing its floor may
     be, fitted over ``fitted`` device seconds (see HELD_DRIFT_ERROR)."""
+    if fitted < SETTLE_SPAN:  # (not settled: a hold drops such a drift)
+        return MAX_DRIFT
     return HELD_DRIFT_ERROR if fitted >= WINDOW else min(DRIFT_ERROR, FLOOR_NOISE / fitted)
 
 
@@ -257,6 +259,7 @@ class NodeClock:
         "_blocks",
         "_current",
         "_drift",
+        "_edge_gap",
         "_first",
         "_fitted",
         "_fitted_at",
@@ -268,6 +271,8 @@ class NodeClock:
         "_held_at",
         "_held_drift_error",
         "_held_first",
+        "_held_floor_age",
+        "_held_gap",
         "_held_last",
         "_last",
         "_locked_since",
@@ -293,7 +298,8 @@ class NodeClock:
         """How far above the line the newest packet arrived (seconds): its wait, if the
         line stands on the floor; held, above the line kept (what a queue on the
         serial line is judged by: gateway.daemon.station.lineload)."""
-        self._held_at = self._held_last = self._held_first = 0.0
+        self._held_at = self._held_last = self._held_first = self._held_gap = 0.0
+        self._held_floor_age: float | None = None
         """Device time of the newest packet when the line was last held, and of the
         newest since."""
         self._held_drift_error: float | None = None
@@ -336,12 +342,16 @@ class NodeClock:
         if event is HOLD:
             self._held_at = self._held_last = self._last
             # (locked: a sighting before the lock is not confirmed yet, _confirm_floor)
+            self._held_gap = self._edge_gap
+            self._held_floor_age = (self._last - self._floor_at
+                                    if self._locked_since is not None else None)
+            # (a drift at the clamp was drawn there by late packets: not the crystal's)
+            if self._fitted < SETTLE_SPAN or abs(self._drift) >= MAX_DRIFT:
+                self._offset += self._drift * self._last  # the same line where it is now
+                self._drift = self._fitted = self._held_gap = 0.0
             fresh = (self._locked_since is not None and self._fitted >= SETTLE_SPAN
                      and self._floor_seen and self._last - self._floor_at <= FLOOR_FRESH)
             self._held_drift_error = held_drift_error(self._fitted) if fresh else None
-            if self._fitted < SETTLE_SPAN:  # (no line yet: _last is 0, nothing moves)
-                self._offset += self._drift * self._last  # the same line where it is now
-                self._drift = self._fitted = 0.0
         elif event is RESET:
             self._start_over()
             self._given = None
@@ -356,6 +366,9 @@ class NodeClock:
         self._block_start = 0.0
         self._offset = 0.0
         self._fitted_at: float | None = None
+        self._edge_gap = 0.0
+        """How far the drift is from the slope of the hull's edge it is drawn to, at the
+        last fit: what the rate bound (or the clamp) holds it from this line's packets."""
         self._points = 0
         self._first = 0.0
         self._last = 0.0
@@ -512,7 +525,8 @@ class NodeClock:
         middle = (hull[0][0] + hull[-1][0]) / 2
         edge = min(max(bisect.bisect_left(hull, (middle,)), 1), len(hull) - 1)
         (x1, y1), (x2, y2) = hull[edge - 1], hull[edge]
-        drift = max(-MAX_DRIFT, min(MAX_DRIFT, (y2 - y1) / (x2 - x1)))
+        slope = (y2 - y1) / (x2 - x1)
+        drift = max(-MAX_DRIFT, min(MAX_DRIFT, slope))
         now = hull[-1][0]
         step = 0.0 if self._fitted_at is None else max(now - self._fitted_at, 0.0)
         self._fitted += step
@@ -521,6 +535,7 @@ class NodeClock:
             drift = max(self._drift - room, min(self._drift + room, drift))
         self._fitted_at = now
         self._drift = drift
+        self._edge_gap = abs(slope - drift)
         self._offset = min(y - drift * x for x, y in hull)
 
     def device_at(self, host: float) -> float | None:
@@ -563,9 +578,17 @@ class NodeClock:
         if self._state not in HELD_STATES:
             return None
         held = max(self._held_last - self._held_at, 0.0)
+        gap = self._held_gap * held  # (the packets' own slope, which the bound held off)
         if self._held_drift_error is not None:
-            return self._held_drift_error * held + DRIFT_RATE * held * held / 2
-        return (DRIFT_ERROR if self._fitted >= SETTLE_SPAN else MAX_DRIFT) * held
+            return gap + self._held_drift_error * held + DRIFT_RATE * held * held / 2
+        return gap + (DRIFT_ERROR if self._fitted >= SETTLE_SPAN else MAX_DRIFT) * held
+
+    @property
+    def held_floor_age(self) -> float | None:
+        """While held: the floor's age when the hold began (see floor_age; None if the
+        line was not locked then, or unless held). A line held with its floor long
+        unseen was already as late as that says, and the hold keeps it so."""
+        return self._held_floor_age if self._state in HELD_STATES else None
 
     @property
     def floor_age(self) -> float | None:

@@ -15,8 +15,8 @@ from soakrecords import ADDRESSES, Fault, Poll, Result
 
 P99_TARGET, APART_TARGET = 0.2e-3, 0.15e-3
 OFF, GOOD = 0.5e-3, 0.2e-3
-"""A sample more than OFF from its node's median is off; WARN time whose samples (those
-within WARN_NEAR of it) are all within GOOD was needless."""
+"""A sample more than OFF from its node's median is off; WARN time whose samples are all
+within GOOD, and with no off sample within WARN_NEAR of its poll, was needless."""
 HONEST_SHARE, NEEDLESS_SHARE = 0.95, 0.05
 UNWARNED_LISTED = 10
 """How many off samples with no WARN the report lists (--unwarned)."""
@@ -191,20 +191,19 @@ def honesty(result: Result, medians: dict[int, float]) -> Honesty:
             state = a.nodes.get(node)
             if state is None or not state.clock_warn:
                 continue
-            # (the samples the WARN speaks for: those within WARN_NEAR of it, as the
-            # off samples it covers are; the strict share counts those arriving
-            # between the two polls only, so a WARN the poll sees after its bad
-            # samples passed, a power-up's first 0.2 s, counts as needless)
-            lo = bisect.bisect_left(arrival, a.at - WARN_NEAR)
-            hi = bisect.bisect_right(arrival, b.at + WARN_NEAR)
+            # (needed if a sample between the two polls was more than GOOD off, or one
+            # the poll covers as warned_off does, within WARN_NEAR of it, more than OFF:
+            # a power-up's bad samples come in its first 0.2 s, before a 2 Hz poll can
+            # see its WARN; the strict share counts the samples between the polls only)
+            lo, hi = bisect.bisect_left(arrival, a.at), bisect.bisect_right(arrival, b.at)
+            between = all(abs(errors[i] - medians[node]) <= GOOD for i in range(lo, hi))
+            near = all(abs(errors[i] - medians[node]) <= OFF for i in range(
+                bisect.bisect_left(arrival, a.at - WARN_NEAR),
+                bisect.bisect_right(arrival, a.at + WARN_NEAR)))
+            good = between and near
             warn_s += b.at - a.at
-            good = all(abs(errors[i] - medians[node]) <= GOOD for i in range(lo, hi))
-            strict_s += (b.at - a.at) * all(
-                abs(errors[i] - medians[node]) <= GOOD
-                for i in range(bisect.bisect_left(arrival, a.at, lo, hi),
-                               bisect.bisect_right(arrival, b.at, lo, hi)))
-            if good:
-                good_s += b.at - a.at
+            good_s += (b.at - a.at) * good
+            strict_s += (b.at - a.at) * between
             for reason in {reason_kind(r) for r in state.reasons
                            if "clock" in r or "line" in r}:
                 seconds = by_reason.setdefault(reason, [0.0, 0.0])
@@ -343,12 +342,12 @@ def analyse(result: Result, listed: int = UNWARNED_LISTED) -> Report:
 
 
 def late_growth(result: Result) -> int:
-    """KiB the gateway's RSS grew from the run's middle to its end (the whole run's
-    growth with too few readings for a middle)."""
-    (rss0, _), (rss1, _) = result.resources
+    """KiB the gateway's RSS grew from the run's middle to its end (0 with too few
+    readings for a middle)."""
     series = getattr(result, "rss", [])
     if len(series) < 3:
-        return rss1 - rss0
+        return 0  # (too short a run to tell a step from growth: shown, not judged)
+    (_, _), (rss1, _) = result.resources
     middle = series[-1][0] / 2
     at_middle = min(series, key=lambda reading: abs(reading[0] - middle))[1]
     return rss1 - at_middle

@@ -33,6 +33,18 @@ SHARED_FIXTURE = re.compile(r"scope=[\"'](?:class|module|package|session)[\"']")
 """A fixture made once for several tests of its module."""
 
 
+FIRST = ("tests/e2e/test_fault_soak.py",)
+"""Modules that take minutes of wall time and little CPU: run first, beside the rest,
+so the suite does not wait for them at its end."""
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """FIRST's modules at the front (xdist hands out work in this order)."""
+    def first(item: pytest.Item) -> bool:
+        return Path(item.path).relative_to(config.rootpath).as_posix() not in FIRST
+    items.sort(key=first)  # (stable: the rest keep their order)
+
+
 @pytest.hookimpl(optionalhook=True)  # (the suite runs without xdist too: -p no:xdist)
 def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
     """The suite runs in several processes (pyproject.toml's addopts, pytest-xdist), each

@@ -160,6 +160,13 @@ node is late by a wait no packet shows (up to a packet's time on the line), at o
 unlike a floor seen and then unseen, whose bound grows slowly (floor_unseen_s)."""
 
 
+def unseen_after(node: Node) -> float:
+    """Device seconds of a floor unseen (or never seen) before its node says so."""
+    if node.clock.floor_seen:
+        return node.floor_unseen_s
+    return min(FLOOR_NEVER_SEEN_S, node.floor_unseen_s)
+
+
 def clock_reasons(node: Node) -> list[str]:
     """What its clock says of ``time``, from its line's first packets on: held with its
     line over capacity (once the line kept may be off), its floor unseen past
@@ -168,19 +175,22 @@ def clock_reasons(node: Node) -> list[str]:
     if clock.held:
         # (while the line kept is still within the floor's noise of where it was, time
         # is as good as before the hold: the station's WARN says the line is over
-        # capacity, and the node's says so once its time may be off)
-        error = clock.held_error()
-        return [LINE_OVER_CAPACITY] if error is None or error > FLOOR_NOISE else []
+        # capacity, and the node's says so once its time may be off, or at once if its
+        # floor had gone unseen long enough to be said when the hold began)
+        error, age = clock.held_error(), clock.held_floor_age
+        unseen = age is not None and age >= unseen_after(node)
+        return [LINE_OVER_CAPACITY] if error is None or error > FLOOR_NOISE or unseen \
+            else []
     age = clock.floor_age
     if age is None:  # (not locked yet: judge() says so once the stream settled)
         return []
+    if age < unseen_after(node):
+        return []
     if clock.floor_seen:
-        if age < node.floor_unseen_s or (late := node.floor_unseen()) is None:
+        if (late := node.floor_unseen()) is None:
             return []
         return [f"clock floor unseen for {age:.0f} s: time may be late by up to "
                 f"{late * 1e3:.1f} ms"]
-    if age < min(FLOOR_NEVER_SEEN_S, node.floor_unseen_s):
-        return []
     return [f"clock floor never seen in {age:.0f} s: its packets may wait behind another "
             "node's, and time may be late by that wait"]
 

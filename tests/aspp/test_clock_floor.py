@@ -8,7 +8,7 @@ import random
 
 import pytest
 
-from aspp.clock import DRIFT_ERROR, FLOOR_NOISE, WINDOW, NodeClock
+from aspp.clock import DRIFT_ERROR, FLOOR_NOISE, MAX_DRIFT, WINDOW, NodeClock
 
 PERIOD = 0.01
 FLOOR = 0.003
@@ -244,6 +244,56 @@ def test_a_line_held_after_half_a_window_is_allowed_what_its_span_measures(seed:
     error = clock.held_error()
     assert error is not None and DRIFT_ERROR * 20.0 > FLOOR_NOISE > error
     assert max(map(abs, errors)) <= error + FLOOR_NOISE / 5
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_held_line_whose_drift_the_rate_bound_kept_from_its_packets_says_so(
+        seed: int) -> None:
+    """1.5 s free, 70 s behind another node's packets (the drift settles on them, 70 ppm
+    off), 20 s free again (the line back on its floor, the drift coming back at the
+    rate bound's 0.1 ppm a second), then held 20 s: ``time`` goes 1.5 ms. held_error
+    counts the gap between the drift and its packets' own slope (before: 0.12 ms, the
+    drift taken as measured to 5 ppm; an outside review's reproduction)."""
+    clock, rng = NodeClock(), random.Random(seed)
+    true_drift = 30e-6
+
+    def run(start: float, seconds: float, delay, waited: bool) -> tuple[float, float]:
+        device = start
+        for i in range(round(seconds / PERIOD)):
+            device = start + i * PERIOD
+            given = clock.update(device, 500.0 + (1 + true_drift) * device + 0.003
+                                 + delay(), waited)
+        return device + PERIOD, given - (500.0 + (1 + true_drift) * device + 0.003)
+
+    device, _ = run(0.0, 1.5, lambda: rng.expovariate(1 / 0.0003), False)
+    device, _ = run(device, 70.0, lambda: rng.uniform(0.001, 0.0034), True)
+    device, at_hold = run(device, 20.0, lambda: rng.expovariate(1 / 0.0003), False)
+    assert abs(at_hold) < 0.1e-3 and clock.floor_age < 1.0  # (right, and sees its floor)
+    clock.hold()
+    _, held = run(device, 20.0, lambda: 0.3, True)
+    moved = abs(held - at_hold)
+    assert moved > 1e-3  # (the drift was that far off)
+    assert clock.held_error() >= moved
+
+
+def test_a_drift_at_the_clamp_is_dropped_at_a_hold() -> None:
+    """A stream whose first 7 s all queued 300 ms, then free, held at 13 s: its drift
+    stands at the clamp (late packets drew it there, no crystal is that far off). The
+    hold drops it for the nominal rate, with the allowance of a drift unknown (before: it
+    kept -200 ppm, allowed 33: ``time`` went 4 ms in 20 s held, 0.69 ms said)."""
+    clock, rng = NodeClock(), random.Random(1)
+    device = 0.0
+    while device < 13.0:
+        queued = device < 7.0
+        clock.update(device, host(device, 0.3 if queued else rng.uniform(0, 0.0002)), queued)
+        device += PERIOD
+    assert clock.estimate().drift == pytest.approx(-MAX_DRIFT)
+    at_hold = clock.update(device, host(device, 0.0001)) - host(device, 0.0)
+    clock.hold()
+    errors: list[float] = []
+    feed(clock, device + PERIOD, 20.0, lambda r: 0.35, rng, errors)
+    assert clock.held_error() == pytest.approx(MAX_DRIFT * 20.0, rel=0.01)
+    assert max(abs(e - at_hold) for e in errors) <= clock.held_error()
 
 
 def test_a_line_held_before_its_lock_after_a_reboot_keeps_the_wide_allowance() -> None:

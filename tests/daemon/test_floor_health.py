@@ -119,3 +119,21 @@ def test_a_line_whose_first_packets_all_waited_is_said_unlocked_from_the_first()
         node.clock.update(i / 100, start + i / 100 + 0.003, False)
     assert node.clock.locked
     assert judge(node, minute(), time.monotonic(), LIMITS) == (Level.OK, ())
+
+
+def test_a_node_held_with_its_floor_long_unseen_keeps_its_warn_through_the_hold() -> None:
+    """Its time was already as late as the floor's age says when its line went over
+    capacity, and a hold keeps that line: the WARN goes on from the hold's first
+    moment, not once the held line's own allowance grows past the floor's noise
+    (before: silent for the hold's first seconds; an outside review's reproduction,
+    the drift 97 ppm off after 12 s behind, time 2.2 ms off, held_error 1 ms)."""
+    node = node_fed(20.0, 35.0)
+    assert judge(node, minute(), time.monotonic(), LIMITS).level is Level.WARN
+    node.clock.hold()
+    assert node.clock.held_error() < 1e-4  # (its own allowance: nothing yet)
+    verdict = judge(node, minute(), time.monotonic(), LIMITS)
+    assert verdict == (Level.WARN, ("line over capacity: sample times unreliable",))
+    # a node whose floor had shown lately says nothing until its allowance grows
+    fresh = node_fed(55.0, 2.0)
+    fresh.clock.hold()
+    assert judge(fresh, minute(), time.monotonic(), LIMITS) == (Level.OK, ())

@@ -1,18 +1,21 @@
-"""The fault soak of bench/faultsoak.py, short and on a fixed seed: the installed
-gateway on gx2-sim through a stall, an unplug, a node's power cycle and a burst of
-radio loss, each record's ``time`` against the instant the simulated node really took
-the sample. What a user relies on: the gateway recovers within its health window after
-each fault, every ``late_ms`` status gives is a bound, and the gateway loses nothing.
+"""The fault soak of bench/faultsoak.py, three minutes on a fixed seed: the installed
+gateway on gx2-sim through a host stall, an unplug, one node's power cycle and all
+three's, a burst of radio loss, a load change, an overload and a reload, each record's
+``time`` against the instant the simulated node really took the sample. What a user
+relies on: the gateway recovers within its health window after each fault, a sample
+more than 0.5 ms off comes under a WARN naming its clock or line, every ``late_ms``
+status gives is a bound, and the gateway loses nothing. (The bench's other kinds run
+elsewhere in the suite: a CPU hog would slow every other test, the MQTT broker's
+restart is tests/e2e/test_mqtt.py's, the full disk tests/e2e/test_recording_failures.py's.)
 
-``time`` outside the faults' windows is the bench's figure, not asserted here: gx2-sim
-powers its nodes up together, their packets queue behind each other's for tens of
-seconds as their crystals slide past, and their medians then sit 0.3 to 0.8 ms apart
-(on the code before issue 38 as after: 0.78 and 0.28 ms in two runs of this schedule)
-with no packet that shows the host where (issue 32's limit); status says so only once
-a floor has gone floor_unseen_s unseen, longer than this schedule's quiet stretches.
+``time`` outside the faults' windows and the needless WARN's share are the bench's
+figures, not asserted here: three minutes hold too few quiet stretches for a median
+(gx2-sim powers its nodes up together, and their packets queue behind each other's
+for tens of seconds as their crystals slide past: issue 32's limit).
 
-The health window is made short (8 s) so that four faults and their recoveries fit in
-about 75 s; the recovery bound follows it (bench/faultsoak.py, RECOVERY_SLACK)."""
+The health window is made short (8 s) so that eight faults and their recoveries fit in
+three minutes; the recovery bound follows it (bench/faultsoak.py, RECOVERY_SLACK). The
+module runs first in the suite (tests/conftest.py, FIRST), beside the rest."""
 
 from __future__ import annotations
 
@@ -32,12 +35,13 @@ finally:
     sys.path.pop(0)
 
 SEED = 3
-KINDS = ("stall", "unplug", "power_one", "radio")
+KINDS = ("stall", "unplug", "power_one", "power_all", "radio", "load", "overload", "reload")
+MINUTES = 3.0
 
 
 @pytest.fixture(scope="module")
 def report() -> soakreport.Report:
-    result = faultsoak.run(60.0, SEED, kinds=KINDS, window_s=8.0, settle_s=3.0,
+    result = faultsoak.run(MINUTES * 60, SEED, kinds=KINDS, window_s=8.0, settle_s=3.0,
                            quiet=(2.0, 4.0))
     assert {f.kind for f in result.faults} == set(KINDS), result.faults
     report = soakreport.analyse(result)
@@ -45,7 +49,7 @@ def report() -> soakreport.Report:
     return report
 
 
-@pytest.mark.parametrize("invariant", ["recovery", "late_ms a bound",
+@pytest.mark.parametrize("invariant", ["recovery", "off samples warned", "late_ms a bound",
                                        "nothing lost in the gateway"])
 def test_the_gateway_holds_through_ordinary_faults(report: soakreport.Report,
                                                    invariant: str) -> None:
