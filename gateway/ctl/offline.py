@@ -116,6 +116,9 @@ def add_commands(commands: Any) -> None:
     plotter.add_argument("--out", metavar="FILE.png|FILE.pdf",
                          help="a PNG or a PDF, by its ending (default: "
                          "<address>_<record>.png here)")
+    plotter.add_argument("--time", choices=TIMES, default="live",
+                         help="the time axis: live (default), time as recorded; refined, "
+                         "placed after the fact, as export --time refined places it")
     add_window_options(plotter, nodes=False)
 
 
@@ -373,10 +376,11 @@ def run_plot(args: argparse.Namespace) -> int:
     if len(chosen) > 1:
         raise CtlError(f"{len(chosen)} trials between those marks: pick one with --trial N",
                        Exit.USAGE)
+    refined = _refined(args, files, chosen[0])
     reading = Reading()
     try:
         found = records_of(paths, args.node, args.record, reading,
-                           Reader(files, reading).entries(chosen[0]))
+                           Reader(files, reading).entries(chosen[0]), refined)
         image = picture(args.node, found.record, found.payloads, found.name, found.marks,
                         found.counts, window=chosen[0].span is not None,
                         shows=chosen[0].title)

@@ -33,7 +33,7 @@ from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from aspp.orientation import euler_from_matrix
 from aspp.records import BY_NAME
@@ -46,12 +46,16 @@ from .marks import Mark
 from .reader import Entry, read_all
 from .reports import Reading
 from .summary import Summary
+from .tables import BOUND, PLACED
+
+if TYPE_CHECKING:
+    from .refined import Refinement
 
 GAP_FACTOR = 1.5
 HALF_TURN = 180.0
 """Degrees an angle may step between two samples before the step is taken for a wrap."""
 SKIPPED = frozenset(("timer", "seq", "lqi", "rssi", "node", "command", "lost_before", "time",
-                     "host_time", "device_time"))
+                     "host_time", "device_time", PLACED, BOUND))
 EULER = ("roll", "pitch", "yaw")
 NAN = float("nan")
 
@@ -105,10 +109,11 @@ class Found:
 
 
 def records_of(paths: list[Path], node: int, record: str | None,
-               reading: Reading, entries: Iterable[Entry] | None = None) -> Found:
+               reading: Reading, entries: Iterable[Entry] | None = None,
+               refined: Refinement | None = None) -> Found:
     """The node's records of one kind (by default the kind it has most of), its name,
     and the marks that concern it, from the recordings (or from ``entries``, a window
-    of them); ValueError if there is none."""
+    of them, and its ``refined`` times, :mod:`.refined`); ValueError if there is none."""
     counts: Counter[str] = Counter()
     payloads: dict[str, list[dict]] = {}
     counted: dict[str, dict[int, Counted[int]]] = {}
@@ -135,6 +140,8 @@ def records_of(paths: list[Path], node: int, record: str | None,
         if where is None or where[0] != node:
             continue
         payload = entry.payload()
+        if refined is not None:
+            payload = refined.apply(entry, payload)
         kept = payloads.setdefault(where[1], [])
         _keep(counted, losses.add(node, where[1], payload, (where[1], len(kept))))
         if record and where[1] != record:

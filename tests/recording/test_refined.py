@@ -242,3 +242,34 @@ def test_several_stations_each_read_at_its_own_line(tmp_path: Path) -> None:
     # second of the left began 7 ms after its own line's last packet, whatever the
     # right line read just before it: free
     assert left.waited == right.waited == [True, False]
+
+
+def test_plot_draws_the_refined_times_export_writes(tmp_path: Path) -> None:
+    """``gx2ctl plot --time refined``: the time axis is the refined time, the same as
+    export gives (the library's records_of, which plot draws), and a recording that
+    cannot be refined is one line, exit 2, no picture."""
+    from gateway.recording.catalogue import catalogue
+    from gateway.recording.plot import records_of
+    from gateway.recording.refined import for_window
+    from gateway.recording.reports import Reading
+    from gateway.recording.window import Reader, Window
+
+    path = written(tmp_path / "line.mcap")
+    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"), "--time", "refined")
+    assert ran.status == 0, ran.stderr
+    with (tmp_path / "out" / "11_accel_angrate.csv").open() as table:
+        exported = [(float(r["time"]), r["time_placed"]) for r in csv.DictReader(table)]
+    files, whole, reading = catalogue([path]), Window(None), Reading()
+    found = records_of([path], 11, "accel_angrate", reading,
+                       Reader(files, reading).entries(whole), for_window(files, whole))
+    assert [(p["time"], p["time_placed"]) for p in found.payloads] == exported
+
+    ran = gx2ctl("plot", str(path), "11", "--time", "refined",
+                 "--out", str(tmp_path / "refined.png"))
+    assert ran.status == 0, ran.stderr
+    assert (tmp_path / "refined.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    published = make_file(tmp_path / "published.mcap", 0, 3)  # (no serial reads)
+    ran = gx2ctl("plot", str(published), "76", "--time", "refined",
+                 "--out", str(tmp_path / "no.png"))
+    assert ran.status == 2 and ran.stderr.count("\n") == 1, ran
+    assert "no serial reads" in ran.stderr and not (tmp_path / "no.png").exists()
