@@ -15,7 +15,21 @@ from .completion import add_options as add_completion_options
 from .endpoints import check_endpoint
 from .protocol import Exit
 from .values import NODE, POLLABLE_RECORD, STREAMABLE_RECORD, Kind
-from .version import VERSION
+from .version import installed
+
+
+class VersionAction(argparse.Action):
+    """``--version``: argparse's, with the version looked up only when asked for."""
+
+    def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS,
+                 default: str = argparse.SUPPRESS) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=default,
+                         help="show the program's version and exit")
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> NoReturn:
+        print(f"{parser.prog} {installed()}")  # (on stdout, as argparse's own)
+        parser.exit()
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -26,8 +40,7 @@ class ArgumentParser(argparse.ArgumentParser):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         if self.prog.count(" ") == 0:  # the program itself, not a subcommand's parser
-            self.add_argument("--version", action="version",
-                              version=f"%(prog)s {VERSION}")
+            self.add_argument("--version", action=VersionAction)
             add_completion_options(self)
 
     def error(self, message: str) -> NoReturn:

@@ -20,11 +20,10 @@ import argparse
 import copy
 import re
 from collections.abc import Iterator
-from importlib.metadata import PackageNotFoundError, distribution
 from typing import Any
 
 from .values import NODE, Kind
-from .version import VERSION
+from .version import installed
 
 SHELLS = ("bash", "zsh")
 NODES_OPTION = "--complete-nodes"
@@ -211,7 +210,7 @@ def man_page(parser: argparse.ArgumentParser) -> str:
         if sub.description == help_text:
             sub.description = None
     page = Manpage(page_parser, {
-        "project_name": PROJECT, "version": VERSION, "manual_title": f"{PROJECT} manual",
+        "project_name": PROJECT, "version": installed(), "manual_title": f"{PROJECT} manual",
         "description": summary(parser.description or "")}, format="single-commands-section")
     # argparse-manpage escapes the synopsis's first word (the program) but leaves the
     # others as they are, where roff needs \- for a hyphen that is typed (an option's
@@ -237,6 +236,7 @@ def subcommands(parser: argparse.ArgumentParser) -> Iterator[tuple[argparse.Argu
 
 def programs() -> list[str]:
     """The distribution's programs (pyproject.toml's ``[project.scripts]``)."""
+    from importlib.metadata import PackageNotFoundError, distribution
     try:
         scripts = distribution(PROJECT).entry_points.select(group="console_scripts")
     except PackageNotFoundError:  # pragma: no cover - a source tree, not installed

@@ -32,7 +32,7 @@ import zmq.asyncio
 from zmq.auth.asyncio import AsyncioAuthenticator
 
 from gateway.common.curve import AllowList, KeyPair
-from gateway.common.version import VERSION
+from gateway.common.version import installed
 from gateway.recording.files import PARTIAL, serial_channels
 
 from . import status
@@ -224,7 +224,7 @@ class Gateway:
     def _recording_metadata(self) -> dict[str, str]:
         """What a recording says about the gateway that made it."""
         config, first = self.config, self.config.stations[0]
-        metadata = {"version": VERSION, "port": first.port, "baudrate": str(first.baudrate),
+        metadata = {"version": installed(), "port": first.port, "baudrate": str(first.baudrate),
                     "latency_ms": f"{first.latency_ms:g}",
                     "nodes": json.dumps([{"address": n.address, "name": n.name,
                                           "stream": n.stream} for n in config.all_nodes])}

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, Protocol
 
 from aspp.timing import BITS_PER_BYTE
-from gateway.common.version import VERSION
+from gateway.common.version import installed
 
 from .health import station_reasons
 from .outputs import OUTPUTS
@@ -48,7 +48,7 @@ def report(gateway: Reported) -> dict[str, Any]:
     stations = [station_link(station, monotonic) for station in gateway.stations]
     said = outputs_status(gateway.outputs)
     return {
-        "gateway": {"version": VERSION, "uptime": round(now - gateway.started, 3),
+        "gateway": {"version": installed(), "uptime": round(now - gateway.started, 3),
                     "time": now, "publish_endpoint": config.publish.endpoint,
                     "control_endpoint": config.control.endpoint,
                     "heartbeat_s": config.publish.heartbeat_s,

@@ -15,7 +15,7 @@ from mcap.writer import CompressionType, Writer
 from gateway.common.jsontext import compact, compact_bytes
 from gateway.common.schemas import ENCODING as SCHEMA_ENCODING
 from gateway.common.schemas import schema_for_topic
-from gateway.common.version import VERSION
+from gateway.common.version import installed
 
 from .files import (
     CHUNK_BYTES,
@@ -39,7 +39,7 @@ class RecordingWriter:
         claim(output)  # (readers tell it from a file whose writer was killed)
         self._writer = Writer(output, chunk_size=CHUNK_BYTES,
                               compression=CompressionType.ZSTD)
-        self._writer.start(profile=PROFILE, library=f"gx2-gateway {VERSION}")
+        self._writer.start(profile=PROFILE, library=f"gx2-gateway {installed()}")
         if metadata:
             self._writer.add_metadata(METADATA, dict(metadata))
         self._channels: dict[str, int] = {}

@@ -8,14 +8,14 @@ import json
 
 import pytest
 
-from gateway.common.version import VERSION
+from gateway.common.version import installed
 from tests.helpers.processes import gx2ctl, script, spawn_run
 
 
 @pytest.mark.parametrize("name", ["gx2ctl", "gx2-gateway", "gx2-sim"])
 def test_every_program_says_its_version(name: str) -> None:
     run = spawn_run([script(name), "--version"], capture_output=True, text=True, timeout=60)
-    assert run.returncode == 0 and run.stdout.strip() == f"{name} {VERSION}", run
+    assert run.returncode == 0 and run.stdout.strip() == f"{name} {installed()}", run
 
 
 @pytest.mark.parametrize(("args", "hint"), [
