@@ -23,7 +23,6 @@ def main(argv: list[str] | None = None) -> int:
     # a reload before the loop runs has nothing to reload: the file is being read now
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
 
-    import asyncio
     import logging
     import os
 
@@ -87,6 +86,8 @@ def main(argv: list[str] | None = None) -> int:
         level=args.log_level, stream=sys.stderr,
         format="%(levelname)s %(name)s: %(message)s" if under_systemd
         else "%(asctime)s %(levelname)s %(name)s: %(message)s")
+
+    import asyncio  # (not before: a configuration refused, or --check, never needs it)
 
     from .app import Gateway, StartupError
 
