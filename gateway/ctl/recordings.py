@@ -15,6 +15,7 @@ from gateway.common.protocol import Exit
 from gateway.common.timetext import DAY, TIME, at
 
 from .client import CtlError
+from .offline import TIMES
 
 if TYPE_CHECKING:
     from gateway.recording.catalogue import Described
@@ -61,10 +62,16 @@ def add_commands(commands: Any) -> None:
         "columns and types of export --format parquet; and OUT/trials.parquet. A file "
         "being written is left for a later run. Needs gx2-gateway[parquet]. Exit 1 if "
         "something unreadable was skipped (it is tried again next run), 2 if no file is a "
-        "recording or OUT holds another directory's recordings, 75 if another run is "
-        "converting into OUT (it holds OUT/.lock; this one did nothing).")
+        "recording or OUT holds another directory's recordings (or the other --time), "
+        "75 if another run is converting into OUT (it holds OUT/.lock; this one did "
+        "nothing).")
     converter.add_argument("recordings", metavar="RECORDINGS")
     converter.add_argument("out", metavar="OUT")
+    converter.add_argument("--time", choices=TIMES, default="live",
+                           help="live (default): time as recorded; refined: placed after "
+                           "the fact from each recording and those around it, with "
+                           "time_placed and time_bound_ms (as export --time refined; needs "
+                           "the gateway's own recordings). A dataset holds one or the other")
 
 
 def default_directory(args: argparse.Namespace) -> str:
@@ -199,7 +206,7 @@ def run_dataset(args: argparse.Namespace) -> int:
     try:
         paths = usable_files([args.recordings])
         done = convert(paths, Path(args.out), reading, lambda line: print(line, flush=True),
-                       Path(args.recordings))
+                       Path(args.recordings), args.time)
     except (RecordingError, MissingExtra, OtherRecordings) as error:
         raise CtlError(str(error), Exit.USAGE) from None
     except Busy as error:

@@ -20,6 +20,15 @@ Polars scan of a folder reads every file in it, hidden or not;
 tests/recording/test_dataset_killed.py). The list of what was converted is replaced
 after each recording. A recording gone (retention, a move)
 leaves its parts: the dataset is never trimmed by what the recorder deletes.
+
+``--time refined`` (:mod:`.refined`) makes a dataset of refined times: each recording's
+rows placed after the fact from it and the recordings around it (4 minutes either
+side), with ``time_placed`` and ``time_bound_ms`` after ``time``, written row by row as
+export writes a refined table. A dataset holds one kind of time (``_converted.json``'s
+``time``): a run asking the other is refused. A recording converted before the one
+after it was finished is placed from the recordings before it, and its last minutes
+from one side of the stretch, as live; it is not converted again when the next one
+comes (the parts of a recording are made once).
 """
 
 from __future__ import annotations
@@ -36,12 +45,13 @@ from typing import Any
 
 from .catalogue import Described, catalogue
 from .columnexport import export_batches
+from .export import export
 from .files import RecordingError
 from .parquetfile import BATCH, converted, parquet_modules
 from .reports import Reading
 from .tables import TEMPORARY
 from .trials import listed
-from .window import _marks
+from .window import Window, _marks
 
 CONVERTED = "_converted.json"
 BUSY = 75
@@ -62,7 +72,8 @@ class Busy(Exception):
 class OtherRecordings(Exception):
     """OUT holds the recordings of another directory (_converted.json's
     ``recordings``): a part is named by its recording's file name alone, so two
-    directories' same-named recordings would replace each other's parts."""
+    directories' same-named recordings would replace each other's parts. Or it holds
+    the other kind of time (``time``: a dataset's rows are all live or all refined)."""
 
 
 @dataclass
@@ -91,15 +102,16 @@ class Converted:
 
 def convert(paths: list[Path], out: Path, reading: Reading,
             said: Callable[[str], None] = lambda line: None,
-            recordings: Path | None = None) -> Converted:
+            recordings: Path | None = None, time: str = "live") -> Converted:
     """Convert the recordings ``paths`` (of the directory ``recordings``: by default
-    the first's) not yet converted into the dataset ``out``; OtherRecordings if ``out``
-    holds another directory's."""
+    the first's) not yet converted into the dataset ``out``, their ``time`` live or
+    refined; OtherRecordings if ``out`` holds another directory's, or the other time."""
     pa, pq = parquet_modules()
     out.mkdir(parents=True, exist_ok=True)
     with _locked(out):
         _cleared(out)
-        return _converted(paths, out, reading, said, pa, pq, _folder(recordings, paths))
+        return _converted(paths, out, reading, said, pa, pq, _folder(recordings, paths),
+                          time)
 
 
 @contextlib.contextmanager
@@ -135,7 +147,8 @@ def _folder(recordings: Path | None, paths: list[Path]) -> str:
 
 
 def _converted(paths: list[Path], out: Path, reading: Reading,
-               said: Callable[[str], None], pa: Any, pq: Any, folder: str) -> Converted:
+               said: Callable[[str], None], pa: Any, pq: Any, folder: str,
+               time: str) -> Converted:
     state = _load(out / CONVERTED)
     kept = state.setdefault("recordings", folder)
     if kept != folder:
@@ -143,6 +156,12 @@ def _converted(paths: list[Path], out: Path, reading: Reading,
             f"{out} holds the recordings of {kept} ({out / CONVERTED}), and {folder} is "
             "another directory: its same-named recordings would replace those parts; "
             "give it an OUT of its own")
+    # (a dataset made before --time holds live times)
+    made = state.setdefault("time", time if not state["files"] else "live")
+    if made != time:
+        raise OtherRecordings(
+            f"{out} is a dataset of {made} times ({out / CONVERTED}): --time {time} "
+            "needs an OUT of its own (a dataset's rows are all of one time)")
     done: dict[str, Any] = state["files"]
     files = catalogue(paths, read_writing=False)
     result = Converted([], 0, [], 0)
@@ -164,7 +183,8 @@ def _converted(paths: list[Path], out: Path, reading: Reading,
                 result.same.append((described.path, twin))
                 said(f"{described.path}  the same as {twin} (converted): skipped")
                 continue
-            rows = _convert_one(described, out, reading, pq)
+            rows = _convert_one(described, out, reading, pq,
+                                files if time == "refined" else None)
         except (RecordingError, OSError) as error:
             if not described.path.exists():  # (retention deleted it while we ran)
                 result.gone.append(described.path)
@@ -233,12 +253,22 @@ def _save(path: Path, done: dict[str, Any]) -> None:
     os.replace(hidden, path)
 
 
-def _convert_one(described: Described, out: Path, reading: Reading, pq: Any) -> int:
-    """One recording's tables exported, then parted by day: its rows."""
+def _convert_one(described: Described, out: Path, reading: Reading, pq: Any,
+                 around: list[Described] | None = None) -> int:
+    """One recording's tables exported (its times refined from the recordings
+    ``around`` it, if given), then parted by day: its rows."""
     work = out / WORK / described.path.stem
     shutil.rmtree(work, ignore_errors=True)
     try:
-        tables, _ = export_batches([described.path], work, reading, "parquet")
+        if around is None:
+            tables, _ = export_batches([described.path], work, reading, "parquet")
+        else:
+            from .refined import check_refinable, for_window
+            check_refinable([described])
+            span = None if described.start is None else (described.start,
+                                                          (described.end or 0) + 1)
+            tables, _ = export([described.path], work, reading, "parquet",
+                               refined=for_window(around, Window(span)))
         part = f"part-{described.path.stem}.parquet"
         for folder in out.glob("record=*/node=*/date=*/"):
             # (a recording changed since: its parts made again; the name matched

@@ -273,3 +273,39 @@ def test_plot_draws_the_refined_times_export_writes(tmp_path: Path) -> None:
                  "--out", str(tmp_path / "no.png"))
     assert ran.status == 2 and ran.stderr.count("\n") == 1, ran
     assert "no serial reads" in ran.stderr and not (tmp_path / "no.png").exists()
+
+
+def test_a_dataset_of_refined_times_holds_what_export_refines(tmp_path: Path) -> None:
+    """``gx2ctl dataset --time refined``: each part's rows with the times export --time
+    refined gives them and the two columns; the dataset keeps to one kind of time (a
+    run asking the other is one line, exit 2, nothing changed), and a recording that
+    cannot be refined is said and left, the run partial (exit 1)."""
+    import pyarrow.parquet as pq
+
+    recordings = tmp_path / "recordings"
+    recordings.mkdir()
+    path = written(recordings / "line.mcap")
+    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "tables"), "--time", "refined")
+    assert ran.status == 0, ran.stderr
+    with (tmp_path / "tables" / "11_accel_angrate.csv").open() as table:
+        exported = [(float(r["time"]), r["time_placed"]) for r in csv.DictReader(table)]
+    out = tmp_path / "dataset"
+    ran = gx2ctl("dataset", str(recordings), str(out), "--time", "refined")
+    assert ran.status == 0, ran.stderr
+    (part,) = out.glob("record=accel_angrate/node=11/date=*/part-line.parquet")
+    rows = pq.read_table(part).to_pylist()
+    assert [r["time_placed"] for r in rows] == [placed for _, placed in exported]
+    assert [r["time"].timestamp() for r in rows] == pytest.approx([t for t, _ in exported],
+                                                                  abs=1e-6)
+    assert list(rows[0])[:3] == ["time", "time_placed", "time_bound_ms"]
+
+    before = sorted(p.relative_to(out) for p in out.rglob("*"))
+    ran = gx2ctl("dataset", str(recordings), str(out))  # (live: the default)
+    assert ran.status == 2 and ran.stderr.count("\n") == 1, ran
+    assert "is a dataset of refined times" in ran.stderr
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == before
+
+    make_file(recordings / "published.mcap", 0, 3)  # (gx2ctl record's: no serial reads)
+    ran = gx2ctl("dataset", str(recordings), str(out), "--time", "refined")
+    assert ran.status == 1, ran
+    assert "published.mcap: no serial reads" in ran.stderr
