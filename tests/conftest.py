@@ -41,7 +41,7 @@ so the suite does not wait for them at its end."""
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """FIRST's modules at the front (xdist hands out work in this order)."""
     def first(item: pytest.Item) -> bool:
-        return Path(item.path).relative_to(config.rootpath).as_posix() not in FIRST
+        return item.nodeid.split("::", 1)[0] not in FIRST
     items.sort(key=first)  # (stable: the rest keep their order)
 
 

@@ -260,7 +260,7 @@ def _convert_one(described: Described, out: Path, reading: Reading, pq: Any,
     work = out / WORK / described.path.stem
     shutil.rmtree(work, ignore_errors=True)
     try:
-        if around is None:
+        if around is None or not described.nodes:  # (no record: nothing to refine)
             tables, _ = export_batches([described.path], work, reading, "parquet")
         else:
             from .refined import check_refinable, for_window

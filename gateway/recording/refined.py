@@ -47,7 +47,10 @@ TIMES = ("live", "refined")
 """What ``time`` may be: as recorded (the default), or refined after the fact."""
 LOOKAHEAD = 8
 """Rows of a topic a row is looked for among, from the one after the last found (the
-two passes read the same rows in the same order: the first is the one)."""
+two passes read the same rows in the same order: the first is the one). One not among
+them is looked up by its log_time: the first pass read more than the second (a
+dataset's recording refined from the recordings around it, one of them overlapping
+it)."""
 MARGIN = 2 * REACH
 """Seconds of the recordings either side of a window read for its sightings."""
 DEFAULT = LineSettings(BITS_PER_BYTE / 115200, 3e-3)
@@ -127,6 +130,8 @@ class Refinement:
     def __init__(self, rows: dict[str, list[tuple[int, Placed | None]]]) -> None:
         self._rows = rows
         self._next: dict[str, int] = {}
+        self._stamps: dict[str, dict[int, list[int]]] = {}
+        """Each topic's rows by log_time (made when a row is first missed)."""
 
     def apply(self, entry: Entry, payload: dict[str, Any]) -> dict[str, Any]:
         """``payload`` (a record's, read from ``entry``) with its refined ``time`` and
@@ -140,6 +145,10 @@ class Refinement:
             if rows[i][0] == entry.log_time:
                 found, self._next[entry.topic] = rows[i][1], i + 1
                 break
+        else:
+            i = self._stamped(entry.topic, entry.log_time, at)
+            if i is not None:
+                found, self._next[entry.topic] = rows[i][1], i + 1
         if "time" not in payload:
             payload[PLACED] = payload[BOUND] = None
         elif found is None:
@@ -147,6 +156,20 @@ class Refinement:
         else:
             payload["time"], payload[PLACED], payload[BOUND] = found
         return payload
+
+
+    def _stamped(self, topic: str, stamp: int, at: int) -> int | None:
+        """The topic's row at log_time ``stamp``, the first from ``at`` on (else the
+        first); None if there is none."""
+        by_stamp = self._stamps.get(topic)
+        if by_stamp is None:
+            by_stamp = self._stamps[topic] = {}
+            for i, (row_stamp, _) in enumerate(self._rows.get(topic, ())):
+                by_stamp.setdefault(row_stamp, []).append(i)
+        found = by_stamp.get(stamp)
+        if not found:
+            return None
+        return next((i for i in found if i >= at), found[0])
 
 
 def check_refinable(files: list[Described]) -> None:

@@ -309,3 +309,41 @@ def test_a_dataset_of_refined_times_holds_what_export_refines(tmp_path: Path) ->
     ran = gx2ctl("dataset", str(recordings), str(out), "--time", "refined")
     assert ran.status == 1, ran
     assert "published.mcap: no serial reads" in ran.stderr
+
+
+def test_a_row_the_first_pass_read_among_other_recordings_rows_is_found_by_its_time() -> None:
+    """A dataset's recording is refined from the recordings around it: where one of
+    them overlaps it, the first pass's rows of a topic begin with that one's, more than
+    the lookahead, and the second pass reads this recording's alone. Each row is found
+    by its log_time (before: every row kept live, silently; an outside review's
+    reproduction, 259 rows placed between by export, none by the dataset)."""
+    from gateway.recording.reader import Entry
+    from gateway.recording.refined import LOOKAHEAD, Refinement
+
+    topic = "gx2/12/accel_angrate"
+    other = [(stamp, (float(stamp), "live", None)) for stamp in range(2 * LOOKAHEAD)]
+    mine = [(1000 + stamp, (5.0 + stamp, "between", 0.1)) for stamp in range(5)]
+    refinement = Refinement({topic: other + mine})
+    placed = [refinement.apply(Entry(topic, stamp, stamp, b""), {"time": 1.0})
+              for stamp, _ in mine]
+    assert [(p["time"], p["time_placed"]) for p in placed] == \
+        [(time, how) for _, (time, how, _) in mine]
+
+
+def test_a_quiet_recording_is_converted_with_no_rows_into_a_refined_dataset(
+        tmp_path: Path) -> None:
+    """A gateway's recording that holds no record (started and stopped, or its nodes
+    off for a whole file) has nothing to refine: 0 rows, as a live dataset converts it
+    (before: "no serial reads", never converted, every run exit 1)."""
+    recordings = tmp_path / "recordings"
+    recordings.mkdir()
+    written(recordings / "line.mcap")
+    with (recordings / "quiet.mcap").open("wb") as output:
+        writer = RecordingWriter(output, {"baudrate": "115200", "latency_ms": "3"})
+        for second in range(3):
+            writer.message("gx2/gateway/status", {"gateway": {"time": T0 + 10 + second},
+                                                  "nodes": []})
+        writer.finish()
+    ran = gx2ctl("dataset", str(recordings), str(tmp_path / "out"), "--time", "refined")
+    assert ran.status == 0, ran
+    assert "quiet.mcap  0 rows" in ran.stdout and "2 converted" in ran.stdout
