@@ -218,7 +218,7 @@ def run_dataset(args: argparse.Namespace) -> int:
         print(f"gx2ctl: {line}", file=sys.stderr, flush=True)
     writing = f", {len(done.writing)} being written (left for a later run)" \
         if done.writing else ""
-    failed = f", {len(done.failed)} not converted (unreadable: tried again next run)" \
+    failed = f", {len(done.failed)} not converted (each said why: tried again next run)" \
         if done.failed else ""
     gone = f", {len(done.gone)} gone (deleted while the run ran)" if done.gone else ""
     gone += f", {len(done.same)} the same as one converted (skipped)" if done.same else ""

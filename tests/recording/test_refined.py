@@ -309,6 +309,7 @@ def test_a_dataset_of_refined_times_holds_what_export_refines(tmp_path: Path) ->
     ran = gx2ctl("dataset", str(recordings), str(out), "--time", "refined")
     assert ran.status == 1, ran
     assert "published.mcap: no serial reads" in ran.stderr
+    assert "1 not converted (each said why" in ran.stdout and "unreadable" not in ran.stdout
 
 
 def test_a_row_the_first_pass_read_among_other_recordings_rows_is_found_by_its_time() -> None:
