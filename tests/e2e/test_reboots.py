@@ -185,7 +185,7 @@ def test_the_samples_missed_out_of_range_for_minutes_are_lost_radio(gateway, tmp
     gw = gateway(f"replay://{path}?speed=0&delay=2", [{"address": 76}])
     sub = gw.subscribe("gx2/76/accel_angrate")
     wait_for(lambda: gw.status()["replay"]["finished"], 15, "the replay to end")
-    sub.drain(0.3)
+    sub.drain_until_quiet()
     node = gw.node_status(76)
     assert node["lost_radio"] == missed, node
     assert node["reboots"] == 0

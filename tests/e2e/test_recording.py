@@ -136,7 +136,7 @@ def test_replay_publishes_what_was_published_live_and_sends_nothing(
     assert replay.status()["replay"]["reads"] == 0
     wait_for(lambda: replay.proc.poll() is not None, 30, "the replay to end (exit=true)")
     assert replay.proc.returncode == 0, replay.log()
-    sub.drain(0.5)
+    sub.drain_until_quiet()
     played = {(p["node"], p["seq"]): strict(p) for t, p in sub.messages
               if t.split("/")[1].isdecimal()}
     assert played.keys() == live.keys()

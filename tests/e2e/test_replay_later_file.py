@@ -48,7 +48,7 @@ def test_a_later_file_replays_the_recorded_seq_and_times(simulator, gateway, tmp
     sub = replay.subscribe("gx2/")
     wait_for(lambda: replay.proc.poll() is not None, 60, "the replay to end (exit=true)")
     assert replay.proc.returncode == 0, replay.log()
-    sub.drain(0.3)
+    sub.drain_until_quiet()
     played = {(p["node"], p["seq"]): strict(p) for t, p in sub.messages if t[4].isdigit()}
     # every record, under its recorded seq, with the recorded device_time, host_time
     # and fields; but one whose packet began in the file deleted, if the file's first

@@ -59,7 +59,7 @@ def test_a_gx2ctl_recording_replays_by_publishing_its_messages_again(
     assert len(refused.stderr.splitlines()) == 1, refused
     wait_for(lambda: replay.proc.poll() is not None, 30, "the replay to end (exit=true)")
     assert replay.proc.returncode == 0, replay.log()
-    sub.drain(0.3)
+    sub.drain_until_quiet()
     played = [(t, p) for t, p in sub.messages if t != STATUS]
     # the same messages, topics and payloads, in the same order; the recorded
     # gateway's status is not published again (the replaying gateway has its own)

@@ -42,7 +42,7 @@ def replayed(gateway, stations: list[dict[str, Any]]) -> dict[tuple[int, int], d
     sub = replay.subscribe("gx2/")
     wait_for(lambda: replay.proc.poll() is not None, 60, "the replay to end (exit=true)")
     assert replay.proc.returncode == 0, replay.log()
-    sub.drain(0.3)
+    sub.drain_until_quiet()
     return {(p["node"], p["seq"]): strict(p) for t, p in sub.messages if t[4].isdigit()}
 
 

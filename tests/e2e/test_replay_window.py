@@ -41,7 +41,7 @@ def test_a_replay_plays_the_trial_asked(gateway, tmp_path: Path) -> None:
     sub = replay.subscribe("gx2/")
     wait_for(lambda: replay.proc.poll() is not None, 30, "the replay to end (exit=true)")
     assert replay.proc.returncode == 0, replay.log()
-    sub.drain(0.3)
+    sub.drain_until_quiet()
     played = [(t, p) for t, p in sub.messages if t != STATUS]
     # the second trial: from the mark "start" at 25 s to the mark "stop" at 45 s, both held
     assert played == recorded(files[1:], T0 + 25, T0 + 45)

@@ -101,6 +101,18 @@ class Subscriber:
                 self.messages.append((topic.decode(), msgpack.unpackb(payload)))
         return self.messages[start:]
 
+    def drain_until_quiet(self, quiet: float = 0.5, timeout: float = 30.0
+                          ) -> list[tuple[str, dict[str, Any]]]:
+        """Collect until nothing arrived for ``quiet`` seconds (``timeout`` at most):
+        what a gateway that has exited had published may still be queued in the
+        socket, more than a fixed drain reads on a busy host (CI: a replay's last
+        1,030 records after a drain of 0.3 s)."""
+        start = len(self.messages)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and self.drain(quiet):
+            pass
+        return self.messages[start:]
+
     def until(self, condition: Callable[[list[tuple[str, dict[str, Any]]]], bool],
               timeout: float, what: str) -> list[tuple[str, dict[str, Any]]]:
         deadline = time.monotonic() + timeout
