@@ -191,15 +191,19 @@ DRIFT_ERROR = FLOOR_NOISE / (WINDOW / 4)
 # Those streams had fitted their drift over a whole window. One fitted over T < WINDOW
 # seconds is held to DRIFT_ERROR's own reasoning at the base it has: off by FLOOR_NOISE
 # over half of it, twice (4 FLOOR_NOISE / T; DRIFT_ERROR is that at T = WINDOW), whether
-# or not the line was seeing its floor when held (held_drift_error). The rule before
-# allowed FLOOR_NOISE / T, at most DRIFT_ERROR: in the suite's fault soak an overload in
-# the run's first minute held a drift fitted over about 40 s, after an unplug, 33 ppm
-# off (the unplug's restart left the hull a shorter base than T), and ``time`` went
-# 3.7 ms off under an allowance under 0.5 ms; and random lives of one node (bench/
-# heldlives.py) found holds of a drift fitted over 11 s that DRIFT_ERROR put under the
-# truth by 1.2 ms. The rule before that stepped from DRIFT_ERROR to 5 ppm at a window's
-# fitting, and so said a node held half a minute after a power cycle may be off after
-# 15 s held (docs/performance-history.md measures the rules).
+# or not the line was seeing its floor when held (held_drift_error). T counts only the
+# seconds between fits that saw the floor (``_fitted_seen``): a fit over packets that
+# all waited draws its slope from their waits (a line turning busy: half a second
+# free, then every packet 2.5 to 3.4 ms behind another's, drew a drift 150 ppm off that
+# 25 s of fitting would have allowed 80). And the drift's gap to its packets' own slope
+# is kept through a reset, release or outage, as the drift is (a hold in a new line's
+# first second had allowed none of a 65 ppm gap). The rule before allowed
+# FLOOR_NOISE / T, at most DRIFT_ERROR: in the suite's fault soak an overload in the
+# run's first minute held a drift fitted over about 40 s, 33 ppm off, and ``time`` went
+# 3.7 ms off under an allowance under 0.5 ms; random lives of one node
+# (bench/heldlives.py) found holds 1.2 ms past it. The step to HELD_DRIFT_ERROR at a
+# window fitted on the floor is kept: 5 ppm is what was measured of such lines, and
+# nothing of shorter ones (docs/performance-history.md measures the rules).
 HELD_DRIFT_ERROR = 5e-6
 FLOOR_FRESH = 10.0
 """Device seconds within which a line saw its floor for its drift to count as measured
@@ -207,9 +211,9 @@ when it is held."""
 
 
 def held_drift_error(fitted: float, fresh: bool) -> float:
-    """How far from the crystal's the drift of a held line may be, fitted over
-    ``fitted`` device seconds, and ``fresh`` if it was seeing its floor when held (see
-    HELD_DRIFT_ERROR)."""
+    """How far from the crystal's the drift of a held line may be, fitted on its floor
+    for ``fitted`` device seconds, and ``fresh`` if it was seeing its floor when held
+    (see HELD_DRIFT_ERROR)."""
     if fitted < SETTLE_SPAN:  # (not settled: a hold drops such a drift)
         return MAX_DRIFT
     if fitted < WINDOW:
@@ -271,6 +275,7 @@ class NodeClock:
         "_first",
         "_fitted",
         "_fitted_at",
+        "_fitted_seen",
         "_floor_at",
         "_floor_drift",
         "_floor_offset",
@@ -298,6 +303,14 @@ class NodeClock:
         self._fitted = 0.0
         """Device seconds over which the drift has been fitted (kept through a reset:
         the drift is the crystal's)."""
+        self._fitted_seen = 0.0
+        """Of those, the seconds between fits that saw the floor: the drift's evidence
+        (a fit over packets that all waited learns from their waits; see
+        held_drift_error)."""
+        self._edge_gap = 0.0
+        """How far the drift is from the slope of the hull's edge it is drawn to, at the
+        last fit: what the rate bound (or the clamp) holds it from its packets. Kept,
+        with the drift, through a reset, release or outage until the next fit."""
         self._state = FRESH
         self.floors_taken_back = 0
         """How many times a lock took back the floor its line had seen (_confirm_floor):
@@ -356,7 +369,8 @@ class NodeClock:
             # (a drift at the clamp was drawn there by late packets: not the crystal's)
             if self._fitted < SETTLE_SPAN or abs(self._drift) >= MAX_DRIFT:
                 self._offset += self._drift * self._last  # the same line where it is now
-                self._drift = self._fitted = self._held_gap = 0.0
+                self._drift = self._fitted = self._fitted_seen = self._held_gap = 0.0
+                self._edge_gap = 0.0
             fresh = (self._locked_since is not None and self._fitted >= SETTLE_SPAN
                      and self._floor_seen and self._last - self._floor_at <= FLOOR_FRESH)
             self._held_fresh = fresh
@@ -374,9 +388,6 @@ class NodeClock:
         self._block_start = 0.0
         self._offset = 0.0
         self._fitted_at: float | None = None
-        self._edge_gap = 0.0
-        """How far the drift is from the slope of the hull's edge it is drawn to, at the
-        last fit: what the rate bound (or the clamp) holds it from this line's packets."""
         self._points = 0
         self._first = 0.0
         self._last = 0.0
@@ -538,6 +549,9 @@ class NodeClock:
         now = hull[-1][0]
         step = 0.0 if self._fitted_at is None else max(now - self._fitted_at, 0.0)
         self._fitted += step
+        if self._floor_seen and self._fitted_at is not None \
+                and self._floor_at > self._fitted_at:  # (a sighting since the last fit)
+            self._fitted_seen += step
         if self._fitted >= SETTLE_SPAN and abs(self._drift) < MAX_DRIFT:  # (not at the clamp)
             room = max(DRIFT_RATE, FLOOR_NOISE / self._fitted ** 2) * step
             drift = max(self._drift - room, min(self._drift + room, drift))
@@ -588,7 +602,7 @@ class NodeClock:
             return None
         held = max(self._held_last - self._held_at, 0.0)
         gap = self._held_gap * held  # (the packets' own slope, which the bound held off)
-        drift_error = held_drift_error(self._fitted, self._held_fresh) * held
+        drift_error = held_drift_error(self._fitted_seen, self._held_fresh) * held
         if self._held_fresh:  # (and the crystal following its temperature meanwhile)
             drift_error += DRIFT_RATE * held * held / 2
         return gap + drift_error

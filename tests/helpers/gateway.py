@@ -109,8 +109,10 @@ class Subscriber:
         1,030 records after a drain of 0.3 s)."""
         start = len(self.messages)
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline and self.drain(quiet):
-            pass
+        while self.drain(quiet):
+            if time.monotonic() > deadline:
+                raise AssertionError(f"still publishing after {timeout} s: "
+                                     f"{len(self.messages) - start} messages")
         return self.messages[start:]
 
     def until(self, condition: Callable[[list[tuple[str, dict[str, Any]]]], bool],
