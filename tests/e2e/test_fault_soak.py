@@ -2,8 +2,9 @@
 gateway on gx2-sim through a host stall, an unplug, one node's power cycle and all
 three's, a burst of radio loss, a load change, an overload and a reload, each record's
 ``time`` against the instant the simulated node really took the sample. What a user
-relies on: the gateway recovers within its health window after each fault, every
-``late_ms`` status gives is a bound, and the gateway loses nothing. (The bench's other kinds run
+relies on: the gateway recovers within its health window after each fault, the samples
+``time`` is off for are warned of, every ``late_ms`` status gives is a bound, and the
+gateway loses nothing. (The bench's other kinds run
 elsewhere in the suite: a CPU hog would slow every other test, the MQTT broker's
 restart is tests/e2e/test_mqtt.py's, the full disk tests/e2e/test_recording_failures.py's.)
 
@@ -48,13 +49,14 @@ def report() -> soakreport.Report:
     return report
 
 
-# (not "off samples warned": in one full run of two, an overload in the run's first
-# minute (its third fault, after an unplug and a load change) held clocks whose drift
-# had been fitted for under a minute, and time went 3.7 ms off while the held
-# allowance still said under 0.5 ms: 6% of those samples came before the WARN. Both
-# hours of bench/faultsoak.py warned every off sample; the young fit's allowance is
-# issue 42's, open.)
-@pytest.mark.parametrize("invariant", ["recovery", "late_ms a bound",
+# "off samples warned": at least 95% of the samples more than 0.5 ms off come under a
+# clock or line WARN. In one full run (of two) before the young fit's allowance
+# (aspp.clock.held_drift_error), an overload in the run's first minute held clocks
+# whose drift had been fitted for under a minute, and time went 3.7 ms off under an
+# allowance under 0.5 ms: 93.4%. Since, beside a second soak and a CPU hog on this
+# 2-core machine: 96.8% and 98.9% (the rest in a replug's first second, 5 s into the run,
+# before a stream is judged, health.settle_s, and the overload's first moments).
+@pytest.mark.parametrize("invariant", ["recovery", "off samples warned", "late_ms a bound",
                                        "nothing lost in the gateway"])
 def test_the_gateway_holds_through_ordinary_faults(report: soakreport.Report,
                                                    invariant: str) -> None:
