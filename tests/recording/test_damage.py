@@ -5,6 +5,7 @@ and the run exits 1 ("partial"). Ctrl-C during an export leaves no table cut."""
 
 from __future__ import annotations
 
+import math
 import struct
 from pathlib import Path
 
@@ -12,9 +13,9 @@ import pytest
 from mcap.reader import make_reader
 
 from gateway.recording import export, tables
-from gateway.recording.files import FOOTER_BYTES, RECORD_HEAD
+from gateway.recording.files import FOOTER_BYTES, RECORD_HEAD, RecordingError
 from gateway.recording.plot import picture, records_of
-from gateway.recording.reader import read_all
+from gateway.recording.reader import Entry, read_all
 from gateway.recording.reports import Reading
 from gateway.recording.writer import RecordingWriter
 from tests.helpers.processes import gx2ctl, interrupted, script
@@ -362,3 +363,19 @@ def test_a_damaged_summary_is_not_used_and_loses_no_message(tmp_path):
     assert not reading.partial
     assert reading.lines() == [f"{path}: its summary is damaged (not used); read every "
                                "message"]
+
+
+def test_a_message_orjson_refuses_is_read_as_the_standard_library_reads_it() -> None:
+    """The reader parses with orjson, which refuses what another writer may have put in
+    a recording and the standard library reads (a NaN, the infinities, an int past 64
+    bits): such a message is read as it always was; one that is not JSON, or not an
+    object, is a RecordingError either way."""
+    def parsed(data: bytes) -> dict:
+        return Entry("gx2/76/accel_angrate", 0, 0, data).payload()
+    nan = parsed(b'{"a": NaN, "b": -Infinity, "n": 123456789012345678901234567890}')
+    assert math.isnan(nan["a"]) and nan["b"] == -math.inf
+    assert nan["n"] == 123456789012345678901234567890
+    assert parsed(b'{"x": 0.1, "s": "\\u00e9"}') == {"x": 0.1, "s": "\u00e9"}
+    for broken in (b'{"a": ', b"[1, 2]", b"\xff"):
+        with pytest.raises(RecordingError):
+            parsed(broken)
