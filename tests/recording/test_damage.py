@@ -375,6 +375,12 @@ def test_a_message_orjson_refuses_is_read_as_the_standard_library_reads_it() -> 
     nan = parsed(b'{"a": NaN, "b": -Infinity, "n": 123456789012345678901234567890}')
     assert math.isnan(nan["a"]) and nan["b"] == -math.inf
     assert nan["n"] == 123456789012345678901234567890
+    # (orjson reads an integer past 64 bits as a float, without refusing it: an outside
+    # review's finding)
+    for big in (2**64, -(2**63) - 1, 123456789012345678901234567890, 2**64 - 1, -(2**63)):
+        assert parsed(b'{"seq": %d}' % big) == {"seq": big}
+        assert type(parsed(b'{"seq": %d}' % big)["seq"]) is int
+    assert parsed(b'{"t": 0.12345678901234567890123}') == {"t": 0.12345678901234568}
     assert parsed(b'{"x": 0.1, "s": "\\u00e9"}') == {"x": 0.1, "s": "\u00e9"}
     for broken in (b'{"a": ', b"[1, 2]", b"\xff"):
         with pytest.raises(RecordingError):
