@@ -221,6 +221,18 @@ def held_drift_error(fitted: float, fresh: bool) -> float:
     return HELD_DRIFT_ERROR if fresh else DRIFT_ERROR
 
 
+# An outage: packets stop (an unplug, a radio out of range, a stream stopped) and come
+# back. The line is extrapolated across the gap at its drift, which is off by as much
+# as a held line's may be (held_drift_error): a line whose drift was fitted on its floor
+# over a window bridges a minute, one fitted over a few seconds not even the five of an
+# unplug. In the suite's fault soak, a base station unplugged 6 s after the gateway
+# started came back after 5 s with a line 1.0 ms late, locked and said OK. A gap the
+# drift cannot bridge within FLOOR_NOISE starts the line over, as a reboot does (the
+# drift and the times given kept), so its first second is said not locked; the
+# shortest such gap is the one the widest drift allows.
+OUTAGE_MIN = FLOOR_NOISE / MAX_DRIFT
+"""Device seconds without a packet that any line bridges (2.5 s)."""
+
 Point = tuple[float, float]
 
 
@@ -415,10 +427,11 @@ class NodeClock:
         time advancing from that one at SLEW of the device's rate."""
         if self._state is not FITTED:
             return self._unfitted(device, host, waited)
-        if device < self._last or device - self._last > WINDOW:
-            if device < self._last:  # not in order (a reset missed): it says nothing
+        gap = device - self._last
+        if gap < 0 or (gap > OUTAGE_MIN and self._cannot_bridge(gap)):
+            if gap < 0:  # not in order (a reset missed): it says nothing
                 return self._give(device, device + self._offset + self._drift * device)
-            self._event(OUTAGE)  # after a long outage: the old points no longer bound
+            self._event(OUTAGE)  # the old line no longer places this packet
             return self._unfitted(device, host, waited)
         y = host - device
         _push(self._current, device, y)
@@ -446,6 +459,14 @@ class NodeClock:
             self._locked_since = host
             self._confirm_floor()
         return self._give(device, device + line)
+
+    def _cannot_bridge(self, gap: float) -> bool:
+        """Whether ``gap`` device seconds without a packet are an outage (see
+        OUTAGE_MIN): longer than the window, or than its drift's allowance keeps the
+        line extrapolated across them within the floor's noise."""
+        fresh = (self._locked_since is not None and self._floor_seen
+                 and self._last - self._floor_at <= FLOOR_FRESH)
+        return gap > WINDOW or gap * held_drift_error(self._fitted_seen, fresh) > FLOOR_NOISE
 
     def _unfitted(self, device: float, host: float, waited: bool) -> float:
         """A packet with no line learning from it: the first of one (FRESH, RELEASED:
