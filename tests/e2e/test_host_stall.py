@@ -11,6 +11,8 @@ import os
 import signal
 import time
 
+import pytest
+
 from tests.helpers.waiting import wait_for
 
 DEMO_PORT = "sim://?motion=swing&data_loss=0.01&garbage=0.005"
@@ -29,6 +31,7 @@ def all_well(status: dict) -> bool:
                     for n in status["nodes"]))
 
 
+@pytest.mark.usefixtures("favoured_host")
 def test_a_two_second_host_stall_is_recovered_without_a_line_over_capacity(gateway):
     gw = gateway(DEMO_PORT, DEMO_NODES, health={"settle_s": 2.0})
     gw.wait_streaming(76, 77, 95)

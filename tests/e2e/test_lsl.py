@@ -30,6 +30,7 @@ BROKEN_PYLSL = 'raise RuntimeError("LSL binary library file was not found.\\n Mo
 """A pylsl whose import fails as pylsl's own does where no liblsl loads (aarch64)."""
 
 
+@pytest.mark.usefixtures("favoured_host")  # (to 0.1 ms: 0.45 ms off once in a loaded suite)
 def test_an_independent_inlet_finds_each_stream_with_its_metadata_and_the_sample_instants(
         tmp_path: Path) -> None:
     refusal = namespace_refusal()

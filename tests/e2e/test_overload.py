@@ -34,6 +34,7 @@ its baud rate, which bytes a second never called full) and queues up to 16 KiB: 
 FIFO line of bench/linequeue.py, behind the pty (issue 38)."""
 
 
+@pytest.mark.usefixtures("favoured_host")
 @pytest.mark.parametrize("line", [None, FIFO], ids=["gx2sim", "fifo"])
 def test_an_overloaded_line_is_said_and_time_stays_smooth(simulator, gateway, line):
     # On the FIFO line the gateway starts the streams, so the line fills while it
@@ -110,6 +111,7 @@ NEW_TIMER = 150.0
 old one, so each reading's true instant is the new power-up's."""
 
 
+@pytest.mark.usefixtures("favoured_host")
 def test_a_reboot_or_a_first_record_while_over_capacity_keeps_time_near_the_truth(
         simulator, gateway):
     """Issue 31, defect 1: nodes rebooted while their line is over capacity (and a node
