@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import io
 import os
 import queue
 import shutil
@@ -135,6 +136,26 @@ def gx2ctl(*args: str, timeout: float = 60.0) -> Ran:
     run = spawn_run([script("gx2ctl"), *args], capture_output=True, text=True,
                     timeout=timeout, stdin=subprocess.DEVNULL)
     return Ran(run.returncode, run.stdout, run.stderr, time.monotonic() - start)
+
+
+def gx2ctl_here(*args: str) -> Ran:
+    """``gx2ctl ARGS`` run by the function the installed program calls
+    (``gateway.ctl.cli:main``, pyproject.toml's entry point) in this process: its exit
+    status and what it printed, as :func:`gx2ctl` gives them. For the offline commands'
+    many runs whose subject is what they read and write: a run of the program costs a
+    second of CPU importing pyarrow and, through pyarrow's first conversion of a value,
+    pandas (tests/recording ran about 120 of them). Each module still runs the
+    installed program where the program itself is the subject (its start, a kill, its
+    memory)."""
+    from gateway.ctl.cli import main
+    out, err = io.StringIO(), io.StringIO()
+    start = time.monotonic()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            status = main(list(args))
+        except SystemExit as exit:
+            status = exit.code if isinstance(exit.code, int) else int(exit.code is not None)
+    return Ran(int(status or 0), out.getvalue(), err.getvalue(), time.monotonic() - start)
 
 
 class Running:

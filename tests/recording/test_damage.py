@@ -18,7 +18,7 @@ from gateway.recording.plot import picture, records_of
 from gateway.recording.reader import Entry, read_all
 from gateway.recording.reports import Reading
 from gateway.recording.writer import RecordingWriter
-from tests.helpers.processes import gx2ctl, interrupted, script
+from tests.helpers.processes import gx2ctl, gx2ctl_here, interrupted, script
 from tests.helpers.waiting import wait_for
 from tests.recording.test_offline import T0, payload, rows
 
@@ -111,7 +111,7 @@ def test_export_of_a_damaged_file_writes_the_rows_before_and_after_and_exits_1(t
 def test_a_file_cut_short_is_said_but_not_partial(tmp_path):
     path = tmp_path / "run.mcap"
     three_chunks(path, finished=False)
-    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
+    ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / "out"))
     assert ran.status == 0, ran
     assert ran.stderr == (f"gx2ctl: {path}: ends early after 2026-11-18 11:06:42.994 UTC "
                           "(its writer was stopped without warning); read up to there\n")
@@ -141,19 +141,19 @@ def test_empty_and_foreign_files_in_a_directory_are_skipped_with_a_line_each(tmp
     (directory / "gx2-b.mcap").write_bytes(b"")  # what a full disk leaves, every 5 s
     (directory / "gx2-c.mcap").write_text("not a recording")
     write_chunks(directory / "gx2-d.mcap", [[(TOPIC, euler(301))]])
-    ran = gx2ctl("export", str(directory), "--out", str(tmp_path / "out"))
+    ran = gx2ctl_here("export", str(directory), "--out", str(tmp_path / "out"))
     assert ran.status == 1, ran
     assert ran.stderr.splitlines() == [f"gx2ctl: {directory / 'gx2-b.mcap'}: skipped: empty",
                                        f"gx2ctl: {directory / 'gx2-c.mcap'}: skipped: "
                                        "not an MCAP file"]
     assert seqs(tmp_path / "out" / "76_euler.csv") == list(range(1, 302))
-    drawn = gx2ctl("plot", str(directory), "76", "--out", str(tmp_path / "76.png"))
+    drawn = gx2ctl_here("plot", str(directory), "76", "--out", str(tmp_path / "76.png"))
     assert drawn.status == 1, drawn
     assert len(drawn.stderr.splitlines()) == 2 and (tmp_path / "76.png").stat().st_size
     # nothing readable at all: a usage error, one line
     for bad in ("gx2-a.mcap", "gx2-d.mcap"):
         (directory / bad).unlink()
-    ran = gx2ctl("export", str(directory), "--out", str(tmp_path / "out"))
+    ran = gx2ctl_here("export", str(directory), "--out", str(tmp_path / "out"))
     assert ran.status == 2, ran
     assert ran.stderr == (f"gx2ctl: {directory / 'gx2-b.mcap'}: empty (and 1 more that "
                           "cannot be read)\n")
@@ -227,7 +227,7 @@ def test_marks_are_exported_and_drawn_as_labelled_lines(tmp_path):
     marks = [mark("start, engine on", T0 + 0.5, []), mark("left wing tapped", T0 + 1.0, [76]),
              mark("right wing tapped", T0 + 1.5, [77, 78]), mark("after", T0 + 60, [])]
     write_chunks(path, [records[:100] + marks[:2], records[100:] + marks[2:]])
-    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
+    ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / "out"))
     assert ran.status == 0, ran
     assert rows(tmp_path / "out" / "marks.csv") == [
         {"time": repr(data["time"]), "host_time": repr(data["host_time"]),
@@ -239,7 +239,7 @@ def test_marks_are_exported_and_drawn_as_labelled_lines(tmp_path):
     # node 76's own mark and the experiment's, within the samples' time
     assert image.marks == [(pytest.approx(0.5), "start, engine on"),
                            (pytest.approx(1.0), "left wing tapped")]
-    drawn = gx2ctl("plot", str(path), "76", "--out", str(tmp_path / "76.png"))
+    drawn = gx2ctl_here("plot", str(path), "76", "--out", str(tmp_path / "76.png"))
     assert drawn.status == 0, drawn
     assert (tmp_path / "76.png").read_bytes()[:4] == b"\x89PNG"
 
@@ -288,7 +288,7 @@ def test_a_damaged_footer_loses_no_message_and_is_said(tmp_path, how):
     chunks = write_chunks(path, [[(TOPIC, euler(seq)) for seq in range(start, start + 100)]
                                  for start in range(1, 1001, 100)])
     damage_footer(path, how, chunks)
-    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
+    ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / "out"))
     assert ran.status == 0, ran  # nothing was skipped: every message is in the tables
     assert seqs(tmp_path / "out" / "76_euler.csv") == list(range(1, 1001))
     assert ran.stderr == (f"gx2ctl: {path}: its footer is damaged (it points to the wrong "
@@ -334,7 +334,7 @@ def test_messages_a_damaged_file_lost_are_said_as_the_files_not_the_gateways(tmp
     offset, length = chunks[5]
     data[offset + length // 2:offset + length // 2 + 200] = bytes(200)
     path.write_bytes(bytes(data))
-    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
+    ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / "out"))
     assert ran.status == 1, ran
     assert ran.stdout == (f"{tmp_path / 'out' / '76_euler.csv'}  897 rows "
                           "(file damaged: 100 messages, 1.0 s unread)\n"
@@ -345,7 +345,7 @@ def test_messages_a_damaged_file_lost_are_said_as_the_files_not_the_gateways(tmp
     assert image.title.splitlines()[1] == ("radio: 2 lost (0.20%) · gateway: 1 lost "
                                            "(0.10%) · file damaged: 100 messages, 1.0 s "
                                            "unread")
-    drawn = gx2ctl("plot", str(path), "76", "--out", str(tmp_path / "76.png"))
+    drawn = gx2ctl_here("plot", str(path), "76", "--out", str(tmp_path / "76.png"))
     assert drawn.status == 1, drawn
     assert (tmp_path / "76.png").read_bytes()[:4] == b"\x89PNG"
 

@@ -1,4 +1,6 @@
-"""``gx2ctl dataset`` through the installed program, queried as its users query it:
+"""``gx2ctl dataset`` (by gx2ctl's entry point in this process, the installed program
+where the process itself is the subject: tests/helpers/processes.py, gx2ctl_here),
+queried as its users query it:
 DuckDB and Polars on the Hive-partitioned Parquet, counts and values held against the
 recordings read by the ``mcap`` package (never our reader); incremental runs; the
 trials table (issue 44)."""
@@ -17,7 +19,7 @@ import pytest
 from mcap.reader import make_reader
 
 from gateway.recording.columns import nanoseconds
-from tests.helpers.processes import gx2ctl
+from tests.helpers.processes import gx2ctl, gx2ctl_here
 from tests.helpers.recorded import FILE_SECONDS, make_file
 
 
@@ -81,17 +83,17 @@ def test_the_dataset_is_what_the_recordings_hold(recordings: Path, tmp_path: Pat
 
 def test_a_second_run_converts_only_what_is_new(recordings: Path, tmp_path: Path) -> None:
     out = tmp_path / "dataset"
-    assert gx2ctl("dataset", str(recordings), str(out)).status == 0
+    assert gx2ctl_here("dataset", str(recordings), str(out)).status == 0
     parts = {p: p.stat().st_mtime_ns for p in out.rglob("part-*.parquet")}
-    again = gx2ctl("dataset", str(recordings), str(out))
+    again = gx2ctl_here("dataset", str(recordings), str(out))
     assert again.status == 0 and "0 converted, 2 up to date" in again.stdout, again
     make_file(recordings / "gx2-20261122T000000.000Z.mcap", 2 * FILE_SECONDS, FILE_SECONDS)
-    third = gx2ctl("dataset", str(recordings), str(out))
+    third = gx2ctl_here("dataset", str(recordings), str(out))
     assert third.status == 0 and "1 converted, 2 up to date" in third.stdout, third
     assert {p: p.stat().st_mtime_ns for p in parts} == parts  # (untouched)
     # retention deletes a recording: its parts stay
     (recordings / "gx2-20261120T000000.000Z.mcap").unlink()
-    assert gx2ctl("dataset", str(recordings), str(out)).status == 0
+    assert gx2ctl_here("dataset", str(recordings), str(out)).status == 0
     total = duckdb.sql(f"SELECT count(*) FROM read_parquet('{out}/record=euler/**/*.parquet')"
                        ).fetchall()
     assert total == [(3 * FILE_SECONDS * 5,)]
@@ -99,7 +101,7 @@ def test_a_second_run_converts_only_what_is_new(recordings: Path, tmp_path: Path
 
 
 def test_no_recording_is_one_line(tmp_path: Path) -> None:
-    ran = gx2ctl("dataset", str(tmp_path / "nothing"), str(tmp_path / "out"))
+    ran = gx2ctl_here("dataset", str(tmp_path / "nothing"), str(tmp_path / "out"))
     assert ran.status == 2 and len(ran.stderr.splitlines()) == 1, ran
     assert "Traceback" not in ran.stderr
 
@@ -107,7 +109,7 @@ def test_no_recording_is_one_line(tmp_path: Path) -> None:
 def test_the_queries_of_the_docs_run_as_written(recordings: Path, tmp_path: Path) -> None:
     """docs/recording.md, "Analysing a study": every SQL block run by DuckDB on a dataset
     in ``dataset/``, each giving rows; the trial's counts are the recordings'."""
-    assert gx2ctl("dataset", str(recordings), str(tmp_path / "dataset")).status == 0
+    assert gx2ctl_here("dataset", str(recordings), str(tmp_path / "dataset")).status == 0
     text = (Path(__file__).resolve().parents[2] / "docs" / "recording.md").read_text()
     section = text[text.index("## Analysing a study"):]
     queries = re.findall(r"```sql\n(.*?)```", section, re.S)
@@ -136,7 +138,7 @@ def test_a_name_with_glob_characters_deletes_no_other_recording_parts(tmp_path: 
     make_file(folder / "s1.mcap", 0, FILE_SECONDS)
     make_file(folder / "s[12].mcap", FILE_SECONDS, FILE_SECONDS)
     out = tmp_path / "dataset"
-    assert gx2ctl("dataset", str(folder), str(out)).status == 0
+    assert gx2ctl_here("dataset", str(folder), str(out)).status == 0
     assert {p.name for p in out.rglob("part-*")} == {"part-s1.parquet", "part-s[12].parquet"}
     total = duckdb.sql(f"SELECT count(*) FROM read_parquet('{out}/record=euler/**/*.parquet')"
                        ).fetchall()
@@ -168,7 +170,7 @@ def test_an_unreadable_recording_is_one_line_and_the_rest_are_converted(
     make_file(folder / "gx2-20261122T000000.000Z.mcap", FILE_SECONDS, FILE_SECONDS)
     out = tmp_path / "dataset"
     for run in range(2):  # (left unstamped: tried again, and said again)
-        ran = gx2ctl("dataset", str(folder), str(out))
+        ran = gx2ctl_here("dataset", str(folder), str(out))
         assert ran.status == 1, ran
         [line] = ran.stderr.splitlines()
         assert str(odd) in line and "not a JSON object" in line, ran
@@ -204,7 +206,7 @@ def test_out_s_trouble_names_the_file(recordings: Path, tmp_path: Path) -> None:
     out = tmp_path / "dataset"
     out.mkdir()
     (out / "record=euler").write_text("not a folder")
-    ran = gx2ctl("dataset", str(recordings), str(out))
+    ran = gx2ctl_here("dataset", str(recordings), str(out))
     assert ran.status == 2 and len(ran.stderr.splitlines()) == 1, ran
     assert f"{out}/record=euler/node=13" in ran.stderr, ran
 
@@ -225,7 +227,7 @@ def test_a_mark_time_beyond_timestamp_ns_is_null_in_trials(tmp_path: Path) -> No
                                         "roll": 0.0, "pitch": 0.0, "yaw": 0.0})
         writer.finish()
     out = tmp_path / "dataset"
-    ran = gx2ctl("dataset", str(folder), str(out))
+    ran = gx2ctl_here("dataset", str(folder), str(out))
     assert ran.status == 0 and "1 trials" in ran.stdout, ran
     assert pq.read_table(out / "trials.parquet").to_pylist() == [
         {"trial": 1, "start": None, "stop": None, "start_mark": "start", "stop_mark": None}]
@@ -257,7 +259,7 @@ def test_a_run_clears_what_a_killed_run_left(recordings: Path, tmp_path: Path) -
     for path in left:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(b"PAR1 half")
-    assert gx2ctl("dataset", str(recordings), str(out)).status == 0
+    assert gx2ctl_here("dataset", str(recordings), str(out)).status == 0
     hidden = [p for p in out.rglob("*") if p.name.startswith(".") and p.name != ".lock"]
     assert hidden == []
 
@@ -270,15 +272,15 @@ def test_trials_are_kept_when_retention_deletes_their_recording(
     out = tmp_path / "dataset"
     query = (f"SELECT trial, epoch_ns(start), stop IS NULL FROM "
              f"read_parquet('{out}/trials.parquet') ORDER BY trial")
-    assert gx2ctl("dataset", str(recordings), str(out)).status == 0
+    assert gx2ctl_here("dataset", str(recordings), str(out)).status == 0
     first = duckdb.sql(query).fetchall()
     assert [(n, open_) for n, _, open_ in first] == [(1, False), (2, True)]
     make_file(recordings / "gx2-20261122T000000.000Z.mcap", 2 * FILE_SECONDS, FILE_SECONDS)
-    assert gx2ctl("dataset", str(recordings), str(out)).status == 0
+    assert gx2ctl_here("dataset", str(recordings), str(out)).status == 0
     second = duckdb.sql(query).fetchall()
     assert second == [(1, first[0][1], False), (2, first[1][1], False)]
     (recordings / "gx2-20261120T000000.000Z.mcap").unlink()  # (retention)
-    ran = gx2ctl("dataset", str(recordings), str(out))
+    ran = gx2ctl_here("dataset", str(recordings), str(out))
     assert ran.status == 0 and "2 trials" in ran.stdout, ran
     assert duckdb.sql(query).fetchall() == second
 
@@ -292,8 +294,8 @@ def test_a_second_recordings_directory_into_one_out_is_refused(tmp_path: Path) -
         folder.mkdir()
         make_file(folder / name, k * FILE_SECONDS, FILE_SECONDS)
     out = tmp_path / "dataset"
-    assert gx2ctl("dataset", str(one), str(out)).status == 0
-    ran = gx2ctl("dataset", str(other), str(out))
+    assert gx2ctl_here("dataset", str(one), str(out)).status == 0
+    ran = gx2ctl_here("dataset", str(other), str(out))
     assert ran.status == 2 and len(ran.stderr.splitlines()) == 1, ran
     assert f"holds the recordings of {one}" in ran.stderr, ran
     seqs = duckdb.sql(f"SELECT min(seq), max(seq), count(*) FROM read_parquet("
@@ -302,16 +304,16 @@ def test_a_second_recordings_directory_into_one_out_is_refused(tmp_path: Path) -
     state = json.loads((out / "_converted.json").read_text())
     assert state["recordings"] == str(one) and list(state["files"]) == [name]
     # a file of the same directory given alone is that directory's
-    assert gx2ctl("dataset", str(one / name), str(out)).status == 0
+    assert gx2ctl_here("dataset", str(one / name), str(out)).status == 0
 
 
 def test_an_earlier_version_s_converted_list_is_read(recordings: Path, tmp_path: Path
                                                      ) -> None:
     out = tmp_path / "dataset"
-    assert gx2ctl("dataset", str(recordings), str(out)).status == 0
+    assert gx2ctl_here("dataset", str(recordings), str(out)).status == 0
     state = json.loads((out / "_converted.json").read_text())
     (out / "_converted.json").write_text(json.dumps(state["files"]))  # ({NAME: STAMP})
-    ran = gx2ctl("dataset", str(recordings), str(out))
+    ran = gx2ctl_here("dataset", str(recordings), str(out))
     assert ran.status == 0 and "0 converted, 2 up to date" in ran.stdout, ran
 
 
@@ -324,7 +326,7 @@ def test_a_copy_is_skipped_and_an_overlap_said(tmp_path: Path) -> None:
     first = make_file(folder / "gx2-20261120T000000.000Z.mcap", 0, FILE_SECONDS)
     shutil.copy2(first, folder / "gx2-20261120T000000.000Z-copy.mcap")
     out = tmp_path / "dataset"
-    ran = gx2ctl("dataset", str(folder), str(out))
+    ran = gx2ctl_here("dataset", str(folder), str(out))
     assert ran.status == 0 and "1 converted, 0 up to date, 1 the same as" in ran.stdout, ran
     assert "skipped" in ran.stdout and ran.stderr == "", ran
     counted = duckdb.sql(f"SELECT count(*), count(DISTINCT seq) FROM read_parquet("
@@ -332,7 +334,7 @@ def test_a_copy_is_skipped_and_an_overlap_said(tmp_path: Path) -> None:
     assert counted == [(FILE_SECONDS * 25, FILE_SECONDS * 25)]
     later = make_file(folder / "gx2-20261120T000010.000Z.mcap", FILE_SECONDS // 2,
                       FILE_SECONDS)
-    ran = gx2ctl("dataset", str(folder), str(out))
+    ran = gx2ctl_here("dataset", str(folder), str(out))
     assert ran.status == 0 and "1 converted, 2 up to date" in ran.stdout, ran
     [line] = ran.stderr.splitlines()
     assert f"{later} overlaps" in line and "twice" in line, ran

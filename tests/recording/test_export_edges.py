@@ -11,7 +11,7 @@ import pyarrow.parquet as pq
 import pytest
 from scipy.io import loadmat
 
-from tests.helpers.processes import gx2ctl
+from tests.helpers.processes import gx2ctl, gx2ctl_here
 from tests.helpers.recorded import T0, foreign_file
 
 EULER = {"node": 11, "record": "euler", "command": 0xCE, "seq": 0, "host_time": T0,
@@ -42,7 +42,7 @@ def test_mat_keeps_every_column_whose_names_collide(tmp_path: Path) -> None:
     custom = {"node": 11, "record": "custom", "seq": 0, "host_time": T0, "a-b": 1.0,
               "a_b": 2.0, "units": 3.0, "descriptions": "text"}
     path = foreign_file(tmp_path / "names.mcap", [("gx2/11/custom", custom)])
-    ran = gx2ctl("export", str(path), "--out", str(tmp_path), "--format", "mat")
+    ran = gx2ctl_here("export", str(path), "--out", str(tmp_path), "--format", "mat")
     assert ran.status == 0, ran.stderr
     struct = loadmat(tmp_path / "11_custom.mat", simplify_cells=True)["n11_custom"]
     assert struct["a_b"] == 1.0 and struct["a_b_2"] == 2.0 and struct["units_2"] == 3.0
@@ -56,7 +56,7 @@ def test_a_window_without_marks_has_its_marks_table_all_the_same(tmp_path: Path)
     path = foreign_file(tmp_path / "unmarked.mcap", [("gx2/11/euler", EULER)])
     for form in ("csv", "parquet", "mat"):
         out = tmp_path / form
-        ran = gx2ctl("export", str(path), "--out", str(out), "--format", form)
+        ran = gx2ctl_here("export", str(path), "--out", str(out), "--format", form)
         assert ran.status == 0 and not ran.stderr, ran.stderr
         assert f"{out / f'marks.{form}'}  0 marks\n" in ran.stdout, ran.stdout
     with (tmp_path / "csv" / "marks.csv").open() as table:
@@ -76,20 +76,20 @@ def test_an_earlier_exports_tables_are_replaced_only_with_force(tmp_path: Path) 
     no export's, are no reason to refuse."""
     path = foreign_file(tmp_path / "a.mcap", [("gx2/11/euler", EULER)])
     out = tmp_path / "out"
-    first = gx2ctl("export", str(path), "--out", str(out))
+    first = gx2ctl_here("export", str(path), "--out", str(out))
     assert first.status == 0, first
     (out / "notes.txt").write_text("mine")
-    assert gx2ctl("export", str(path), "--out", str(out), "--format", "parquet").status == 0
+    assert gx2ctl_here("export", str(path), "--out", str(out), "--format", "parquet").status == 0
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     (out / "11_euler.csv").write_text("edited by hand\n")
-    again = gx2ctl("export", str(path), "--out", str(out))
+    again = gx2ctl_here("export", str(path), "--out", str(out))
     assert again.status == 2 and again.stdout == "", again
     assert again.stderr == (f"gx2ctl: {out / '11_euler.csv'} exists (and 1 more tables): "
                             "export to a new --out, or give --force to replace an earlier "
                             "export's tables\n"), again
     assert (out / "11_euler.csv").read_text() == "edited by hand\n"
     assert not [p for p in out.iterdir() if p.name.startswith(".")]
-    forced = gx2ctl("export", str(path), "--out", str(out), "--force")
+    forced = gx2ctl_here("export", str(path), "--out", str(out), "--force")
     assert forced.status == 0, forced
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
 
@@ -108,10 +108,10 @@ def test_only_an_exports_own_tables_are_refused_and_force_removes_every_one(
     mine = {"2024_budget.csv": "mine", "11_notes.csv": "mine too", "marks.txt": "and this"}
     for name, text in mine.items():
         (out / name).write_text(text)
-    first = gx2ctl("export", str(path), "--out", str(out))
+    first = gx2ctl_here("export", str(path), "--out", str(out))
     assert first.status == 0 and first.stderr == "", first
-    assert gx2ctl("export", str(path), "--out", str(out), "--format", "parquet").status == 0
-    one = gx2ctl("export", str(path), "--out", str(out), "--node", "11", "--force")
+    assert gx2ctl_here("export", str(path), "--out", str(out), "--format", "parquet").status == 0
+    one = gx2ctl_here("export", str(path), "--out", str(out), "--node", "11", "--force")
     assert one.status == 0 and one.stderr == "", one
     assert sorted(p.name for p in out.iterdir()) == sorted([
         *mine, "11_euler.csv", "marks.csv",  # (12_euler.csv: the earlier export's, gone)

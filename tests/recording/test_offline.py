@@ -28,7 +28,7 @@ from gateway.recording.plot import picture, records_of
 from gateway.recording.reports import Reading
 from gateway.recording.writer import RecordingWriter
 from gateway.sim.node import GX2, NodeSettings, SimNode
-from tests.helpers.processes import gx2ctl
+from tests.helpers.processes import gx2ctl, gx2ctl_here
 
 NAN = float("nan")
 T0 = 1_795_000_000.0
@@ -142,7 +142,7 @@ def seconds_text(ns: int) -> str:
 
 def test_export_parquet_types_units_and_values(recording, tmp_path):
     path, streamed = recording
-    ran = gx2ctl("export", str(path), "--out", str(tmp_path), "--format", "parquet")
+    ran = gx2ctl_here("export", str(path), "--out", str(tmp_path), "--format", "parquet")
     assert ran.status == 0, ran.stderr
     table = pq.read_table(tmp_path / "76_accel_angrate_mag.parquet")
     schema = table.schema
@@ -181,7 +181,7 @@ def test_export_parquet_types_units_and_values(recording, tmp_path):
 def test_export_parquet_host_time_is_the_recordings_log_time(recording, tmp_path):
     """To within the 256 ns the recorder's own rounding of host_time allows."""
     path, _ = recording
-    ran = gx2ctl("export", str(path), "--out", str(tmp_path), "--format", "parquet")
+    ran = gx2ctl_here("export", str(path), "--out", str(tmp_path), "--format", "parquet")
     assert ran.status == 0, ran.stderr
     host = pq.read_table(tmp_path / "76_accel_angrate_mag.parquet").column(
         "host_time").cast(pa.int64()).to_pylist()
@@ -198,7 +198,7 @@ def test_export_marks_parquet_and_mat(tmp_path):
         "gx2/76/euler", payload(76, "euler", 1, T0, timer=1, roll=0.1, pitch=0.2,
                                 yaw=0.3))])
     for form in ("parquet", "mat"):
-        ran = gx2ctl("export", str(path), "--out", str(tmp_path / form), "--format", form)
+        ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / form), "--format", form)
         assert ran.status == 0, ran.stderr
         assert f"marks.{form}  1 marks" in ran.stdout
     marks = pq.read_table(tmp_path / "parquet" / "marks.parquet")
@@ -213,7 +213,7 @@ def test_export_marks_parquet_and_mat(tmp_path):
 
 def test_export_mat_holds_a_struct_a_table_with_units(recording, tmp_path):
     path, streamed = recording
-    ran = gx2ctl("export", str(path), "--out", str(tmp_path), "--format", "mat")
+    ran = gx2ctl_here("export", str(path), "--out", str(tmp_path), "--format", "mat")
     assert ran.status == 0, ran.stderr
     assert sorted(p.name for p in tmp_path.iterdir() if p.suffix == ".mat") == [
         "76_accel_angrate_mag.mat", "76_firmware_version.mat", "77_orientation.mat",
@@ -251,7 +251,7 @@ def test_a_file_cut_short_and_several_files_export_in_order(tmp_path):
     directory.mkdir()
     write(directory / "gx2-a.mcap", [("gx2/76/euler", p) for p in first], cut=40)
     write(directory / "gx2-b.mcap", [("gx2/76/euler", p) for p in second])
-    ran = gx2ctl("export", str(directory), "--out", str(tmp_path / "out"))
+    ran = gx2ctl_here("export", str(directory), "--out", str(tmp_path / "out"))
     assert ran.status == 0, ran.stderr
     assert "gx2-a.mcap: ends early after" in ran.stderr
     seqs = [int(r["seq"]) for r in rows(tmp_path / "out" / "76_euler.csv")]
@@ -267,7 +267,7 @@ def test_errors_are_one_line_and_exit_2(recording, tmp_path):
                         (["export", str(text), "--out", str(tmp_path)], "not an MCAP file"),
                         (["plot", str(path), "95"], "no records of node 95"),
                         (["plot", str(path), "76", "--record", "euler"], "no record euler")):
-        ran = gx2ctl(*args)
+        ran = gx2ctl_here(*args)
         assert ran.status == 2, (args, ran)
         assert words in ran.stderr and len(ran.stderr.strip().splitlines()) == 1, ran.stderr
 
@@ -333,7 +333,7 @@ def test_plot_title_counts_losses_among_all_the_nodes_messages(tmp_path):
     found = records_of([path], 76, None, Reading())
     image = picture(76, found.record, found.payloads, found.name, found.marks, found.counts)
     assert image.title.endswith("radio: 0 lost (0.00%) · gateway: 1 lost (1.00%)")
-    drawn = gx2ctl("plot", str(path), "76", "--out", str(tmp_path / "76.png"))
+    drawn = gx2ctl_here("plot", str(path), "76", "--out", str(tmp_path / "76.png"))
     assert drawn.status == 0, drawn
 
 
@@ -426,7 +426,7 @@ def test_a_record_with_nothing_to_draw_is_refused_in_one_line(tmp_path):
     path = write(tmp_path / "run.mcap", [("gx2/95/mag", payload(
         95, "mag", i + 1, T0 + i / 100, timer=i * 196_608, mag=(NAN,) * 3))
         for i in range(20)])
-    ran = gx2ctl("plot", str(path), "95", "--out", str(tmp_path / "95.png"))
+    ran = gx2ctl_here("plot", str(path), "95", "--out", str(tmp_path / "95.png"))
     assert ran.status == 2, ran
     assert "no values to draw" in ran.stderr and len(ran.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "95.png").exists()
@@ -484,7 +484,7 @@ def test_a_status_that_is_not_a_json_object_is_passed_over_by_export(tmp_path):
             when = int(record["host_time"] * 1e9)
             writer.add_message(euler, when, json.dumps(record).encode(), when, i + 2)
         writer.finish()
-    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
+    ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / "out"))
     assert ran.status == 0, ran.stderr
     assert len(rows(tmp_path / "out" / "76_euler.csv")) == 50
 
@@ -497,7 +497,7 @@ def test_a_record_this_version_does_not_know_exports_typed_and_named_for_matlab(
                                              ("gx2/76/custom", {**foreign, "seq": 2,
                                                                 "2nd-value": 7.5})])
     for form in ("parquet", "mat"):
-        ran = gx2ctl("export", str(path), "--out", str(tmp_path / form), "--format", form)
+        ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / form), "--format", form)
         assert ran.status == 0, ran.stderr
     table = pq.read_table(tmp_path / "parquet" / "76_custom.parquet")
     assert table.schema.field("2nd-value").type == pa.float64()
@@ -514,7 +514,7 @@ def test_a_mark_whose_time_no_float_holds_exports_at_its_recorded_time(tmp_path)
     is exported at the time its message was recorded, not a traceback."""
     mark = {"text": "start", "time": 10**400, "host_time": T0 + 0.5, "nodes": []}
     path = write(tmp_path / "marks.mcap", [("gx2/gateway/mark", mark)])
-    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
+    ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / "out"))
     assert ran.status == 0, ran.stderr
     with (tmp_path / "out" / "marks.csv").open() as table:
         (row,) = list(csv.DictReader(table))

@@ -19,7 +19,7 @@ from gateway.recording.refined import line_settings
 from gateway.recording.sightings import LineSettings, Sightings
 from gateway.recording.writer import RecordingWriter
 from tests.helpers.packets import pkt
-from tests.helpers.processes import gx2ctl
+from tests.helpers.processes import gx2ctl, gx2ctl_here
 from tests.helpers.recorded import T0, make_file
 
 BYTE = 10 / 115200
@@ -132,7 +132,7 @@ def test_parquet_and_mat_hold_the_refined_times_csv_holds(tmp_path: Path) -> Non
     from scipy.io import loadmat
     path = written(tmp_path / "line.mcap")
     for form in ("csv", "parquet", "mat"):
-        ran = gx2ctl("export", str(path), "--out", str(tmp_path / form), "--time", "refined",
+        ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / form), "--time", "refined",
                      "--format", form)
         assert ran.status == 0, ran.stderr
     with (tmp_path / "csv" / "12_accel_angrate.csv").open() as table:
@@ -172,15 +172,15 @@ def test_bad_times_and_recordings_that_cannot_be_refined_are_one_line(tmp_path: 
                                                    "tables",
     }
     for args, start in cases.items():
-        ran = gx2ctl("export", str(published), "--out", str(tmp_path / "out"), *args)
+        ran = gx2ctl_here("export", str(published), "--out", str(tmp_path / "out"), *args)
         assert ran.status == 2, (args, ran)
         assert ran.stderr.startswith(start) and ran.stderr.count("\n") == 1, ran.stderr
         assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
     # refused before --force removes an earlier export's tables
-    earlier = gx2ctl("export", str(published), "--out", str(tmp_path / "earlier"))
+    earlier = gx2ctl_here("export", str(published), "--out", str(tmp_path / "earlier"))
     assert earlier.status == 0, earlier.stderr
     before = sorted((tmp_path / "earlier").iterdir())
-    ran = gx2ctl("export", str(published), "--out", str(tmp_path / "earlier"), "--time",
+    ran = gx2ctl_here("export", str(published), "--out", str(tmp_path / "earlier"), "--time",
                  "refined", "--force")
     assert ran.status == 2 and "no serial reads" in ran.stderr, ran
     assert sorted((tmp_path / "earlier").iterdir()) == before
@@ -194,7 +194,7 @@ def test_bad_times_and_recordings_that_cannot_be_refined_are_one_line(tmp_path: 
 
 def test_the_client_gives_the_refined_times_export_writes(tmp_path: Path) -> None:
     path = written(tmp_path / "line.mcap")
-    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"), "--time", "refined")
+    ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / "out"), "--time", "refined")
     assert ran.status == 0, ran.stderr
     with (tmp_path / "out" / "12_accel_angrate.csv").open() as table:
         exported = [(float(r["time"]), r["time_placed"]) for r in csv.DictReader(table)]
@@ -255,7 +255,7 @@ def test_plot_draws_the_refined_times_export_writes(tmp_path: Path) -> None:
     from gateway.recording.window import Reader, Window
 
     path = written(tmp_path / "line.mcap")
-    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"), "--time", "refined")
+    ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / "out"), "--time", "refined")
     assert ran.status == 0, ran.stderr
     with (tmp_path / "out" / "11_accel_angrate.csv").open() as table:
         exported = [(float(r["time"]), r["time_placed"]) for r in csv.DictReader(table)]
@@ -264,12 +264,12 @@ def test_plot_draws_the_refined_times_export_writes(tmp_path: Path) -> None:
                        Reader(files, reading).entries(whole), for_window(files, whole))
     assert [(p["time"], p["time_placed"]) for p in found.payloads] == exported
 
-    ran = gx2ctl("plot", str(path), "11", "--time", "refined",
+    ran = gx2ctl_here("plot", str(path), "11", "--time", "refined",
                  "--out", str(tmp_path / "refined.png"))
     assert ran.status == 0, ran.stderr
     assert (tmp_path / "refined.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     published = make_file(tmp_path / "published.mcap", 0, 3)  # (no serial reads)
-    ran = gx2ctl("plot", str(published), "76", "--time", "refined",
+    ran = gx2ctl_here("plot", str(published), "76", "--time", "refined",
                  "--out", str(tmp_path / "no.png"))
     assert ran.status == 2 and ran.stderr.count("\n") == 1, ran
     assert "no serial reads" in ran.stderr and not (tmp_path / "no.png").exists()
@@ -285,12 +285,12 @@ def test_a_dataset_of_refined_times_holds_what_export_refines(tmp_path: Path) ->
     recordings = tmp_path / "recordings"
     recordings.mkdir()
     path = written(recordings / "line.mcap")
-    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "tables"), "--time", "refined")
+    ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / "tables"), "--time", "refined")
     assert ran.status == 0, ran.stderr
     with (tmp_path / "tables" / "11_accel_angrate.csv").open() as table:
         exported = [(float(r["time"]), r["time_placed"]) for r in csv.DictReader(table)]
     out = tmp_path / "dataset"
-    ran = gx2ctl("dataset", str(recordings), str(out), "--time", "refined")
+    ran = gx2ctl_here("dataset", str(recordings), str(out), "--time", "refined")
     assert ran.status == 0, ran.stderr
     (part,) = out.glob("record=accel_angrate/node=11/date=*/part-line.parquet")
     rows = pq.read_table(part).to_pylist()
@@ -300,13 +300,13 @@ def test_a_dataset_of_refined_times_holds_what_export_refines(tmp_path: Path) ->
     assert list(rows[0])[:3] == ["time", "time_placed", "time_bound_ms"]
 
     before = sorted(p.relative_to(out) for p in out.rglob("*"))
-    ran = gx2ctl("dataset", str(recordings), str(out))  # (live: the default)
+    ran = gx2ctl_here("dataset", str(recordings), str(out))  # (live: the default)
     assert ran.status == 2 and ran.stderr.count("\n") == 1, ran
     assert "is a dataset of refined times" in ran.stderr
     assert sorted(p.relative_to(out) for p in out.rglob("*")) == before
 
     make_file(recordings / "published.mcap", 0, 3)  # (gx2ctl record's: no serial reads)
-    ran = gx2ctl("dataset", str(recordings), str(out), "--time", "refined")
+    ran = gx2ctl_here("dataset", str(recordings), str(out), "--time", "refined")
     assert ran.status == 1, ran
     assert "published.mcap: no serial reads" in ran.stderr
     assert "1 not converted (each said why" in ran.stdout and "unreadable" not in ran.stdout
@@ -345,6 +345,6 @@ def test_a_quiet_recording_is_converted_with_no_rows_into_a_refined_dataset(
             writer.message("gx2/gateway/status", {"gateway": {"time": T0 + 10 + second},
                                                   "nodes": []})
         writer.finish()
-    ran = gx2ctl("dataset", str(recordings), str(tmp_path / "out"), "--time", "refined")
+    ran = gx2ctl_here("dataset", str(recordings), str(tmp_path / "out"), "--time", "refined")
     assert ran.status == 0, ran
     assert "quiet.mcap  0 rows" in ran.stdout and "2 converted" in ran.stdout

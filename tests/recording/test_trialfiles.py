@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from tests.helpers.processes import gx2ctl
+from tests.helpers.processes import gx2ctl_here
 from tests.helpers.recorded import foreign_file
 
 T0 = 1_795_000_000.0
@@ -24,7 +24,7 @@ def test_each_trials_export_has_its_trial_json(tmp_path: Path) -> None:
                                          "pitch": 0.2, "yaw": 0.3}))
     entries.sort(key=lambda e: e[1]["host_time"])
     path = foreign_file(tmp_path / "study.mcap", entries)
-    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"), "--between-marks",
+    ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / "out"), "--between-marks",
                  "start", "stop")
     assert ran.status == 0, ran
     found = sorted((tmp_path / "out").glob("trial-*/trial.json"))
@@ -34,7 +34,7 @@ def test_each_trials_export_has_its_trial_json(tmp_path: Path) -> None:
         {"trial": 2, "start": T0 + 5, "stop": T0 + 7, "start_mark": "start",
          "stop_mark": "stop", "fields": {"subject": "S02"}}]
     assert f"{found[1]}  trial 2\n" in ran.stdout
-    listed = json.loads(gx2ctl("trials", "--json", str(path)).stdout)["trials"]
+    listed = json.loads(gx2ctl_here("trials", "--json", str(path)).stdout)["trials"]
     assert [t["fields"] for t in listed] == [{"subject": "S01", "condition": "fast"},
                                              {"subject": "S02"}]
     assert [t["nodes"] for t in listed] == [{"11": {"euler": 21}}] * 2

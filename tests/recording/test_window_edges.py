@@ -17,7 +17,7 @@ from gateway.recording.reader import read
 from gateway.recording.reports import Reading
 from gateway.recording.window import Reader, Window
 from gateway.recording.writer import RecordingWriter
-from tests.helpers.processes import gx2ctl
+from tests.helpers.processes import gx2ctl, gx2ctl_here
 from tests.helpers.recorded import MARKS, RATE, T0, foreign_file, make_file
 from tests.recording.test_windows import column, iso
 
@@ -71,7 +71,7 @@ def test_nodes_and_records_the_files_do_not_hold_are_one_line_and_exit_2(
                          ([finished, cut], ["--node", "99"]),  # one told only once read
                          ([finished], ["--node", "11", "--record", "euler"])):
         out = tmp_path / "out"
-        ran = gx2ctl("export", *map(str, files), "--out", str(out), *asked)
+        ran = gx2ctl_here("export", *map(str, files), "--out", str(out), *asked)
         assert ran.status == 2, ran.stderr
         said = ran.stderr.splitlines()[-1]
         assert said == f"gx2ctl: {' '.join(asked)}: not in the recordings {holds}"
@@ -106,7 +106,7 @@ def test_overlapping_files_of_other_nodes_remember_only_what_both_hold(
 
 def test_a_trial_started_and_never_stopped_is_said(tmp_path: Path) -> None:
     path = make_file(tmp_path / "gx2-a.mcap", 0, 30)  # start 5, stop 12, start 25
-    ran = gx2ctl("export", str(path), "--out", str(tmp_path / "out"), "--between-marks",
+    ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / "out"), "--between-marks",
                  "start", "stop")
     assert ran.status == 0, ran.stderr
     assert ran.stderr == ("gx2ctl: the mark 'start' at 2026-11-18T11:07:05.000Z has no "
@@ -120,13 +120,13 @@ def test_a_finished_file_without_statistics_is_spanned_by_its_chunks(tmp_path: P
                                "host_time": T0 + i / RATE}) for i in range(20 * RATE)]
     path = foreign_file(tmp_path / "other.mcap", euler, use_statistics=False,
                         chunk_size=4096)
-    listed = gx2ctl("recordings", "--json", str(path))
+    listed = gx2ctl_here("recordings", "--json", str(path))
     assert listed.status == 0, listed.stderr
     (described,) = json.loads(listed.stdout)["files"]
     assert (described["start"], described["end"]) == (T0, T0 + (20 * RATE - 1) / RATE)
     assert described["nodes"] == {"11": {"euler": 20 * RATE}}
     out = tmp_path / "out"
-    ran = gx2ctl("export", str(path), "--out", str(out), "--from", "5", "--to", "6")
+    ran = gx2ctl_here("export", str(path), "--out", str(out), "--from", "5", "--to", "6")
     assert ran.status == 0, ran.stderr
     assert column(out / "11_euler.csv", "host_time") == [T0 + 5 + i / RATE
                                                         for i in range(RATE)]
@@ -134,7 +134,7 @@ def test_a_finished_file_without_statistics_is_spanned_by_its_chunks(tmp_path: P
 
 def test_a_window_of_a_file_cut_short_says_where_the_file_ends(tmp_path: Path) -> None:
     cut = make_file(tmp_path / "gx2-cut.mcap", 0, 10, finish=False)
-    ran = gx2ctl("export", str(cut), "--out", str(tmp_path / "out"), "--from", "0",
+    ran = gx2ctl_here("export", str(cut), "--out", str(tmp_path / "out"), "--from", "0",
                  "--to", "1")
     assert ran.status == 0, ran.stderr
     # its last message (second 9's last record), not the window's
@@ -156,12 +156,12 @@ def test_a_window_of_a_file_without_message_indexes_keeps_its_channels(
                 {"node": 11, "record": "euler", "seq": i, "host_time": at}).encode(),
                 round(at * 1e9))
         stream.flush()  # (not finished: its writer killed)
-    whole = gx2ctl("export", str(path), "--out", str(tmp_path / "whole"))
+    whole = gx2ctl_here("export", str(path), "--out", str(tmp_path / "whole"))
     assert whole.status == 0, whole.stderr
     held = [t for t in column(tmp_path / "whole" / "11_euler.csv", "host_time")
             if t >= T0 + 10]
     out = tmp_path / "out"
-    ran = gx2ctl("export", str(path), "--out", str(out), "--from", "10")
+    ran = gx2ctl_here("export", str(path), "--out", str(out), "--from", "10")
     assert ran.status == 0, ran.stderr
     assert "channels defined in what was lost" not in ran.stderr
     assert column(out / "11_euler.csv", "host_time") == held and len(held) > 5 * RATE
@@ -177,9 +177,9 @@ def test_the_file_a_writer_holds_open_is_being_written_not_cut_short(
                 writer.message("gx2/11/euler", {"node": 11, "record": "euler", "seq": i,
                                                 "host_time": T0 + second + i / RATE})
             writer.flush()
-        listed = gx2ctl("recordings", "--json", str(path))
-        table = gx2ctl("recordings", str(path))
-        exported = gx2ctl("export", str(path), "--out", str(tmp_path / "out"))
+        listed = gx2ctl_here("recordings", "--json", str(path))
+        table = gx2ctl_here("recordings", str(path))
+        exported = gx2ctl_here("export", str(path), "--out", str(tmp_path / "out"))
     assert listed.status == 0, listed.stderr
     (described,) = json.loads(listed.stdout)["files"]
     assert described["writing"] is True and described["cut_short"] is False
@@ -189,7 +189,7 @@ def test_the_file_a_writer_holds_open_is_being_written_not_cut_short(
     assert "being written: its last flush after 2026-11-18 11:06:44.960 UTC" in \
         exported.stderr and "stopped without warning" not in exported.stderr
     assert len(column(tmp_path / "out" / "11_euler.csv", "host_time")) == 5 * RATE
-    killed = json.loads(gx2ctl("recordings", "--json", str(path)).stdout)["files"][0]
+    killed = json.loads(gx2ctl_here("recordings", "--json", str(path)).stdout)["files"][0]
     assert killed["writing"] is False and killed["cut_short"] is True
 
 
@@ -210,7 +210,7 @@ def test_a_file_read_for_each_trial_is_said_once(tmp_path: Path) -> None:
                 writer.message("gx2/11/euler", {"node": 11, "record": "euler", "seq": i,
                                                 "host_time": T0 + second + i / RATE})
             writer.flush()
-        exported = gx2ctl("export", str(path), "--out", str(tmp_path / "out"),
+        exported = gx2ctl_here("export", str(path), "--out", str(tmp_path / "out"),
                           "--between-marks", "go", "halt")
     assert exported.status == 0, exported.stderr
     assert exported.stdout.count("11_euler.csv") == 2, exported.stdout
@@ -221,11 +221,11 @@ def test_a_file_read_for_each_trial_is_said_once(tmp_path: Path) -> None:
 def test_plot_takes_its_node_as_export_does(tmp_path: Path) -> None:
     path = make_file(tmp_path / "gx2-a.mcap", 0, 3)
     out = tmp_path / "11.png"
-    ran = gx2ctl("plot", str(path), "--node", "11", "--out", str(out))
+    ran = gx2ctl_here("plot", str(path), "--node", "11", "--out", str(out))
     assert ran.status == 0, ran.stderr
     assert out.stat().st_size > 0
     for asked in ([], ["11", "--node", "12"]):
-        refused = gx2ctl("plot", str(path), *asked, "--out", str(out))
+        refused = gx2ctl_here("plot", str(path), *asked, "--out", str(out))
         assert refused.status == 2
         assert refused.stderr == "gx2ctl: plot: give one node, as NODE or --node N\n"
 

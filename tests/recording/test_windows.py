@@ -17,7 +17,7 @@ from gateway.recording.files import MARK
 from gateway.recording.reader import read
 from gateway.recording.reports import Reading
 from gateway.recording.writer import RecordingWriter
-from tests.helpers.processes import gx2ctl
+from tests.helpers.processes import gx2ctl, gx2ctl_here
 from tests.helpers.recorded import RATE, T0, hourly_files, make_file
 
 
@@ -91,7 +91,7 @@ def test_catalogue_reads_through_a_file_cut_short_and_says_repeats(tmp_path: Pat
                                                                     recordings: Path) -> None:
     cut = make_file(tmp_path / "gx2-cut.mcap", 60, 5, finish=False)
     first = sorted(recordings.iterdir())[0]
-    ran = gx2ctl("recordings", "--json", str(first), str(cut), str(first))
+    ran = gx2ctl_here("recordings", "--json", str(first), str(cut), str(first))
     assert ran.status == 0, ran.stderr
     files = json.loads(ran.stdout)["files"]
     killed = next(f for f in files if f["path"] == str(cut))
@@ -112,7 +112,7 @@ def test_catalogue_reads_through_a_file_cut_short_and_says_repeats(tmp_path: Pat
 def test_a_window_exports_exactly_the_messages_inside_it(recordings: Path, tmp_path: Path,
                                                          start: str, stop: str) -> None:
     out = tmp_path / "out"
-    ran = gx2ctl("export", str(recordings), "--out", str(out), "--from", start, "--to", stop)
+    ran = gx2ctl_here("export", str(recordings), "--out", str(out), "--from", start, "--to", stop)
     assert ran.status == 0, ran.stderr
     inside = messages(sorted(recordings.iterdir()), T0 + 15.5, T0 + 27.25)
     for topic, table in [("gx2/11/accel_angrate", "11_accel_angrate"),
@@ -124,7 +124,7 @@ def test_a_window_exports_exactly_the_messages_inside_it(recordings: Path, tmp_p
 def test_a_window_between_marks_named_and_of_some_nodes(recordings: Path,
                                                          tmp_path: Path) -> None:
     out = tmp_path / "out"
-    ran = gx2ctl("export", str(recordings), "--out", str(out), "--from", "stop",
+    ran = gx2ctl_here("export", str(recordings), "--out", str(out), "--from", "stop",
                  "--to", "event", "--node", "12", "--record", "accel_angrate")
     assert ran.status == 0, ran.stderr
     inside = messages(sorted(recordings.iterdir()), T0 + 12.0, T0 + 50.5, holding_end=True)
@@ -137,7 +137,7 @@ def test_a_window_between_marks_named_and_of_some_nodes(recordings: Path,
 
 def test_trials_between_marks_each_in_their_folder(recordings: Path, tmp_path: Path) -> None:
     out = tmp_path / "out"
-    ran = gx2ctl("export", str(recordings), "--out", str(out), "--between-marks", "start",
+    ran = gx2ctl_here("export", str(recordings), "--out", str(out), "--between-marks", "start",
                  "stop")
     assert ran.status == 0, ran.stderr
     folders = sorted(p.name for p in out.iterdir())
@@ -149,7 +149,7 @@ def test_trials_between_marks_each_in_their_folder(recordings: Path, tmp_path: P
             inside, "gx2/11/accel_angrate")
         assert column(out / folder / "marks.csv", "time") == [T0 + start, T0 + stop]
     second = tmp_path / "second"
-    ran = gx2ctl("export", str(recordings), "--out", str(second), "--between-marks",
+    ran = gx2ctl_here("export", str(recordings), "--out", str(second), "--between-marks",
                  "start", "stop", "--trial", "2")
     assert ran.status == 0, ran.stderr
     assert [p.name for p in second.iterdir()] == [folders[1]]
@@ -162,10 +162,10 @@ def test_a_middle_file_deleted_leaves_windows_of_exactly_what_is_left(recordings
     files = sorted(recordings.iterdir())
     files[1].unlink()
     left = [files[0], files[2]]
-    listed = gx2ctl("recordings", "--json", str(recordings))
+    listed = gx2ctl_here("recordings", "--json", str(recordings))
     assert [f["path"] for f in json.loads(listed.stdout)["files"]] == list(map(str, left))
     out = tmp_path / "out"
-    ran = gx2ctl("export", str(recordings), "--out", str(out), "--from", "10", "--to", "50")
+    ran = gx2ctl_here("export", str(recordings), "--out", str(out), "--from", "10", "--to", "50")
     assert ran.status == 0 and ran.stderr == "", ran.stderr
     inside = messages(left, T0 + 10, T0 + 50)
     assert column(out / "11_accel_angrate.csv", "host_time") == host_times(
@@ -173,12 +173,12 @@ def test_a_middle_file_deleted_leaves_windows_of_exactly_what_is_left(recordings
     assert len(host_times(inside, "gx2/11/accel_angrate")) == 20 * RATE
     assert column(out / "marks.csv", "time") == [T0 + 12.0, T0 + 45.0]
     trials = tmp_path / "trials"
-    ran = gx2ctl("export", str(recordings), "--out", str(trials), "--between-marks",
+    ran = gx2ctl_here("export", str(recordings), "--out", str(trials), "--between-marks",
                  "start", "stop")
     assert ran.status == 0, ran.stderr
     assert [p.name for p in trials.iterdir()] == ["trial-1_2026-11-18T11-06-45Z"]
     # a window inside the hole holds nothing: said in one line
-    empty = gx2ctl("export", str(recordings), "--out", str(tmp_path / "none"), "--from",
+    empty = gx2ctl_here("export", str(recordings), "--out", str(tmp_path / "none"), "--from",
                    "25", "--to", "35")
     assert empty.status == 2 and len(empty.stderr.strip().splitlines()) == 1, empty.stderr
     assert "in that window" in empty.stderr
@@ -189,7 +189,7 @@ def test_a_message_met_twice_is_exported_once(recordings: Path, tmp_path: Path) 
     copy = tmp_path / "copy.mcap"
     shutil.copy(paths[1], copy)
     out = tmp_path / "out"
-    ran = gx2ctl("export", str(paths[1]), str(paths[0]), str(copy), str(paths[1]),
+    ran = gx2ctl_here("export", str(paths[1]), str(paths[0]), str(copy), str(paths[1]),
                  "--out", str(out))
     assert ran.status == 0, ran.stderr
     once = messages(paths[:2])
@@ -219,7 +219,7 @@ def test_a_message_met_twice_is_exported_once(recordings: Path, tmp_path: Path) 
 ])
 def test_a_window_that_cannot_be_taken_is_one_line_and_exit_2(
         recordings: Path, tmp_path: Path, window: list[str], said: str) -> None:
-    ran = gx2ctl("export", str(recordings), "--out", str(tmp_path / "out"), *window)
+    ran = gx2ctl_here("export", str(recordings), "--out", str(tmp_path / "out"), *window)
     assert ran.status == 2
     assert len(ran.stderr.splitlines()) == 1 and said in ran.stderr, ran.stderr
     assert not (tmp_path / "out").exists()
@@ -235,7 +235,7 @@ def test_a_damaged_file_inside_the_window_is_read_past(recordings: Path,
     data[middle:middle + 64] = bytes(64)
     path.write_bytes(bytes(data))
     out = tmp_path / "out"
-    ran = gx2ctl("export", str(recordings), "--out", str(out), "--from", "22", "--to", "28")
+    ran = gx2ctl_here("export", str(recordings), "--out", str(out), "--from", "22", "--to", "28")
     assert ran.status == 1
     # what it held in the window, from its message indexes: its second's status, its
     # mark, 2 x 25 records and 5 of node 13
@@ -280,7 +280,7 @@ def test_a_file_cut_short_given_twice_is_exported_once(tmp_path: Path) -> None:
     shutil.copy(cut, copy)
     whole = messages([make_file(tmp_path / "whole.mcap", 0, 4)])  # (the same messages)
     out = tmp_path / "out"
-    ran = gx2ctl("export", str(cut), str(copy), "--out", str(out))
+    ran = gx2ctl_here("export", str(cut), str(copy), "--out", str(out))
     assert ran.status == 0, ran.stderr
     assert column(out / "11_accel_angrate.csv", "host_time") == host_times(
         whole, "gx2/11/accel_angrate")
@@ -292,18 +292,18 @@ def test_the_catalogue_lists_the_configured_record_directory(recordings: Path,
     config = tmp_path / "nodes.yaml"
     config.write_text("base_station: {port: 'sim://'}\nnodes: [{address: 11}]\n"
                       f"record: {{directory: '{recordings}'}}\n")
-    ran = gx2ctl("--config", str(config), "recordings", "--json")
+    ran = gx2ctl_here("--config", str(config), "recordings", "--json")
     assert ran.status == 0, ran.stderr
     assert [f["path"] for f in json.loads(ran.stdout)["files"]] == [
         str(p) for p in sorted(recordings.iterdir())]
     config.write_text("base_station: {port: 'sim://'}\nnodes: [{address: 11}]\n")
-    ran = gx2ctl("--config", str(config), "recordings")
+    ran = gx2ctl_here("--config", str(config), "recordings")
     assert ran.status == 2 and "does not record" in ran.stderr, ran.stderr
 
 
 def test_json_before_the_command_is_json_too(recordings: Path) -> None:
     """``gx2ctl --json recordings``, as ``gx2ctl --json status`` is written."""
-    before, after = (gx2ctl(*args) for args in (("--json", "recordings", str(recordings)),
+    before, after = (gx2ctl_here(*args) for args in (("--json", "recordings", str(recordings)),
                                                 ("recordings", "--json", str(recordings))))
     assert before.status == after.status == 0, (before.stderr, after.stderr)
     assert json.loads(before.stdout) == json.loads(after.stdout)
@@ -351,7 +351,7 @@ def test_plot_of_a_trial_has_its_marks_and_only_its_losses(tmp_path: Path,
                 "ang_rate": [0.1, 0.2, 0.3]})
         writer.finish()
     out = tmp_path / f"trial.{form}"
-    ran = gx2ctl("plot", str(path), "11", "--between-marks", "start", "stop", "--out",
+    ran = gx2ctl_here("plot", str(path), "11", "--between-marks", "start", "stop", "--out",
                  str(out))
     assert ran.status == 0, ran.stderr
     if form == "png":
@@ -375,7 +375,7 @@ def test_plot_of_a_trial_has_its_marks_and_only_its_losses(tmp_path: Path,
 
 def test_plot_to_another_format_is_one_line_and_exit_2(recordings: Path,
                                                        tmp_path: Path) -> None:
-    ran = gx2ctl("plot", str(recordings), "11", "--out", str(tmp_path / "trial.svg"))
+    ran = gx2ctl_here("plot", str(recordings), "11", "--out", str(tmp_path / "trial.svg"))
     assert ran.status == 2
     assert ran.stderr.strip() == (f"gx2ctl: --out {tmp_path / 'trial.svg'}: a plot is "
                                   "written as .png or .pdf (chosen by the name's ending)")
@@ -390,7 +390,7 @@ def test_plot_of_a_window_says_which_in_its_title(tmp_path: Path) -> None:
                           "window 2026-11-18 11:06:42.000 to 11:06:45.000 UTC"),
                          (["--from", "start"], "window 2026-11-18 11:06:45.000 UTC to the end")):
         out = tmp_path / "window.png"
-        ran = gx2ctl("plot", str(path), "11", *bounds, "--out", str(out))
+        ran = gx2ctl_here("plot", str(path), "11", *bounds, "--out", str(out))
         assert ran.status == 0, ran.stderr
         assert Image.open(out).text["Title"].split(" · ")[1] == said
         out.unlink()
