@@ -29,7 +29,7 @@ from gateway.sim.node import GX2, NodeSettings
 from gateway.sim.physics import EARTH_FIELD, Motion
 from gateway.sim.server import Simulator
 from tests.helpers.gateway import RunningGateway, gateway_config
-from tests.helpers.processes import STARTUP, gx2ctl, script
+from tests.helpers.processes import STARTUP, gx2ctl, gx2ctl_here, script
 from tests.helpers.waiting import wait_for
 
 rosbag2 = pytest.importorskip("rosbags.rosbag2")
@@ -369,33 +369,33 @@ def test_a_users_mistakes_get_one_line_and_leave_nothing(recorded, tmp_path) -> 
     existing = tmp_path / "existing"
     existing.mkdir()
     (existing / "notes.txt").write_text("mine")
-    ran = gx2ctl("export", directory, "--out", str(existing), "--format", "ros2")
+    ran = gx2ctl_here("export", directory, "--out", str(existing), "--format", "ros2")
     assert ran.status == 2, ran
     assert ran.stderr == (f"gx2ctl: {existing} exists: a ROS 2 bag is a new directory: "
                           "export to a new --out, or give --force to replace an earlier "
                           "bag\n")
     # --force replaces an earlier bag, never a directory of something else
-    ran = gx2ctl("export", directory, "--out", str(existing), "--format", "ros2", "--force")
+    ran = gx2ctl_here("export", directory, "--out", str(existing), "--format", "ros2", "--force")
     assert ran.status == 2 and len(ran.stderr.splitlines()) == 1, ran
     assert "holds no metadata.yaml: not a rosbag2" in ran.stderr
     assert [p.name for p in tmp_path.iterdir()] == ["existing"]
     assert [p.name for p in existing.iterdir()] == ["notes.txt"]
 
     bag = tmp_path / "bag"
-    assert gx2ctl("export", directory, "--out", str(bag), "--format", "ros2",
-                  "--node", "95").status == 0
-    ran = gx2ctl("export", directory, "--out", str(bag), "--format", "ros2", "--force",
-                 "--node", "77")
+    assert gx2ctl_here("export", directory, "--out", str(bag), "--format", "ros2",
+                       "--node", "95").status == 0
+    ran = gx2ctl_here("export", directory, "--out", str(bag), "--format", "ros2", "--force",
+                      "--node", "77")
     assert ran.status == 0, ran
     assert {t for t, _, _, _ in read_rosbags(bag)} == {"/gx2/gx2_77/imu", "/tf"}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bag", "existing"]
 
-    ran = gx2ctl("export", directory, "--out", str(tmp_path / "t"), "--frame", "ned")
+    ran = gx2ctl_here("export", directory, "--out", str(tmp_path / "t"), "--frame", "ned")
     assert (ran.status, ran.stderr) == (2, "gx2ctl: --frame is for --format ros2 "
                                            "(--format csv keeps the device's frames, as "
                                            "recorded)\n")
-    ran = gx2ctl("export", directory, "--out", str(tmp_path / "none"), "--format", "ros2",
-                 "--record", "euler_angrate", "--node", "95")
+    ran = gx2ctl_here("export", directory, "--out", str(tmp_path / "none"), "--format", "ros2",
+                      "--record", "euler_angrate", "--node", "95")
     assert ran.status == 2 and len(ran.stderr.splitlines()) == 1, ran
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bag", "existing"]
 

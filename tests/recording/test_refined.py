@@ -133,7 +133,7 @@ def test_parquet_and_mat_hold_the_refined_times_csv_holds(tmp_path: Path) -> Non
     path = written(tmp_path / "line.mcap")
     for form in ("csv", "parquet", "mat"):
         ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / form), "--time", "refined",
-                     "--format", form)
+                          "--format", form)
         assert ran.status == 0, ran.stderr
     with (tmp_path / "csv" / "12_accel_angrate.csv").open() as table:
         rows = list(csv.DictReader(table))
@@ -181,7 +181,7 @@ def test_bad_times_and_recordings_that_cannot_be_refined_are_one_line(tmp_path: 
     assert earlier.status == 0, earlier.stderr
     before = sorted((tmp_path / "earlier").iterdir())
     ran = gx2ctl_here("export", str(published), "--out", str(tmp_path / "earlier"), "--time",
-                 "refined", "--force")
+                      "refined", "--force")
     assert ran.status == 2 and "no serial reads" in ran.stderr, ran
     assert sorted((tmp_path / "earlier").iterdir()) == before
     # the client says the same, as exceptions
@@ -265,12 +265,12 @@ def test_plot_draws_the_refined_times_export_writes(tmp_path: Path) -> None:
     assert [(p["time"], p["time_placed"]) for p in found.payloads] == exported
 
     ran = gx2ctl_here("plot", str(path), "11", "--time", "refined",
-                 "--out", str(tmp_path / "refined.png"))
+                      "--out", str(tmp_path / "refined.png"))
     assert ran.status == 0, ran.stderr
     assert (tmp_path / "refined.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     published = make_file(tmp_path / "published.mcap", 0, 3)  # (no serial reads)
     ran = gx2ctl_here("plot", str(published), "76", "--time", "refined",
-                 "--out", str(tmp_path / "no.png"))
+                      "--out", str(tmp_path / "no.png"))
     assert ran.status == 2 and ran.stderr.count("\n") == 1, ran
     assert "no serial reads" in ran.stderr and not (tmp_path / "no.png").exists()
 

@@ -25,7 +25,7 @@ def test_each_trials_export_has_its_trial_json(tmp_path: Path) -> None:
     entries.sort(key=lambda e: e[1]["host_time"])
     path = foreign_file(tmp_path / "study.mcap", entries)
     ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / "out"), "--between-marks",
-                 "start", "stop")
+                      "start", "stop")
     assert ran.status == 0, ran
     found = sorted((tmp_path / "out").glob("trial-*/trial.json"))
     assert [json.loads(p.read_text()) for p in found] == [

@@ -107,7 +107,7 @@ def test_overlapping_files_of_other_nodes_remember_only_what_both_hold(
 def test_a_trial_started_and_never_stopped_is_said(tmp_path: Path) -> None:
     path = make_file(tmp_path / "gx2-a.mcap", 0, 30)  # start 5, stop 12, start 25
     ran = gx2ctl_here("export", str(path), "--out", str(tmp_path / "out"), "--between-marks",
-                 "start", "stop")
+                      "start", "stop")
     assert ran.status == 0, ran.stderr
     assert ran.stderr == ("gx2ctl: the mark 'start' at 2026-11-18T11:07:05.000Z has no "
                           "mark 'stop' after it: not a trial\n")
@@ -135,7 +135,7 @@ def test_a_finished_file_without_statistics_is_spanned_by_its_chunks(tmp_path: P
 def test_a_window_of_a_file_cut_short_says_where_the_file_ends(tmp_path: Path) -> None:
     cut = make_file(tmp_path / "gx2-cut.mcap", 0, 10, finish=False)
     ran = gx2ctl_here("export", str(cut), "--out", str(tmp_path / "out"), "--from", "0",
-                 "--to", "1")
+                      "--to", "1")
     assert ran.status == 0, ran.stderr
     # its last message (second 9's last record), not the window's
     assert "ends early after 2026-11-18 11:06:49.960 UTC" in ran.stderr, ran.stderr
@@ -211,7 +211,7 @@ def test_a_file_read_for_each_trial_is_said_once(tmp_path: Path) -> None:
                                                 "host_time": T0 + second + i / RATE})
             writer.flush()
         exported = gx2ctl_here("export", str(path), "--out", str(tmp_path / "out"),
-                          "--between-marks", "go", "halt")
+                               "--between-marks", "go", "halt")
     assert exported.status == 0, exported.stderr
     assert exported.stdout.count("11_euler.csv") == 2, exported.stdout
     assert exported.stderr == (f"gx2ctl: {path}: being written: its last flush after "

@@ -125,7 +125,7 @@ def test_a_window_between_marks_named_and_of_some_nodes(recordings: Path,
                                                          tmp_path: Path) -> None:
     out = tmp_path / "out"
     ran = gx2ctl_here("export", str(recordings), "--out", str(out), "--from", "stop",
-                 "--to", "event", "--node", "12", "--record", "accel_angrate")
+                      "--to", "event", "--node", "12", "--record", "accel_angrate")
     assert ran.status == 0, ran.stderr
     inside = messages(sorted(recordings.iterdir()), T0 + 12.0, T0 + 50.5, holding_end=True)
     assert sorted(p.name for p in out.iterdir()) == ["12_accel_angrate.csv", "marks.csv"]
@@ -138,7 +138,7 @@ def test_a_window_between_marks_named_and_of_some_nodes(recordings: Path,
 def test_trials_between_marks_each_in_their_folder(recordings: Path, tmp_path: Path) -> None:
     out = tmp_path / "out"
     ran = gx2ctl_here("export", str(recordings), "--out", str(out), "--between-marks", "start",
-                 "stop")
+                      "stop")
     assert ran.status == 0, ran.stderr
     folders = sorted(p.name for p in out.iterdir())
     assert folders == ["trial-1_2026-11-18T11-06-45Z", "trial-2_2026-11-18T11-07-05Z"]
@@ -150,7 +150,7 @@ def test_trials_between_marks_each_in_their_folder(recordings: Path, tmp_path: P
         assert column(out / folder / "marks.csv", "time") == [T0 + start, T0 + stop]
     second = tmp_path / "second"
     ran = gx2ctl_here("export", str(recordings), "--out", str(second), "--between-marks",
-                 "start", "stop", "--trial", "2")
+                      "start", "stop", "--trial", "2")
     assert ran.status == 0, ran.stderr
     assert [p.name for p in second.iterdir()] == [folders[1]]
 
@@ -174,12 +174,12 @@ def test_a_middle_file_deleted_leaves_windows_of_exactly_what_is_left(recordings
     assert column(out / "marks.csv", "time") == [T0 + 12.0, T0 + 45.0]
     trials = tmp_path / "trials"
     ran = gx2ctl_here("export", str(recordings), "--out", str(trials), "--between-marks",
-                 "start", "stop")
+                      "start", "stop")
     assert ran.status == 0, ran.stderr
     assert [p.name for p in trials.iterdir()] == ["trial-1_2026-11-18T11-06-45Z"]
     # a window inside the hole holds nothing: said in one line
     empty = gx2ctl_here("export", str(recordings), "--out", str(tmp_path / "none"), "--from",
-                   "25", "--to", "35")
+                        "25", "--to", "35")
     assert empty.status == 2 and len(empty.stderr.strip().splitlines()) == 1, empty.stderr
     assert "in that window" in empty.stderr
 
@@ -190,7 +190,7 @@ def test_a_message_met_twice_is_exported_once(recordings: Path, tmp_path: Path) 
     shutil.copy(paths[1], copy)
     out = tmp_path / "out"
     ran = gx2ctl_here("export", str(paths[1]), str(paths[0]), str(copy), str(paths[1]),
-                 "--out", str(out))
+                      "--out", str(out))
     assert ran.status == 0, ran.stderr
     once = messages(paths[:2])
     assert column(out / "11_accel_angrate.csv", "host_time") == host_times(
@@ -352,7 +352,7 @@ def test_plot_of_a_trial_has_its_marks_and_only_its_losses(tmp_path: Path,
         writer.finish()
     out = tmp_path / f"trial.{form}"
     ran = gx2ctl_here("plot", str(path), "11", "--between-marks", "start", "stop", "--out",
-                 str(out))
+                      str(out))
     assert ran.status == 0, ran.stderr
     if form == "png":
         from PIL import Image
