@@ -221,17 +221,24 @@ def held_drift_error(fitted: float, fresh: bool) -> float:
     return HELD_DRIFT_ERROR if fresh else DRIFT_ERROR
 
 
-# An outage: packets stop (an unplug, a radio out of range, a stream stopped) and come
-# back. The line is extrapolated across the gap at its drift, which is off by as much
-# as a held line's may be (held_drift_error): a line whose drift was fitted on its floor
-# over a window bridges a minute, one fitted over a few seconds not even the five of an
-# unplug. In the suite's fault soak, a base station unplugged 6 s after the gateway
-# started came back after 5 s with a line 1.0 ms late, locked and said OK. A gap the
-# drift cannot bridge within FLOOR_NOISE starts the line over, as a reboot does (the
-# drift and the times given kept), so its first second is said not locked; the
-# shortest such gap is the one the widest drift allows.
-OUTAGE_MIN = FLOOR_NOISE / MAX_DRIFT
-"""Device seconds without a packet that any line bridges (2.5 s)."""
+# A gap: packets stop (an unplug, a radio out of range, a stream stopped) and come back
+# within the window. The line is extrapolated across the gap at its drift, which is off
+# by as much as a held line's may be (held_drift_error): a line whose drift was fitted
+# on its floor over a window vouches for itself across a minute, one fitted over a few
+# seconds not across the five of an unplug. In the suite's fault soak, a base station
+# unplugged 6 s after the gateway started came back after 5 s with a line 1.0 ms late,
+# locked and said OK. After such a gap the line is kept, as before, but is not locked
+# for LOCK_SPAN (status, and health, say "not locked" for that second), while its fits
+# take in the packets after the gap. Starting the line over instead (a first version)
+# made ``time`` worse where the packets after the gap all waited (an outside review: a
+# line then behind another node's packets went from 0.08 ms to 1.0 ms late), and a node
+# polled every 5 s never locked: the rule is for a streaming line that was seeing its
+# floor, and a gap of ten times its packets' spacing or more.
+GAP_MIN = FLOOR_NOISE / MAX_DRIFT
+"""Device seconds without a packet that any line vouches for itself across (2.5 s)."""
+SPARSE = 10
+"""A gap is an outage of a streaming line only if it is this many times the spacing of
+the two packets before it (a polled node's points are seconds apart)."""
 
 Point = tuple[float, float]
 
@@ -303,8 +310,10 @@ class NodeClock:
         "_locked_since",
         "_offset",
         "_points",
+        "_relock_at",
         "_residuals",
         "_sightings",
+        "_spacing",
         "_state",
         "floors_taken_back",
         "last_wait",
@@ -403,6 +412,11 @@ class NodeClock:
         self._points = 0
         self._first = 0.0
         self._last = 0.0
+        self._spacing = 0.0
+        """Device seconds between the newest packet and the one before it."""
+        self._relock_at = 0.0
+        """Device time before which the line is not locked again after a gap it could
+        not vouch for itself across (GAP_MIN)."""
         self._locked_since: float | None = None
         self._residuals: deque[float] = deque(maxlen=RESIDUALS)
         self._floor_at = 0.0
@@ -428,14 +442,18 @@ class NodeClock:
         if self._state is not FITTED:
             return self._unfitted(device, host, waited)
         gap = device - self._last
-        if gap < 0 or (gap > OUTAGE_MIN and self._cannot_bridge(gap)):
+        if gap < 0 or gap > WINDOW:
             if gap < 0:  # not in order (a reset missed): it says nothing
                 return self._give(device, device + self._offset + self._drift * device)
-            self._event(OUTAGE)  # the old line no longer places this packet
+            self._event(OUTAGE)  # after a long outage: the old points no longer bound
             return self._unfitted(device, host, waited)
+        if gap > GAP_MIN and self._locked_since is not None and self._cannot_bridge(gap):
+            self._locked_since = None  # (see GAP_MIN: said not locked for a second)
+            self._relock_at = device + LOCK_SPAN
         y = host - device
         _push(self._current, device, y)
         self._points += 1
+        self._spacing = gap
         self._last = device
         if device - self._block_start >= BLOCK:
             self._close_block(device)
@@ -455,18 +473,18 @@ class NodeClock:
             if self._sightings is not None:
                 self._sightings.append((device, y))
         if self._locked_since is None and self._points >= LOCK_POINTS \
-                and device - self._first >= LOCK_SPAN:
+                and device - self._first >= LOCK_SPAN and device >= self._relock_at:
             self._locked_since = host
             self._confirm_floor()
         return self._give(device, device + line)
 
     def _cannot_bridge(self, gap: float) -> bool:
-        """Whether ``gap`` device seconds without a packet are an outage (see
-        OUTAGE_MIN): longer than the window, or than its drift's allowance keeps the
-        line extrapolated across them within the floor's noise."""
-        fresh = (self._locked_since is not None and self._floor_seen
-                 and self._last - self._floor_at <= FLOOR_FRESH)
-        return gap > WINDOW or gap * held_drift_error(self._fitted_seen, fresh) > FLOOR_NOISE
+        """Whether a locked line cannot vouch for itself across ``gap`` device seconds
+        without a packet (see GAP_MIN): streaming, seeing its floor, and its drift's
+        allowance times the gap past the floor's noise."""
+        fresh = self._floor_seen and self._last - self._floor_at <= FLOOR_FRESH
+        return fresh and gap > SPARSE * self._spacing and \
+            gap * held_drift_error(self._fitted_seen, True) > FLOOR_NOISE
 
     def _unfitted(self, device: float, host: float, waited: bool) -> float:
         """A packet with no line learning from it: the first of one (FRESH, RELEASED:
@@ -513,7 +531,9 @@ class NodeClock:
         than FLOOR_NOISE above it; a true sighting stays within it. (The sightings
         still count as they come until then: the line's judge takes a node's floor
         from its first second, :mod:`gateway.daemon.station.lineload`.)"""
-        sightings, self._sightings = self._sightings or [], None
+        if self._sightings is None:  # (locked again after a gap: judged at the first)
+            return
+        sightings, self._sightings = self._sightings, None
         offset, drift = self._offset, self._drift
         kept = [x for x, y in sightings if y - (offset + drift * x) <= FLOOR_NOISE]
         if kept:
@@ -584,8 +604,10 @@ class NodeClock:
     def device_at(self, host: float) -> float | None:
         """The device time of a packet that reaches the host at ``host`` with the least
         delay seen (the line there), or None before the estimate is locked: what the
-        timer unwrapper judges a reading by (:class:`aspp.timing.TimerUnwrapper`)."""
-        if self._locked_since is None or self._state is not FITTED:
+        timer unwrapper judges a reading by (:class:`aspp.timing.TimerUnwrapper`). A
+        line not locked for a second after a gap (GAP_MIN) was locked, and still judges
+        (a reboot in a second gap within that second went unseen without it)."""
+        if self._state is not FITTED or (self._locked_since is None and not self._relock_at):
             return None
         return (host - self._offset) / (1 + self._drift)
 

@@ -16,7 +16,7 @@ from gateway.sim.base_station import LineFaults, RadioLink
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
 from tests.helpers.gateway import RunningGateway, gateway_config
-from tests.helpers.processes import STARTUP, favoured, restore_sigint
+from tests.helpers.processes import STARTUP, can_favour, favoured, restore_sigint
 from tests.helpers.waiting import wait_for
 
 # GNU readline, which pytest imports (for pdb), exports the size of the terminal pytest
@@ -65,6 +65,14 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
             return module if module in shared else nodeid
 
     return Scheduling(config, log)
+
+
+def pytest_report_header(config: pytest.Config) -> str | None:
+    """Said at the top of a run whose timing tests cannot run favoured."""
+    if can_favour():
+        return None
+    return ("the timing tests cannot run at a favoured niceness here (not root): beside "
+            "the suite's other processes they may fail for want of CPU (-n 2 gives them room)")
 
 
 @pytest.fixture

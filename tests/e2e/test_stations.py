@@ -41,6 +41,7 @@ def two_stations(simulator, gateway, **sections):
     return north, south, gw
 
 
+@pytest.mark.usefixtures("favoured_host")
 def test_each_station_shows_everywhere_and_one_unplugged_never_delays_another(
         simulator, gateway):
     north, _, gw = two_stations(simulator, gateway)
@@ -71,14 +72,14 @@ def test_each_station_shows_everywhere_and_one_unplugged_never_delays_another(
     gaps = [b["host_time"] - a["host_time"] for a, b in pairwise(after)]
     assert max(gaps) < 0.1, max(gaps)
 
-    # (p90, not p99: of 3 s of records the p99 is the third worst, and the suite's other
-    # processes on a 2-core machine once put 25 ms there, beside 10 ms before the unplug;
-    # a loop the unplug blocked shows in the gaps above)
-    def latency_p90(records: list[dict]) -> float:
+    # (the test runs favoured: the suite's other processes on a 2-core machine once put
+    # 25 ms at the p99, beside 10 ms before the unplug; at the p90 a loop blocked 50 to
+    # 80 ms would pass unseen, and the gaps above catch only 90 ms and more)
+    def latency_p99(records: list[dict]) -> float:
         delays = sorted(r["host_time"] - r["time"] for r in records)
-        return delays[int(0.9 * (len(delays) - 1))]
-    assert latency_p90(after) <= latency_p90(before) + 0.01, (
-        latency_p90(before), latency_p90(after))
+        return delays[int(0.99 * (len(delays) - 1))]
+    assert latency_p99(after) <= latency_p99(before) + 0.01, (
+        latency_p99(before), latency_p99(after))
     assert gw.control.result("poll", node=78, record="euler")["station"] == "south"
     nodes = {n["node"]: n for n in gw.status()["nodes"]}
     assert nodes[76]["state"] == "link down" and nodes[78]["state"] == "streaming"

@@ -66,6 +66,18 @@ def favoured() -> Iterator[None]:
                     os.setpriority(os.PRIO_PROCESS, tid, before.get(tid, usual))
 
 
+def can_favour() -> bool:
+    """Whether this process may raise its threads' priority to FAVOURED (root may)."""
+    tid = threading.get_native_id()
+    was = os.getpriority(os.PRIO_PROCESS, tid)
+    try:
+        os.setpriority(os.PRIO_PROCESS, tid, FAVOURED)
+    except OSError:
+        return False
+    os.setpriority(os.PRIO_PROCESS, tid, was)
+    return True
+
+
 def _threads() -> list[int]:
     return [int(tid) for tid in os.listdir("/proc/self/task")]
 

@@ -1,5 +1,6 @@
 """A trial's export says which trial it is: ``trial.json`` beside its tables, with the
-fields of its start mark (``gx2ctl mark --field``), through the installed gx2ctl."""
+fields of its start mark (``gx2ctl mark --field``), by gx2ctl's entry point in process
+(the installed program exports trials in tests/e2e/test_windows_recorded.py)."""
 
 from __future__ import annotations
 
