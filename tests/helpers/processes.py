@@ -167,6 +167,8 @@ def gx2ctl_here(*args: str) -> Ran:
             status = main(list(args))
         except SystemExit as exit:
             status = exit.code if isinstance(exit.code, int) else int(exit.code is not None)
+    if status == 128 + signal.SIGINT:  # (a Ctrl-C meant for the suite: it stops)
+        raise KeyboardInterrupt(err.getvalue())
     return Ran(int(status or 0), out.getvalue(), err.getvalue(), time.monotonic() - start)
 
 
