@@ -237,8 +237,8 @@ def held_drift_error(fitted: float, fresh: bool) -> float:
 GAP_MIN = FLOOR_NOISE / MAX_DRIFT
 """Device seconds without a packet that any line vouches for itself across (2.5 s)."""
 SPARSE = 10
-"""A gap is an outage of a streaming line only if it is this many times the spacing of
-the two packets before it (a polled node's points are seconds apart)."""
+"""A gap unlocks a line only if it is this many times the spacing of the two packets
+before it: a streaming line's (a polled node's points are seconds apart)."""
 
 Point = tuple[float, float]
 
