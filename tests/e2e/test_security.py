@@ -36,8 +36,11 @@ def one_line(done: subprocess.CompletedProcess, status: int) -> str:
 
 
 def write_config(path: Path, control: str, **sections: object) -> Path:
+    # (a publish endpoint of its own: the default is the demo's, and --check warns that
+    # it is held while a user runs the demo beside the suite)
     path.write_text(yaml.safe_dump({
         "base_station": {"port": "sim://"}, "control": {"endpoint": control},
+        "publish": {"endpoint": f"tcp://127.0.0.1:{free_port()}"},
         "nodes": [{"address": 76}], **sections}))
     return path
 
