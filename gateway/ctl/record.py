@@ -18,6 +18,7 @@ readers read it whole, and is removed if that is nothing.
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import time
 from collections.abc import Iterator, Mapping, Sequence
@@ -132,13 +133,18 @@ def apart(nodes: Sequence[int], found: Sequence[tuple[Gateway, Source]]) -> None
 
 def creatable(target: Path) -> None:
     """Usage error (exit 2) now, rather than once the gateway is heard, if ``target``
-    cannot be made (no such directory, no permission); nothing is left behind."""
+    cannot be made (no such directory, no permission); nothing is left behind. A file
+    of another name in its directory is made and removed, never ``target`` itself: its
+    appearing says the gateway is heard and a mark made from then on is kept (a test
+    that waited for it once saw this probe, and made its mark before the marks were
+    subscribed to)."""
+    probe = target.with_name(f".{PROG}-{os.getpid()}.probe")
     try:
-        target.open("xb").close()
+        probe.open("xb").close()
     except OSError as error:
         raise CtlError(f"{target}: {error.strerror or error}", Exit.USAGE) from None
     with contextlib.suppress(OSError):
-        target.unlink()
+        probe.unlink()
 
 
 # --- what is received -----------------------------------------------------------------

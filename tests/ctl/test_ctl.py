@@ -790,3 +790,25 @@ def test_status_shows_recording_replay_and_lsl_only_when_there_are_any():
     assert "record   /r/gx2-a.mcap, written 1200, dropped 7 (last error: File too large)" \
         in lines
     assert "replay   55 reads played, finished" in lines
+
+
+def test_record_tries_its_directory_without_ever_making_its_file(tmp_path, monkeypatch):
+    """gx2ctl record says at once that its file cannot be made, but the file itself
+    appears only once the gateway is heard (a mark made from then on is kept): a test
+    waiting for it once saw the probe that made and removed it, and marked too early."""
+    from gateway.ctl import record
+    from gateway.ctl.client import CtlError
+
+    target = tmp_path / "capture.mcap"
+    opened = []
+    real_open = Path.open
+
+    def watched(self, *args, **kwargs):
+        opened.append(self)
+        return real_open(self, *args, **kwargs)
+    monkeypatch.setattr(Path, "open", watched)
+    record.creatable(target)
+    assert opened and target not in opened
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(CtlError, match=f"^{tmp_path / 'nosuch' / 'x.mcap'}: No such file"):
+        record.creatable(tmp_path / "nosuch" / "x.mcap")
