@@ -90,6 +90,7 @@ def latency_p99(sub: zmq.Socket, seconds: float) -> tuple[float, int]:
     return delays[int(0.99 * (len(delays) - 1))], len(delays)
 
 
+@pytest.mark.usefixtures("favoured_host")  # (its latency, with the demo beside it)
 def test_a_viewer_that_never_reads_delays_no_subscriber(simulator, gateway,
                                                         zmq_context) -> None:
     gw, url = live_gateway(simulator, gateway)

@@ -12,6 +12,7 @@ import statistics
 import time
 from pathlib import Path
 
+import pytest
 import serial
 
 from aspp import Decoder, Reply, decode
@@ -77,6 +78,7 @@ def lateness(link: Path) -> list[float]:
     return late
 
 
+@pytest.mark.usefixtures("favoured_host")  # (the demo beside the suite: 0.9 ms once)
 def test_packets_reach_the_host_when_the_line_model_sends_them(tmp_path: Path) -> None:
     spreads = []
     for attempt in range(ATTEMPTS):
