@@ -172,6 +172,10 @@ def test_a_broker_restarted_mid_stream_costs_mqtt_only_what_it_missed(
 def test_rate_hz_sends_every_nth_sample(simulator, gateway, broker) -> None:
     mosquitto = broker()
     gw = mqtt_gateway(simulator, gateway, mosquitto.url, rate_hz={"accel_angrate": 10})
+    # (thinned by ``time``, which runs at SLEW while a clock's line settles: counted from
+    # the lock, as a user's subscriber listens to a gateway running; from the start, five
+    # steps of 30 were not 10 in one full run under load)
+    wait_for(lambda: gw.node_status(76)["clock"]["locked"], 10, "node 76's clock locked")
     sub = gw.subscribe("gx2/77/euler")
     listener = Listener(mosquitto, f"{BASE}/+/accel_angrate", f"{BASE}/+/euler")
     try:
