@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 import zmq
+from hypothesis import settings
 
 from gateway.sim.base_station import LineFaults, RadioLink
 from gateway.sim.node import NodeSettings
@@ -27,6 +28,12 @@ os.unsetenv("COLUMNS")
 os.unsetenv("LINES")
 
 restore_sigint()
+
+# No deadline on a property's examples: at 8 processes on 2 cores an example may wait
+# for the CPU longer than hypothesis's 200 ms, and a slow example is no failure here
+# (what must be fast is measured by bench/, side by side).
+settings.register_profile("suite", deadline=None)
+settings.load_profile("suite")
 
 TESTS = Path(__file__).resolve().parent
 SHARED_FIXTURE = re.compile(r"scope=[\"'](?:class|module|package|session)[\"']")
