@@ -69,8 +69,11 @@ def test_each_station_shows_everywhere_and_one_unplugged_never_delays_another(
     # south's records keep their rate and their latency, and its commands go through
     span = after[-1]["device_time"] - after[0]["device_time"]
     assert len(after) >= 0.95 * span * 100, (len(after), span)
+    # (a loop blocked by the unplugged port, its close or a reopen, leaves a gap of half
+    # a second or more; shorter ones are the host's scheduling: at 6 test processes on 2
+    # cores gaps of 0.1 to 0.37 s came before the unplug as after it, at any moment)
     gaps = [b["host_time"] - a["host_time"] for a, b in pairwise(after)]
-    assert max(gaps) < 0.1, max(gaps)
+    assert max(gaps) < 0.5, max(gaps)
 
     # (the test runs favoured: the suite's other processes on a 2-core machine once put
     # 25 ms at the p99, beside 10 ms before the unplug; at the p90 a loop blocked 50 to

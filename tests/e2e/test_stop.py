@@ -4,6 +4,7 @@ is not "stopped" by its silence (issue 21)."""
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 
@@ -86,9 +87,11 @@ def test_stop_under_stop_loss(simulator, gateway):
 
 # -- 4. a stop the node cannot hear (issue 21) ---------------------------------------------------
 
-QUICK_STOP = 3.0
-"""Seconds a `gx2ctl stop` of a streaming node in range may take, start-up included: the
-0.3 s of silence that proves it, and the Python start-up of gx2ctl on a loaded machine."""
+QUICK_STOP = 1.0
+"""Seconds the stop of a streaming node in range may take, as `gx2ctl stop` says it: the
+0.3 s of silence that proves it and a retry. (Not the program's own run: its start-up
+took 7 s once, at 8 test processes on 2 cores.)"""
+STOPPED = re.compile(r"76 stopped \(\d+ attempts?, (\d+\.\d+) s\)")
 
 
 def test_a_stop_of_a_node_out_of_range_is_not_confirmed_and_kept(simulator, gateway):
@@ -106,8 +109,9 @@ def test_a_stop_of_a_node_out_of_range_is_not_confirmed_and_kept(simulator, gate
              "the gateway to find node 95 unreachable")
 
     ran = gx2ctl("--config", str(gw.path), "stop", "76")
-    assert ran.status == 0 and ran.stdout.startswith("76 stopped"), ran
-    assert ran.seconds < QUICK_STOP, ran
+    said = STOPPED.match(ran.stdout)
+    assert ran.status == 0 and said, ran
+    assert float(said[1]) < QUICK_STOP, ran
     assert continuous(sim, 76) == 0
 
     ran = gx2ctl("--config", str(gw.path), "stop", "95")
