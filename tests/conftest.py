@@ -17,7 +17,7 @@ from gateway.sim.base_station import LineFaults, RadioLink
 from gateway.sim.node import NodeSettings
 from gateway.sim.server import Simulator
 from tests.helpers.gateway import RunningGateway, gateway_config
-from tests.helpers.processes import STARTUP, can_favour, favoured, restore_sigint
+from tests.helpers.processes import PROGRAMS, STARTUP, can_favour, favoured, restore_sigint
 from tests.helpers.waiting import wait_for
 
 # GNU readline, which pytest imports (for pdb), exports the size of the terminal pytest
@@ -29,7 +29,7 @@ os.unsetenv("LINES")
 
 restore_sigint()
 
-# No deadline on a property's examples: at 8 processes on 2 cores an example may wait
+# No deadline on a property's examples: at 6 processes on 2 cores an example may wait
 # for the CPU longer than hypothesis's 200 ms, and a slow example is no failure here
 # (what must be fast is measured by bench/, side by side).
 settings.register_profile("suite", deadline=None)
@@ -86,6 +86,25 @@ def pytest_report_header(config: pytest.Config) -> str | None:
 def favoured_host() -> Iterator[None]:
     """The test's simulator and gateway at a favoured niceness (processes.favoured)."""
     with favoured():
+        yield
+
+
+COMPUTING = ("tests/aspp/", "tests/recording/")
+"""Where the tests compute and wait on nothing (properties, sweeps in simulated time,
+recordings read and written): they run at the usual niceness, below the rest."""
+
+
+@pytest.fixture(autouse=True)
+def programs_favoured(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Every test that waits on time (its programs, an in-process gateway's deadlines)
+    at PROGRAMS niceness, above COMPUTING's; one that asks for ``favoured_host`` (a
+    timing test) gets that, higher still. (A module-scoped fixture's programs start
+    before this applies, at the usual niceness.)"""
+    where = request.node.nodeid
+    if "favoured_host" in request.fixturenames or where.startswith(COMPUTING):
+        yield
+        return
+    with favoured(PROGRAMS):
         yield
 
 

@@ -29,8 +29,7 @@ from tests.e2e.test_sample_time import errors
 from tests.helpers.waiting import wait_for
 
 # (favoured, tests/conftest.py: what these tests assert is where the line places each
-# packet, and the simulator writing them runs in the test's own process; at 8
-# processes on 2 cores a floor once read 1.06 s old where it is fresh)
+# packet, and the simulator writing them runs in the test's own process)
 pytestmark = pytest.mark.usefixtures("favoured_host")
 
 OUTAGE = 4.0

@@ -18,8 +18,7 @@ from gateway.sim.node import NodeSettings
 from tests.helpers.waiting import wait_for
 
 # (favoured, tests/conftest.py: what these tests assert is where the line places each
-# packet, and the simulator writing them runs in the test's own process; at 8
-# processes on 2 cores a floor once read 1.06 s old where it is fresh)
+# packet, and the simulator writing them runs in the test's own process)
 pytestmark = pytest.mark.usefixtures("favoured_host")
 
 WARM_UP = 3.0

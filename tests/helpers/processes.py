@@ -36,10 +36,11 @@ FAVOURED = -10
 """The niceness a test of how well ``time`` is placed runs its simulator and gateway at
 (:func:`favoured`)."""
 PROGRAMS = -5
-"""The niceness every other end-to-end test runs its programs at (tests/e2e/conftest.py):
-above the suite's in-process work (hypothesis, a recording decoded), which waits on
-nothing, and below FAVOURED. At 8 processes on 2 cores, without it, a simulated node
-once streamed 89.8 of its 100 Hz and a station's records once came 0.29 s apart."""
+"""The niceness every other test that waits on time runs at, its programs with it
+(tests/conftest.py, programs_favoured): above the suite's computing tests (properties,
+recordings decoded), which wait on nothing, and below FAVOURED. At 8 processes on 2
+cores, without it, a simulated node once streamed 89.8 of its 100 Hz and a station's
+records once came 0.29 s apart."""
 
 
 @contextlib.contextmanager
