@@ -23,13 +23,15 @@ import numpy as np
 from gateway.common.topics import parse
 
 from .batchsteps import NONE, Decided, add_many, flush
+from .blocks import Block
 from .columnar import Columns
 from .columns import Column, mark_columns
+from .entry import Entry
 from .files import MARK, STATUS, RecordingError
 from .losses import STARTED, Losses, Stream
 from .marks import Mark
 from .parquetfile import BATCH, parquet_modules
-from .reader import Entry, read_all
+from .reader import read_all_blocks
 from .reports import Reading
 from .tables import LEADING, MARKS, NoTables, Output, Table, kept, mark_row, table_name
 
@@ -80,70 +82,161 @@ class _Open:
 
 
 def export_batches(paths: Iterable[Path], out: Path, reading: Reading, form: str,
-                   progress: Callable[[Entry], None] | None = None,
-                   written: list[Path] | None = None, entries: Iterable[Entry] | None = None,
+                   progress: Callable[[int], None] | None = None,
+                   written: list[Path] | None = None, blocks: Iterable[Block] | None = None,
                    tables_only: bool = False) -> tuple[list[tuple[Path, Table]], int]:
     """:func:`.export.export`, a batch at a time: its arguments, its result."""
     pa, _ = parquet_modules()
     out.mkdir(parents=True, exist_ok=True)
-    losses: Losses[int] = Losses()
-    tables: dict[tuple[int, str], _Open] = {}
     outputs: list[Output] = []
-    marks: Output | None = None
     done = [] if written is None else written
-    places: dict[str, tuple[int, str] | None] = {}
-    """Each topic's (node, record), parsed once."""
     with kept(outputs, done):  # (finished whole, or discarded)
-        for entry in read_all(paths, reading) if entries is None else entries:
+        tables = _Tables(out, form, pa, outputs)
+        for block in read_all_blocks(paths, reading) if blocks is None else blocks:
             if progress is not None:
-                progress(entry)
-            topic = entry.topic
-            if entry.after_damage:
-                for open_table in tables.values():
-                    _count(open_table, pa)
-                losses.unread()
-            if topic == STATUS:
-                with contextlib.suppress(RecordingError):
-                    losses.status(entry.payload())
-                continue
-            if topic == MARK:
-                if marks is None:
-                    marks = Output(out, f"{MARKS}.{form}", form, mark_columns(), outputs)
-                marks.add(mark_row(Mark.of(entry)))
-                continue
-            where = places[topic] if topic in places else places.setdefault(
-                topic, parse(topic))
-            if where is None:
-                continue
-            node = where[0]
-            count = losses._counts[node] = losses._counts.get(node, 0) + 1
-            open_table = tables.get(where)
-            if open_table is None:
-                open_table = tables[where] = _opened(entry, where, out, form, losses,
-                                                     outputs)
-            open_table.messages.append(entry.data)
-            open_table.counts.append(count)
-            if where[1] == STARTED:
-                payload = entry.payload()
-                for (owner, _), other in tables.items():
-                    if owner == node:
-                        _count(other, pa)
-                losses._started[node] = (payload, count)
-                for (owner, _), stream in losses.streams.items():
-                    if owner == node:
-                        stream.started(payload, count)
-            elif len(open_table.messages) >= BATCH:
-                _count(open_table, pa)
-        for open_table in tables.values():
-            _count(open_table, pa)
-            flush(open_table.stream, open_table.decided)
-            _write(open_table, pa)
-        if tables_only and not tables:
+                progress(block.bytes)
+            tables.take(block)
+        tables.finish()
+        if tables_only and not tables.open:
             raise NoTables(out)
-        if marks is None and tables:
-            marks = Output(out, f"{MARKS}.{form}", form, mark_columns(), outputs)
-    return [(t.output.path, t.table) for t in tables.values()], (
-        marks.rows if marks is not None else 0)
+        if tables.marks is None and tables.open:
+            tables.marks = Output(out, f"{MARKS}.{form}", form, mark_columns(), outputs)
+    return [(t.output.path, t.table) for t in tables.open.values()], (
+        tables.marks.rows if tables.marks is not None else 0)
+
+
+_SKIP, _STATUS, _MARK = 0, 1, 2
+"""What a block's message is to the export, by its channel: passed over, a status, a
+mark; from 3 on, a table's message (its number in ``_Tables.order`` plus 3)."""
+
+
+class _Tables:
+    """An export's tables, their messages taken a block at a time: each table's picked
+    out of a block by numpy and decoded a batch at a time, a status, a mark or a
+    continuous-mode reply handled in its place among them."""
+
+    def __init__(self, out: Path, form: str, pa: Any, outputs: list[Output]) -> None:
+        self.out, self.form, self.pa, self.outputs = out, form, pa, outputs
+        self.losses: Losses[int] = Losses()
+        self.open: dict[tuple[int, str], _Open] = {}
+        """The tables opened, in the order first met."""
+        self.order: list[tuple[int, str]] = []
+        """Each table's (node, record) by its kind (less 3), numbered when first in a
+        block (it is opened at its first message)."""
+        self._kinds: dict[tuple[int, str], int] = {}
+        self.marks: Output | None = None
+        self._places: dict[str, tuple[int, str] | None] = {}
+        """Each topic's (node, record), parsed once."""
+
+    def take(self, block: Block) -> None:
+        if block.after_damage:
+            for open_table in self.open.values():
+                _count(open_table, self.pa)
+            self.losses.unread()
+        kinds = self._kinds_of(block)
+        # where a status, a mark or a continuous-mode reply is, the messages before it
+        # (up to it, for a reply: it is its table's row) are taken first
+        events = np.flatnonzero(np.isin(kinds, self._events(block)))
+        start = 0
+        for at in events.tolist():
+            self._segment(block, kinds, start, at + 1)
+            self._event(block, int(kinds[at]), at)
+            start = at + 1
+        self._segment(block, kinds, start, len(block))
+
+    def _kinds_of(self, block: Block) -> np.ndarray:
+        """What each message of the block is (_SKIP, _STATUS, _MARK or a table)."""
+        lookup = np.zeros(max(block.topics) + 1, np.int64)
+        for channel, topic in block.topics.items():
+            lookup[channel] = self._kind(topic)
+        return lookup[np.frombuffer(block.channel, np.uint16)]
+
+    def _kind(self, topic: str) -> int:
+        if topic == STATUS:
+            return _STATUS
+        if topic == MARK:
+            return _MARK
+        where = self._places[topic] if topic in self._places else self._places.setdefault(
+            topic, parse(topic))
+        if where is None:
+            return _SKIP
+        kind = self._kinds.get(where)
+        if kind is None:
+            kind = self._kinds[where] = len(self.order) + 3
+            self.order.append(where)
+        return kind
+
+    def _events(self, block: Block) -> list[int]:
+        return [_STATUS, _MARK, *(kind for where, kind in self._kinds.items()
+                                  if where[1] == STARTED)]
+
+    def _segment(self, block: Block, kinds: np.ndarray, start: int, stop: int) -> None:
+        """The block's table messages from ``start`` to ``stop``, each added to its
+        table with its node's count of messages so far; a table with a batch in
+        counted."""
+        if start >= stop:
+            return
+        kinds = kinds[start:stop]
+        present, first = np.unique(kinds, return_index=True)
+        tables = present[np.argsort(first)]  # (in the order first met: opened so)
+        tables = tables[tables > _MARK].tolist()
+        nodes: dict[int, np.ndarray] = {}
+        data = block.data
+        for kind in tables:
+            where = self.order[kind - 3]
+            node = where[0]
+            if node not in nodes:  # (every record of the node counts, in order)
+                mine = np.zeros(len(kinds), np.int64)
+                for other in tables:
+                    if self.order[other - 3][0] == node:
+                        mine += kinds == other
+                running = self.losses._counts.get(node, 0) + np.cumsum(mine)
+                self.losses._counts[node] = int(running[-1])
+                nodes[node] = running
+            at = np.flatnonzero(kinds == kind)
+            open_table = self.open.get(where)
+            if open_table is None:  # (its first message: its columns)
+                first = Entry(block.topics[block.channel[start + int(at[0])]], 0, 0,
+                              data[start + int(at[0])])
+                open_table = self.open[where] = _opened(first, where, self.out, self.form,
+                                                        self.losses, self.outputs)
+            if len(at) == stop - start:
+                open_table.messages.extend(data[start:stop])
+            else:
+                open_table.messages.extend([data[start + i] for i in at.tolist()])
+            open_table.counts.extend(nodes[node][at].tolist())
+            if len(open_table.messages) >= BATCH:
+                _count(open_table, self.pa)
+
+    def _event(self, block: Block, kind: int, at: int) -> None:
+        """A status, a mark, or a continuous-mode reply (its row already taken)."""
+        entry = Entry(block.topics[block.channel[at]], block.log_time[at],
+                      block.publish_time[at], block.data[at])
+        if kind == _STATUS:
+            with contextlib.suppress(RecordingError):
+                self.losses.status(entry.payload())
+        elif kind == _MARK:
+            if self.marks is None:
+                self.marks = Output(self.out, f"{MARKS}.{self.form}", self.form,
+                                    mark_columns(), self.outputs)
+            self.marks.add(mark_row(Mark.of(entry)))
+        else:
+            node = self.order[kind - 3][0]
+            payload = entry.payload()
+            for (owner, _), other in self.open.items():
+                if owner == node:
+                    _count(other, self.pa)
+            count = self.losses._counts[node]
+            self.losses._started[node] = (payload, count)
+            for (owner, _), stream in self.losses.streams.items():
+                if owner == node:
+                    stream.started(payload, count)
+
+    def finish(self) -> None:
+        for open_table in self.open.values():
+            _count(open_table, self.pa)
+            flush(open_table.stream, open_table.decided)
+            _write(open_table, self.pa)
 
 
 def _opened(entry: Entry, where: tuple[int, str], out: Path, form: str,

@@ -41,13 +41,14 @@ from typing import Any
 from aspp.records import BY_NAME
 from gateway.common.topics import parse
 
+from .blocks import Block, entries_of
 from .columns import mark_columns
 from .files import MARK, STATUS, RecordingError
 from .losses import Counted, Losses
 from .marks import Mark
 from .matfile import mat_modules
 from .parquetfile import MissingExtra, parquet_modules
-from .reader import Entry, read_all
+from .reader import read_all
 from .refined import Refinement
 from .reports import Reading
 from .rosbag import Bag, export_bag, ros2_modules
@@ -85,8 +86,8 @@ EXTRAS: dict[str, Callable[[], object]] = {"parquet": parquet_modules, "mat": ma
 
 
 def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv",
-           progress: Callable[[Entry], None] | None = None,
-           written: list[Path] | None = None, entries: Iterable[Entry] | None = None,
+           progress: Callable[[int], None] | None = None,
+           written: list[Path] | None = None, blocks: Iterable[Block] | None = None,
            tables_only: bool = False, refined: Refinement | None = None
            ) -> tuple[list[tuple[Path, Table]], int]:
     """Write the tables of the recordings ``paths`` into ``out``: (path, table) of each
@@ -94,9 +95,10 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
     Each table written whole is added to ``written`` as it is. What reading skipped is
     in ``reading``. RecordingError for a message that is not a record's JSON object;
     MissingExtra for a format whose extra is not installed (Parquet: pyarrow, .mat:
-    scipy); on any error, or Ctrl-C, no table that was not whole is left. ``entries``: the
-    messages to export (a window of the recordings, :mod:`.window`) in place of every
-    message of ``paths``. ``tables_only``: NoTables, and nothing written, if there is
+    scipy); on any error, or Ctrl-C, no table that was not whole is left. ``blocks``: the
+    messages to export (a window of the recordings, :meth:`.window.Reader.blocks`) in
+    place of every message of ``paths``. ``progress``: given the bytes of the messages
+    as they are read. ``tables_only``: NoTables, and nothing written, if there is
     no table (only marks: the nodes asked are not in the recordings). ValueError, and
     nothing written, for a format that is not a table's (``ros2`` writes a window
     whole: WHOLE's function, :func:`.rosbag.export_bag`). ``refined``: each row's
@@ -114,7 +116,7 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
     # carried there (the batch is typed from the messages' own JSON, and the losses are
     # counted on their recorded time), so a refined export goes row by row, Parquet too
     if form in BATCH_WRITERS and refined is None:
-        return export_batches(paths, out, reading, form, progress, written, entries,
+        return export_batches(paths, out, reading, form, progress, written, blocks,
                               tables_only)
     out.mkdir(parents=True, exist_ok=True)
     tables: dict[tuple[int, str], tuple[Table, Output]] = {}
@@ -123,9 +125,9 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
     marks: Output | None = None
     done = [] if written is None else written
     with kept(outputs, done):  # (finished whole, or discarded)
-        for entry in read_all(paths, reading) if entries is None else entries:
+        for entry in read_all(paths, reading) if blocks is None else entries_of(blocks):
             if progress is not None:
-                progress(entry)
+                progress(len(entry.data))
             if entry.after_damage:
                 losses.unread()
             if entry.topic == STATUS:
