@@ -14,6 +14,7 @@ batches waiting before it are counted first.
 from __future__ import annotations
 
 import contextlib
+import csv
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,8 @@ from .entry import Entry
 from .files import MARK, STATUS, RecordingError
 from .losses import STARTED, Losses, Stream
 from .marks import Mark
-from .parquetfile import BATCH, parquet_modules
+from .matfile import MatWriter
+from .parquetfile import BATCH, MissingExtra, parquet_modules
 from .reader import read_all_blocks
 from .reports import Reading
 from .tables import LEADING, MARKS, NoTables, Output, Table, kept, mark_row, table_name
@@ -61,8 +63,73 @@ class ParquetTables:
         self._writer.close()
 
 
-BATCH_WRITERS: dict[str, Callable[[Path, Any], Any]] = {"parquet": ParquetTables}
+class CsvTables:
+    """A table's CSV file, a batch of rows (texts: :mod:`.cells`) at a time: each row's
+    cells joined by Arrow, the batch written as one text; what ``csv.writer`` writes,
+    which writes a batch whose texts need quoting (a comma, a quote, a line break)."""
+
+    def __init__(self, path: Path, schema: Any) -> None:
+        import pyarrow.compute
+        self._pa, self._pc = parquet_modules()[0], pyarrow.compute
+        self._file = path.open("w", newline="", encoding="utf-8")
+        self._csv = csv.writer(self._file)
+        self._csv.writerow(schema.names)
+
+    def add(self, table: Any) -> None:
+        pa, pc = self._pa, self._pc
+        texts = [column if column.type == pa.string() else pc.cast(column, pa.string())
+                 for column in table.columns]
+        lines = pc.binary_join_element_wise(*texts, ",", null_handling="replace",
+                                            null_replacement="")
+        text = "\r\n".join(lines.to_pylist()) + "\r\n" if len(lines) else ""
+        # (as many commas as cells apart, a line break a row, no quote: nothing to quote)
+        rows = len(lines)
+        if (text.count(",") == rows * (len(texts) - 1) and text.count("\n") == rows
+                and text.count("\r") == rows and '"' not in text):
+            self._file.write(text)
+        else:
+            self._csv.writerows(zip(*(column.to_pylist() for column in texts), strict=True))
+
+    def close(self) -> None:
+        self._file.close()
+
+
+class MatTables:
+    """A table's .mat file, a batch of rows (doubles and texts: :mod:`.cells`) at a time
+    into :class:`.matfile.MatWriter`, which writes the struct whole when closed."""
+
+    def __init__(self, path: Path, schema: Any) -> None:
+        pa, _ = parquet_modules()
+        self._texts = [field.type == pa.string() for field in schema]
+        self._writer = MatWriter(path, [Column(
+            field.name, "text" if text else "float",
+            (field.metadata or {}).get(b"description", b"").decode(),
+            (field.metadata or {}).get(b"unit", b"").decode())
+            for field, text in zip(schema, self._texts, strict=True)])
+
+    def add(self, table: Any) -> None:
+        self._writer.add_columns([
+            column.to_pylist() if text else
+            column.to_numpy().astype(np.float64)  # (a null: NaN)
+            for column, text in zip(table.columns, self._texts, strict=True)])
+
+    def close(self) -> None:
+        self._writer.close()
+
+
+BATCH_WRITERS: dict[str, Callable[[Path, Any], Any]] = {
+    "parquet": ParquetTables, "csv": CsvTables, "mat": MatTables}
 """The formats exported a batch at a time: how each writes a table's batches."""
+
+
+def batches_possible() -> bool:
+    """Whether pyarrow, which decodes the batches, is installed (CSV needs no extra: a
+    CSV export without it goes row by row)."""
+    try:
+        parquet_modules()
+    except MissingExtra:
+        return False
+    return True
 
 
 class _Open:
@@ -245,7 +312,7 @@ def _opened(entry: Entry, where: tuple[int, str], out: Path, form: str,
     reply of its node began it, as :meth:`.losses.Losses.add` begins it)."""
     node, record = where
     table = Table(node, record, entry.payload())
-    columns = Columns(entry.topic, table.columns, table.fields, LEADING)
+    columns = Columns(entry.topic, table.columns, table.fields, LEADING, form)
     stream = losses.streams[where] = Stream(
         losses.ahead, lambda after, at: losses.outages.back(node, after, at))
     if node in losses._started:

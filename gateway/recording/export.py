@@ -111,11 +111,12 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
         raise ValueError(f"no export format {form!r}: one of {', '.join(FORMATS)}")
     if form in EXTRAS:
         EXTRAS[form]()
-    from .columnexport import BATCH_WRITERS, export_batches
+    from .columnexport import BATCH_WRITERS, batches_possible, export_batches
     # a batch at a time: the same tables, 7x faster or more; a refined time is not
     # carried there (the batch is typed from the messages' own JSON, and the losses are
-    # counted on their recorded time), so a refined export goes row by row, Parquet too
-    if form in BATCH_WRITERS and refined is None:
+    # counted on their recorded time), so a refined export goes row by row, Parquet too;
+    # so does CSV without pyarrow (not a dependency of the gateway's own)
+    if form in BATCH_WRITERS and refined is None and batches_possible():
         return export_batches(paths, out, reading, form, progress, written, blocks,
                               tables_only)
     out.mkdir(parents=True, exist_ok=True)
