@@ -29,6 +29,9 @@ WHOLE = LARGEST // 1_000_000_000 - 1
 """Whole seconds whose ns, whatever their decimals, an int64 holds (the year 2262)."""
 DIGITS = 18
 """Digits an int64 always holds."""
+EXPONENT_FROM, EXPONENT_BELOW = 1e9, 1e-5
+"""Between these, Arrow writes a double positionally (2 million values from 1e-6 to 1e10
+held: none with an exponent)."""
 _TENS = 10 ** np.arange(DIGITS + 1, dtype=np.int64)
 
 
@@ -38,20 +41,18 @@ def exact_nanoseconds(pa: Any, pc: Any, seconds: Any) -> Any:
     text = pc.cast(seconds, pa.string())
     point = pc.find_substring(text, ".")
     digits = pc.replace_substring(text, ".", "")
-    length = pc.binary_length(digits)
+    length = _numpy(pc.fill_null(pc.binary_length(digits), 0))
     negative = pc.starts_with(text, "-")
+    values = _numpy(seconds)  # (a null: NaN)
+    size = np.abs(values)
     # plain: digits, a point perhaps and a sign (not an exponent, inf or nan), at most
     # DIGITS of them, and whole seconds an int64 of ns holds
-    plain = pc.and_(pc.and_(pc.invert(pc.match_substring_regex(text, "[^0-9.-]")),
-                            pc.less_equal(pc.subtract(length, pc.cast(negative, pa.int32())),
-                                          DIGITS)),
-                    pc.less(pc.abs(seconds), WHOLE + 1))
-    plain = pc.fill_null(plain, False)
-    kept = _numpy(plain)
+    kept = np.isfinite(values) & (size < WHOLE + 1) & (length - (values < 0) <= DIGITS)
+    kept &= ~exponent(pa, pc, text, size)
+    plain = pa.array(kept)
     minus = _numpy(pc.fill_null(negative, False))
     whole = np.abs(_numpy(pc.if_else(plain, digits, "0").cast(pa.int64())))
     point = _numpy(pc.fill_null(point, -1))
-    length = _numpy(pc.fill_null(length, 0))
     decimals = np.where(kept & (point >= 0), length - point, 0)  # (the point removed)
     short = decimals <= 9
     ns = np.where(short, whole * _TENS[np.where(short, 9 - decimals, 0)], 0)
@@ -63,7 +64,7 @@ def exact_nanoseconds(pa: Any, pc: Any, seconds: Any) -> Any:
     ns = np.where(short, ns, quotient + up)
     ns = np.where(minus, -ns, ns)
     result = pa.array(ns, pa.int64(), mask=~kept)
-    odd = _numpy(pc.and_(pc.is_valid(seconds), pc.invert(plain)))
+    odd = ~np.isnan(values) & ~kept
     if odd.any():  # (exponents, inf, NaN: rare)
         values = result.to_pylist()
         for i in odd.nonzero()[0]:
@@ -71,6 +72,18 @@ def exact_nanoseconds(pa: Any, pc: Any, seconds: Any) -> Any:
             values[i] = exact if exact is not None and abs(exact) <= LARGEST else None
         result = pa.array(values, pa.int64())
     return result
+
+
+def exponent(pa: Any, pc: Any, text: Any, size: np.ndarray) -> np.ndarray:
+    """Which of Arrow's texts of doubles (of magnitude ``size``) have an exponent: only
+    from EXPONENT_FROM or below EXPONENT_BELOW are they looked at (a search of every
+    text cost as much as the rest of a column's conversion)."""
+    found = np.zeros(len(size), bool)
+    looked = np.flatnonzero((size >= EXPONENT_FROM) | (size < EXPONENT_BELOW))
+    if len(looked):
+        found[looked] = _numpy(pc.fill_null(pc.match_substring(
+            text.take(pa.array(looked)), "e"), False))
+    return found
 
 
 def _numpy(array: Any) -> np.ndarray:

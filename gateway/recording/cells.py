@@ -19,6 +19,7 @@ import numpy as np
 
 from gateway.common.reading import number
 
+from .arrowtime import exponent
 from .columns import Column
 
 
@@ -30,7 +31,6 @@ REPR_LOW, REPR_HIGH = 1e-4, 1e16
 """Python's ``repr`` writes a float with an exponent below the one and from the other;
 Arrow's text of a double, with the same digits, positionally there (and with an
 exponent for some long ones between): such values are written one at a time."""
-
 
 def schema(pa: Any, form: str, columns: list[Column], lost_before: str) -> Any:
     """The Arrow schema of a table's cells in ``form`` (``csv``: texts; ``mat``:
@@ -58,8 +58,10 @@ def cell(pa: Any, pc: Any, form: str, kind: str, value: Any) -> Any:
             raise RowPath  # (a number's text: 1 or 1.0, which the column cannot tell)
         return pc.fill_null(value, "")
     if pa.types.is_integer(source) or pa.types.is_floating(source):
-        # (an integer past 2**53 to its nearest double, as float() takes it)
-        return pc.cast(value, pa.float64(), safe=False)
+        # (an integer past 2**53 to its nearest double, as float() takes it; one past
+        # any double, read by pyarrow as an infinity, NaN as number() says)
+        real = pc.cast(value, pa.float64(), safe=False)
+        return pc.if_else(pc.is_finite(real), real, None)
     if pa.types.is_string(source) or pa.types.is_boolean(source):
         return pa.nulls(len(value), pa.float64())  # (no number: NaN, as number() says)
     raise RowPath
@@ -77,17 +79,17 @@ def _text(pa: Any, pc: Any, value: Any) -> Any:
     if not pa.types.is_floating(source):
         raise RowPath
     text = pc.cast(value, pa.string())
-    whole = pc.invert(pc.match_substring_regex(text, "[.en]"))  # (repr adds .0)
-    text = pc.if_else(whole, pc.binary_join_element_wise(text, ".0", ""), text)
-    size = np.abs(value.to_numpy(zero_copy_only=False))
-    odd = (size >= REPR_HIGH) | ((size < REPR_LOW) & (size > 0)) | np.asarray(
-        pc.fill_null(pc.match_substring(text, "e"), False).to_numpy(zero_copy_only=False))
-    odd &= ~np.isnan(size)  # (null)
+    values = value.to_numpy(zero_copy_only=False)  # (a null: NaN)
+    size = np.abs(values)
+    whole = np.floor(values) == values  # (repr writes 1.0 where Arrow writes 1)
+    if whole.any():
+        text = pc.if_else(pa.array(whole), pc.binary_join_element_wise(text, ".0", ""), text)
+    odd = (size >= REPR_HIGH) | ((size < REPR_LOW) & (size > 0)) | exponent(pa, pc, text, size)
     if odd.any():
-        values = text.to_pylist()
+        texts = text.to_pylist()
         for i in np.flatnonzero(odd).tolist():
-            values[i] = repr(value[i].as_py())
-        text = pa.array(values, pa.string())
+            texts[i] = repr(value[i].as_py())
+        text = pa.array(texts, pa.string())
     return text
 
 

@@ -133,8 +133,8 @@ class Columns:
                     > 2 ** 53:
                 raise RowPath  # (an integer a double does not hold exactly)
             seconds = pc.cast(value, pa.float64())
-            if kind == "float":
-                return seconds
+            if kind == "float":  # (an integer past any double, read as an infinity: null)
+                return pc.if_else(pc.is_finite(seconds), seconds, None)
             return pc.cast(exact_nanoseconds(pa, pc, seconds), arrow)
         if kind == "text":
             if not pa.types.is_string(source):
@@ -200,7 +200,10 @@ def _numbers(payloads: list[dict[str, Any]]) -> tuple[np.ndarray, ...]:
     """What the counting of losses needs, as :func:`.losses._last` reads it."""
     def real(value: Any) -> float:
         ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-        return float(value) if ok and value == value else np.nan
+        try:
+            return float(value) if ok and value == value else np.nan
+        except OverflowError:  # (an integer past any double, 10**400: no time)
+            return np.nan
 
     def whole(value: Any) -> int:
         ok = isinstance(value, int) and not isinstance(value, bool) and 0 <= value < 2**63

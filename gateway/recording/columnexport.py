@@ -1,8 +1,8 @@
-"""Export a batch of rows at a time (:mod:`.columnar`), for the formats that take Arrow
-tables whole (Parquet): the same tables, rows, ``lost_before``, marks and losses as
-:func:`.export.export` writes row by row, from the same messages (windows, duplicates
-and damage as :mod:`.reader` and :mod:`.window` give them), at a fraction of the cost
-(bench/exportformats.py).
+"""Export a batch of rows at a time (:mod:`.columnar`), every table format (CSV and .mat
+as :mod:`.cells` makes their cells): the same tables, rows, ``lost_before``, marks and
+losses as :func:`.export.export` writes row by row, from the same messages (windows,
+duplicates and damage as :mod:`.reader` and :mod:`.window` give them, a chunk at a
+time: a :class:`.blocks.Block`), at a fraction of the cost (bench/exportformats.py).
 
 A table's messages wait, as their JSON, until BATCH of them are in; then they become
 columns at once and are counted (:mod:`.batchsteps`): a table holds at most a batch

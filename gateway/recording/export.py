@@ -22,9 +22,11 @@ experiment), ``text``; written beside every export of tables, its header alone w
 the window holds no mark (a script that reads it finds it).
 
 Rows are written as they are read, once the WINDOW rows of their table after them are
-read too (the steps that tell the stream's period): a CSV export holds that many rows a
-table in memory, a Parquet one a batch of rows more (:mod:`.parquetfile`), a .mat one
-the whole table (scipy's writer takes a struct whole: :mod:`.matfile`). The types the
+read too (the steps that tell the stream's period): an export a batch at a time
+(:mod:`.columnexport`: every format, where pyarrow is installed, but a refined time)
+holds that many rows a table in memory and a batch of them, row by row (CSV without
+pyarrow) the WINDOW rows alone, a .mat one the whole table (scipy's writer takes a
+struct whole: :mod:`.matfile`). The types the
 formats give the columns: :mod:`.columns`. Each table is written under a temporary
 name (TEMPORARY) and given its own when it is whole, so an export that fails or is
 interrupted leaves no cut table where a whole one is expected, and replaces the table

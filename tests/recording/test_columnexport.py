@@ -126,8 +126,8 @@ def test_recordings_damaged_cut_and_odd(tmp_path, monkeypatch) -> None:
 
 def _odd_values(path: Path) -> Path:
     """Values a column cannot tell as the row path writes them: whole floats, an
-    integer among floats, tiny and huge floats, texts that need quoting in CSV, a bool,
-    nulls, a number where a text was."""
+    integer among floats, tiny and huge floats, an integer past any double, texts that
+    need quoting in CSV, a bool, nulls, a number where a text was."""
     euler = {"node": 11, "record": "euler", "command": 0xCE, "roll": 0.1, "pitch": -1.0,
              "yaw": 0.0, "timer": 0}
     custom = {"node": 13, "record": "custom", "label": "a, b", "value": 1.5}
@@ -136,7 +136,8 @@ def _odd_values(path: Path) -> Path:
         at = T0 + seq / 100
         entries.append(("gx2/11/euler", {**euler, "seq": seq, "host_time": at,
                                          "device_time": seq / 100, "time": at,
-                                         "roll": [0.1, 1e-05, 1e17, 1.0, 2.5e-300][seq % 5]}))
+                                         "roll": [0.1, 1e-05, 1e17, 1.0, 2.5e-300][seq % 5],
+                                         "yaw": 10 ** 400 if seq == 77 else 0.0}))
         if seq == 150:
             entries.append(("gx2/11/euler", {**euler, "seq": 1000, "host_time": at,
                                              "device_time": 99, "yaw": 3}))
@@ -149,8 +150,8 @@ def _odd_values(path: Path) -> Path:
     return foreign_file(path, entries)
 
 
-@pytest.mark.parametrize("form", ["csv", "mat"])
-def test_csv_and_mat_a_batch_at_a_time_as_row_by_row(tmp_path, monkeypatch, form) -> None:
+@pytest.mark.parametrize("form", ["csv", "mat", "parquet"])
+def test_each_format_a_batch_at_a_time_as_row_by_row(tmp_path, monkeypatch, form) -> None:
     path = tmp_path / "run.mcap"
     with path.open("wb") as output:
         writer = RecordingWriter(output)
