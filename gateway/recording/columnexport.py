@@ -196,6 +196,9 @@ class _Tables:
         """Each topic's (node, record), parsed once."""
 
     def take(self, block: Block) -> None:
+        """The block's messages, in order."""
+        if not len(block):
+            return
         if block.after_damage:
             for open_table in self.open.values():
                 _count(open_table, self.pa)
@@ -203,7 +206,7 @@ class _Tables:
         kinds = self._kinds_of(block)
         # where a status, a mark or a continuous-mode reply is, the messages before it
         # (up to it, for a reply: it is its table's row) are taken first
-        events = np.flatnonzero(np.isin(kinds, self._events(block)))
+        events = np.flatnonzero(np.isin(kinds, self._events()))
         start = 0
         for at in events.tolist():
             self._segment(block, kinds, start, at + 1)
@@ -233,7 +236,8 @@ class _Tables:
             self.order.append(where)
         return kind
 
-    def _events(self, block: Block) -> list[int]:
+    def _events(self) -> list[int]:
+        """The kinds of message handled in their place (a status, a mark, a reply)."""
         return [_STATUS, _MARK, *(kind for where, kind in self._kinds.items()
                                   if where[1] == STARTED)]
 
