@@ -26,8 +26,8 @@ read too (the steps that tell the stream's period): an export a batch at a time
 (:mod:`.columnexport`: every format, where pyarrow is installed, but a refined time)
 holds that many rows a table in memory and a batch of them, row by row (CSV without
 pyarrow) the WINDOW rows alone, a .mat one the whole table (scipy's writer takes a
-struct whole: :mod:`.matfile`). The types the
-formats give the columns: :mod:`.columns`. Each table is written under a temporary
+struct whole: :mod:`.matfile`). The types the formats give the columns:
+:mod:`.columns`. Each table is written under a temporary
 name (TEMPORARY) and given its own when it is whole, so an export that fails or is
 interrupted leaves no cut table where a whole one is expected, and replaces the table
 of an earlier export only with a whole one.
