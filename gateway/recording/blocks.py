@@ -3,7 +3,8 @@ in the order written. The reader hands a recording out so (:func:`.reader.read_b
 a block a chunk; the export of tables takes it so, a window's and a table's messages
 picked out of a block at C's cost (whole blocks kept by their bounds, numpy over their
 arrays), where a Python object made and tested per message (an :class:`.entry.Entry`)
-cost half of the export's time (bench/exportformats.py). The readers that take messages
+cost more than a third of reading's CPU (1.6x less CPU to read a million rows with
+blocks, bench/exportformats.py --before, issue 44). The readers that take messages
 one at a time (replay, plot, the client) take a block's :meth:`Block.entries`, so both
 read through the one walk and its damage handling.
 
