@@ -3,8 +3,9 @@ export writes each value (:class:`.tables.CsvWriter`, :class:`.matfile.MatWriter
 a text a cell (a float as Python's ``repr``, an integer in digits, null empty), .mat a
 double (NaN for what is not a finite number) or, in a text column, a text.
 
-Why: the row by row CSV and .mat exports cost about 20 us a row, most of it a Python
-object a message and a value; a batch of columns, under 3 (bench/exportformats.py).
+Why: the row by row CSV and .mat exports cost about 21 us of CPU a row, most of it a
+Python object a message and a value; a batch at a time, about 5, reading included
+(4.2x and 4.8x: bench/exportformats.py --before, a million rows, issue 44).
 What a column cannot tell exactly (a number in a text column, an integer's JSON among
 a column of floats: ``1`` or ``1.0``) sends its batch the row path's way
 (:class:`RowPath`): slower, never different.
