@@ -154,6 +154,11 @@ def export_batches(paths: Iterable[Path], out: Path, reading: Reading, form: str
                    tables_only: bool = False) -> tuple[list[tuple[Path, Table]], int]:
     """:func:`.export.export`, a batch at a time: its arguments, its result."""
     pa, _ = parquet_modules()
+    # pyarrow imports pandas (where installed) at its first conversion of a value: done
+    # here, before any table is made, as a Ctrl-C that lands in that import can be lost
+    # there (the export went on to exit 0 in 3 of 16 runs interrupted in its first
+    # second, bench-like; tests/recording/test_damage.py's Ctrl-C test now and then)
+    pa.array([0])
     out.mkdir(parents=True, exist_ok=True)
     outputs: list[Output] = []
     done = [] if written is None else written
