@@ -18,9 +18,11 @@ whole until scipy's ``savemat`` takes it: its peak is measured by tracemalloc in
 round of its own.
 
 With ``--before``, each export runs in a process of its own, the two trees' in turn
-(A B A B, the same file): its seconds (the export alone, not the imports) and its
-peak RSS (the process's, imports included), best of the rounds; a format the other
-tree's export does not know (ros2 before it was added) is shown as ``-``.
+(A B A B, the same file): its seconds (the export alone, not the imports), its CPU
+seconds (the process's, the same span: on a machine shared with other work, the wall
+clock's seconds move with the others' load and the CPU's much less) and its peak RSS
+(the process's, imports included), best of the rounds; a format the other tree's
+export does not know (ros2 before it was added) is shown as ``-``.
 """
 
 from __future__ import annotations
@@ -105,9 +107,11 @@ def child(source: Path, out: Path, form: str) -> None:
     if form != "reading" and form not in exporting.FORMATS:
         print(json.dumps(None))
         return
+    cpu = time.process_time()
     took = once(source, out, form)
+    cpu = time.process_time() - cpu
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-    print(json.dumps({"seconds": took, "rss": peak}))
+    print(json.dumps({"seconds": took, "cpu": cpu, "rss": peak}))
 
 
 def side_by_side(args: argparse.Namespace) -> None:
@@ -128,19 +132,22 @@ def side_by_side(args: argparse.Namespace) -> None:
                     got = json.loads(ran.stdout.splitlines()[-1])
                     kept = best.setdefault((name, form), got)
                     if kept is not None and got is not None:
-                        for key in ("seconds", "rss"):
+                        for key in ("seconds", "cpu", "rss"):
                             kept[key] = min(kept[key], got[key])
     print(f"{args.rows:,} rows of accel_angrate_mag, best of {args.rounds} interleaved "
           f"rounds; before: {trees['before']}")
-    print(f"{'':8} {'before':>22} {'after':>22} {'factor':>7}  peak RSS before/after")
+    print(f"{'':8} {'before':>22} {'after':>22} {'factor':>7}  CPU s/M before/after "
+          f"(factor)  peak RSS before/after")
     for form in ("reading", *FORMATS):
         was, now = best[("before", form)], best[("after", form)]
         if was is None or now is None:
             print(f"{form:8} {_seconds(was, args.rows):>22} {_seconds(now, args.rows):>22}")
             continue
+        million = 1e6 / args.rows
         print(f"{form:8} {_seconds(was, args.rows)} {_seconds(now, args.rows)}"
-              f" {was['seconds'] / now['seconds']:6.1f}x  {was['rss'] / 2**20:5.0f} /"
-              f" {now['rss'] / 2**20:5.0f} MiB")
+              f" {was['seconds'] / now['seconds']:6.1f}x  {was['cpu'] * million:6.2f} /"
+              f" {now['cpu'] * million:5.2f} ({was['cpu'] / now['cpu']:4.1f}x)"
+              f"     {was['rss'] / 2**20:5.0f} / {now['rss'] / 2**20:5.0f} MiB")
 
 
 def _seconds(took: dict[str, float] | None, rows: int) -> str:

@@ -215,7 +215,7 @@ def run_export(args: argparse.Namespace) -> int:
         total = sum(d.bytes for d in touched(files, window))
         # (one window of nodes asked that holds none of them: no marks.csv alone either)
         alone = len(chosen) == 1 and bool(args.nodes or args.records)
-        written, marks = _export_window(args, paths, out, reading, reader.entries(window),
+        written, marks = _export_window(args, paths, out, reading, reader.blocks(window),
                                         total, alone, _refined(args, files, window))
         if window.label and written + marks:
             _trial_json(args, files, window, out)
@@ -328,7 +328,7 @@ def _refined(args: argparse.Namespace, files: list[Described],
 
 
 def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
-                   reading: Reading, entries: Any, total: int, tables_only: bool = False,
+                   reading: Reading, blocks: Any, total: int, tables_only: bool = False,
                    refined: Any = None) -> tuple[int, int]:
     """One window's tables written to ``out``, a line each; how many, and how many
     marks."""
@@ -337,7 +337,7 @@ def _export_window(args: argparse.Namespace, paths: list[Path], out: Path,
     try:
         with ProgressBar(total, sys.stderr.isatty()) as bar:
             tables, marks = export(paths, out, reading, args.form, bar.advance,
-                                   written, entries, tables_only, refined)
+                                   written, blocks, tables_only, refined)
     except NoTables:
         return 0, 0
     except MissingExtra as error:

@@ -7,8 +7,8 @@ from typing import Any
 
 
 class ProgressBar:
-    """rich's progress bar over the bytes of the recordings, on a terminal only (an
-    entry advances it by its message's size, a fair share of the file's)."""
+    """rich's progress bar over the bytes of the recordings, on a terminal only (the
+    messages read advance it by their size, a fair share of the file's)."""
 
     def __init__(self, total: int, terminal: bool) -> None:
         self._progress: Any = None
@@ -19,9 +19,10 @@ class ProgressBar:
             self._progress = Progress(transient=True)
             self._task = self._progress.add_task("exporting", total=self._total)
 
-    def advance(self, entry: Any) -> None:
+    def advance(self, size: int) -> None:
+        """``size`` bytes of messages read (about twice their share of the file)."""
         if self._progress is not None:
-            self._progress.advance(self._task, len(entry.data) // 2)
+            self._progress.advance(self._task, size // 2)
 
     def __enter__(self) -> ProgressBar:
         if self._progress is not None:

@@ -13,6 +13,7 @@ from the chunks whose message indexes say they hold one."""
 from __future__ import annotations
 
 import json
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +24,7 @@ from gateway.common.topics import default_station_name, parse
 from .files import MARK, SERIAL_READS, WRITTEN, being_written, is_serial_reads
 from .index import walked_span
 from .marks import Mark
-from .reader import index_of, read
+from .reader import index_of, read, read_blocks
 from .reports import Reading
 
 
@@ -172,16 +173,19 @@ def describe(path: Path, whole: bool = True, read_writing: bool = True) -> Descr
 
 
 def _read_through(described: Described, reading: Reading) -> None:
-    """Its span, counts and marks, from every message of it."""
+    """Its span, counts and marks, from every message of it (a chunk at a time: its
+    channels counted, its times' bounds taken, its marks alone made messages)."""
     counts: dict[str, int] = {}
-    for entry in read(described.path, reading):
-        counts[entry.topic] = counts.get(entry.topic, 0) + 1
-        if described.start is None or entry.log_time < described.start:
-            described.start = entry.log_time
-        if described.end is None or entry.log_time > described.end:
-            described.end = entry.log_time
-        if entry.topic == MARK:
-            described.marks.append(_marked(entry))
+    for block in read_blocks(described.path, reading):
+        for channel, count in Counter(block.channel).items():
+            topic = block.topics[channel]
+            counts[topic] = counts.get(topic, 0) + count
+        first, last = min(block.log_time), max(block.log_time)
+        described.start = first if described.start is None else min(described.start, first)
+        described.end = last if described.end is None else max(described.end, last)
+        if MARK in block.topics.values():
+            marks = block.kept(channels=block.on(MARK.__eq__))
+            described.marks += [_marked(entry) for entry in marks.entries()]
     _counted(described, counts)
     described.topics = frozenset(counts)
 

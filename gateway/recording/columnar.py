@@ -17,14 +17,12 @@ from typing import Any
 
 import numpy as np
 
+from . import cells
 from .arrowtime import exact_nanoseconds
 from .batchsteps import NONE, Rows
+from .cells import RowPath
 from .columns import Column
 from .parquetfile import arrow_schema, converted, parquet_modules
-
-
-class _RowPath(Exception):
-    """The batch is not one the one-call path takes exactly."""
 
 
 @dataclass
@@ -39,17 +37,22 @@ class Batch:
 
 class Columns:
     """How one table's messages become Arrow columns (``fields``: (column, field,
-    index) after the leading columns, as :func:`.tables.field_columns` lays them)."""
+    index) after the leading columns, as :func:`.tables.field_columns` lays them):
+    typed as Parquet types them, or, with ``form`` ``csv`` or ``mat``, as the cells that
+    format writes (:mod:`.cells`)."""
 
     def __init__(self, topic: str, columns: list[Column],
-                 fields: list[tuple[str, str, int]], leading: tuple[str, ...]) -> None:
+                 fields: list[tuple[str, str, int]], leading: tuple[str, ...],
+                 form: str = "parquet") -> None:
         self.topic = topic
+        self.form = form if form in ("csv", "mat") else "parquet"
         self.pa, _ = parquet_modules()
         import pyarrow.compute
         import pyarrow.json
         self.pc, self.json = pyarrow.compute, pyarrow.json
         self.columns = columns
-        self.schema = arrow_schema(self.pa, columns)
+        self.schema = arrow_schema(self.pa, columns) if self.form == "parquet" else \
+            cells.schema(self.pa, self.form, columns, "lost_before")
         self.sources = [(name, -1) for name in leading] + [
             (field, index) for _, field, index in fields]
         """Where each column's value is in a message: a field, and an element of it."""
@@ -59,7 +62,7 @@ class Columns:
         messages so far at each."""
         try:
             table, numbers = self._one_call(messages)
-        except _RowPath:
+        except RowPath:
             table, numbers = self._row_path(messages)
         device, timer, seq, time = numbers
         return Batch(table, Rows(device, timer, seq, np.array(counts, np.int64), time))
@@ -73,9 +76,10 @@ class Columns:
             parsed = self.json.read_json(pa.BufferReader(joined), self.json.ReadOptions(
                 use_threads=False, block_size=max(1 << 20, len(joined) + 1)))
         except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
-            raise _RowPath from None
-        if parsed.num_rows != len(messages):
-            raise _RowPath
+            raise RowPath from None
+        if parsed.num_rows != len(messages) or (
+                self.form == "csv" and not cells.floats_are_floats(pa, self.pc, parsed, joined)):
+            raise RowPath
         parsed = parsed.combine_chunks()
         n = parsed.num_rows
         arrays = []
@@ -83,7 +87,9 @@ class Columns:
                                                 strict=True):
             value = parsed.column(name).chunk(0) if name in parsed.column_names else \
                 pa.nulls(n)
-            arrays.append(self._typed(column.kind, field.type, self._element(value, index)))
+            value = self._element(value, index)
+            arrays.append(self._typed(column.kind, field.type, value) if self.form == "parquet"
+                          else cells.cell(pa, self.pc, self.form, column.kind, value))
         table = pa.Table.from_arrays(arrays, schema=self.schema)
         return table, (self._floats(parsed, "device_time"), self._ints(parsed, "timer"),
                        self._ints(parsed, "seq"), self._time(parsed))
@@ -94,24 +100,24 @@ class Columns:
         kind = value.type
         if index < 0:
             if pa.types.is_list(kind) or pa.types.is_struct(kind):
-                raise _RowPath
+                raise RowPath
             return value
         if not pa.types.is_list(kind) or value.null_count:
-            raise _RowPath
+            raise RowPath
         lengths = pc.list_value_length(value)
         if pa.types.is_list(kind.value_type):  # a matrix: 3 rows of 3
             rows = pc.list_flatten(value)
             if (pc.min(lengths).as_py() != 3 or pc.max(lengths).as_py() != 3
                     or rows.null_count or pa.types.is_list(rows.type.value_type)):
-                raise _RowPath
+                raise RowPath
             cells = pc.list_value_length(rows)
             if pc.min(cells).as_py() != 3 or pc.max(cells).as_py() != 3:
-                raise _RowPath
+                raise RowPath
             flat = pc.list_flatten(rows)
             return flat.take(pa.array(np.arange(index, len(flat), 9)))
         if pa.types.is_struct(kind.value_type) or (
                 len(value) and pc.min(lengths).as_py() <= index):
-            raise _RowPath
+            raise RowPath
         return pc.list_element(value, index)
 
     def _typed(self, kind: str, arrow: Any, value: Any) -> Any:
@@ -122,20 +128,20 @@ class Columns:
             return pa.nulls(len(value), arrow)
         if kind in ("time", "duration", "float"):
             if not (pa.types.is_floating(source) or pa.types.is_integer(source)):
-                raise _RowPath
+                raise RowPath
             if pa.types.is_integer(source) and len(value) and pc.max(pc.abs(value)).as_py() \
                     > 2 ** 53:
-                raise _RowPath  # (an integer a double does not hold exactly)
+                raise RowPath  # (an integer a double does not hold exactly)
             seconds = pc.cast(value, pa.float64())
-            if kind == "float":
-                return seconds
+            if kind == "float":  # (an integer past any double, read as an infinity: null)
+                return pc.if_else(pc.is_finite(seconds), seconds, None)
             return pc.cast(exact_nanoseconds(pa, pc, seconds), arrow)
         if kind == "text":
             if not pa.types.is_string(source):
-                raise _RowPath
+                raise RowPath
             return value
         if not pa.types.is_integer(source):
-            raise _RowPath
+            raise RowPath
         inside = pc.and_(pc.greater_equal(value, _lowest(kind)),
                          pc.less_equal(value, _highest(kind)))
         return pc.cast(pc.if_else(inside, value, None), arrow)
@@ -146,7 +152,7 @@ class Columns:
             return np.full(parsed.num_rows, np.nan)
         value = parsed.column(name).chunk(0)
         if not (pa.types.is_floating(value.type) or pa.types.is_integer(value.type)):
-            raise _RowPath
+            raise RowPath
         return pc.cast(value, pa.float64()).to_numpy(zero_copy_only=False)
 
     def _ints(self, parsed: Any, name: str) -> np.ndarray:
@@ -158,7 +164,7 @@ class Columns:
             return np.full(parsed.num_rows, NONE, np.int64)
         if not pa.types.is_integer(value.type) or (
                 len(value) and value.null_count < len(value) and pc.min(value).as_py() < 0):
-            raise _RowPath
+            raise RowPath
         return pc.fill_null(pc.cast(value, pa.int64()), NONE).to_numpy()
 
     def _time(self, parsed: Any) -> np.ndarray:
@@ -170,7 +176,14 @@ class Columns:
         object: RecordingError, as there)."""
         from .reader import Entry
         payloads = [Entry(self.topic, 0, 0, data).payload() for data in messages]
-        return self.rows(payloads), _numbers(payloads)
+        if self.form == "parquet":
+            return self.rows(payloads), _numbers(payloads)
+        from .tables import element
+        values = [[element(p.get(name), index) for p in payloads]
+                  for name, index in self.sources]
+        return self.pa.Table.from_arrays(cells.row_cells(
+            self.pa, self.form, self.columns, values, self.schema), schema=self.schema), \
+            _numbers(payloads)
 
     def rows(self, payloads: list[dict[str, Any]]) -> Any:
         """Decoded messages as a table of the columns, typed value by value as the row
@@ -187,7 +200,10 @@ def _numbers(payloads: list[dict[str, Any]]) -> tuple[np.ndarray, ...]:
     """What the counting of losses needs, as :func:`.losses._last` reads it."""
     def real(value: Any) -> float:
         ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-        return float(value) if ok and value == value else np.nan
+        try:
+            return float(value) if ok and value == value else np.nan
+        except OverflowError:  # (an integer past any double, 10**400: no time)
+            return np.nan
 
     def whole(value: Any) -> int:
         ok = isinstance(value, int) and not isinstance(value, bool) and 0 <= value < 2**63

@@ -1,8 +1,8 @@
-"""Export a batch of rows at a time (:mod:`.columnar`), for the formats that take Arrow
-tables whole (Parquet): the same tables, rows, ``lost_before``, marks and losses as
-:func:`.export.export` writes row by row, from the same messages (windows, duplicates
-and damage as :mod:`.reader` and :mod:`.window` give them), at a fraction of the cost
-(bench/exportformats.py).
+"""Export a batch of rows at a time (:mod:`.columnar`), every table format (CSV and .mat
+as :mod:`.cells` makes their cells): the same tables, rows, ``lost_before``, marks and
+losses as :func:`.export.export` writes row by row, from the same messages (windows,
+duplicates and damage as :mod:`.reader` and :mod:`.window` give them, a chunk at a
+time: a :class:`.blocks.Block`), at a fraction of the cost (bench/exportformats.py).
 
 A table's messages wait, as their JSON, until BATCH of them are in; then they become
 columns at once and are counted (:mod:`.batchsteps`): a table holds at most a batch
@@ -14,6 +14,7 @@ batches waiting before it are counted first.
 from __future__ import annotations
 
 import contextlib
+import csv
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
@@ -23,13 +24,16 @@ import numpy as np
 from gateway.common.topics import parse
 
 from .batchsteps import NONE, Decided, add_many, flush
+from .blocks import Block
 from .columnar import Columns
 from .columns import Column, mark_columns
+from .entry import Entry
 from .files import MARK, STATUS, RecordingError
 from .losses import STARTED, Losses, Stream
 from .marks import Mark
-from .parquetfile import BATCH, parquet_modules
-from .reader import Entry, read_all
+from .matfile import MatWriter
+from .parquetfile import BATCH, MissingExtra, parquet_modules
+from .reader import read_all_blocks
 from .reports import Reading
 from .tables import LEADING, MARKS, NoTables, Output, Table, kept, mark_row, table_name
 
@@ -59,8 +63,73 @@ class ParquetTables:
         self._writer.close()
 
 
-BATCH_WRITERS: dict[str, Callable[[Path, Any], Any]] = {"parquet": ParquetTables}
+class CsvTables:
+    """A table's CSV file, a batch of rows (texts: :mod:`.cells`) at a time: each row's
+    cells joined by Arrow, the batch written as one text; what ``csv.writer`` writes,
+    which writes a batch whose texts need quoting (a comma, a quote, a line break)."""
+
+    def __init__(self, path: Path, schema: Any) -> None:
+        import pyarrow.compute
+        self._pa, self._pc = parquet_modules()[0], pyarrow.compute
+        self._file = path.open("w", newline="", encoding="utf-8")
+        self._csv = csv.writer(self._file)
+        self._csv.writerow(schema.names)
+
+    def add(self, table: Any) -> None:
+        pa, pc = self._pa, self._pc
+        texts = [column if column.type == pa.string() else pc.cast(column, pa.string())
+                 for column in table.columns]
+        lines = pc.binary_join_element_wise(*texts, ",", null_handling="replace",
+                                            null_replacement="")
+        text = "\r\n".join(lines.to_pylist()) + "\r\n" if len(lines) else ""
+        # (as many commas as cells apart, a line break a row, no quote: nothing to quote)
+        rows = len(lines)
+        if (text.count(",") == rows * (len(texts) - 1) and text.count("\n") == rows
+                and text.count("\r") == rows and '"' not in text):
+            self._file.write(text)
+        else:
+            self._csv.writerows(zip(*(column.to_pylist() for column in texts), strict=True))
+
+    def close(self) -> None:
+        self._file.close()
+
+
+class MatTables:
+    """A table's .mat file, a batch of rows (doubles and texts: :mod:`.cells`) at a time
+    into :class:`.matfile.MatWriter`, which writes the struct whole when closed."""
+
+    def __init__(self, path: Path, schema: Any) -> None:
+        pa, _ = parquet_modules()
+        self._texts = [field.type == pa.string() for field in schema]
+        self._writer = MatWriter(path, [Column(
+            field.name, "text" if text else "float",
+            (field.metadata or {}).get(b"description", b"").decode(),
+            (field.metadata or {}).get(b"unit", b"").decode())
+            for field, text in zip(schema, self._texts, strict=True)])
+
+    def add(self, table: Any) -> None:
+        self._writer.add_columns([
+            column.to_pylist() if text else
+            column.to_numpy().astype(np.float64)  # (a null: NaN)
+            for column, text in zip(table.columns, self._texts, strict=True)])
+
+    def close(self) -> None:
+        self._writer.close()
+
+
+BATCH_WRITERS: dict[str, Callable[[Path, Any], Any]] = {
+    "parquet": ParquetTables, "csv": CsvTables, "mat": MatTables}
 """The formats exported a batch at a time: how each writes a table's batches."""
+
+
+def batches_possible() -> bool:
+    """Whether pyarrow, which decodes the batches, is installed (CSV needs no extra: a
+    CSV export without it goes row by row)."""
+    try:
+        parquet_modules()
+    except MissingExtra:
+        return False
+    return True
 
 
 class _Open:
@@ -80,70 +149,170 @@ class _Open:
 
 
 def export_batches(paths: Iterable[Path], out: Path, reading: Reading, form: str,
-                   progress: Callable[[Entry], None] | None = None,
-                   written: list[Path] | None = None, entries: Iterable[Entry] | None = None,
+                   progress: Callable[[int], None] | None = None,
+                   written: list[Path] | None = None, blocks: Iterable[Block] | None = None,
                    tables_only: bool = False) -> tuple[list[tuple[Path, Table]], int]:
     """:func:`.export.export`, a batch at a time: its arguments, its result."""
     pa, _ = parquet_modules()
+    # pyarrow imports pandas (where installed) at its first conversion of a value: done
+    # here, before any table is made, as a Ctrl-C that lands in that import can be lost
+    # there (the export went on to exit 0 in 3 of 16 runs interrupted in its first
+    # second, bench-like; tests/recording/test_damage.py's Ctrl-C test now and then)
+    pa.array([0])
     out.mkdir(parents=True, exist_ok=True)
-    losses: Losses[int] = Losses()
-    tables: dict[tuple[int, str], _Open] = {}
     outputs: list[Output] = []
-    marks: Output | None = None
     done = [] if written is None else written
-    places: dict[str, tuple[int, str] | None] = {}
-    """Each topic's (node, record), parsed once."""
     with kept(outputs, done):  # (finished whole, or discarded)
-        for entry in read_all(paths, reading) if entries is None else entries:
+        tables = _Tables(out, form, pa, outputs)
+        for block in read_all_blocks(paths, reading) if blocks is None else blocks:
             if progress is not None:
-                progress(entry)
-            topic = entry.topic
-            if entry.after_damage:
-                for open_table in tables.values():
-                    _count(open_table, pa)
-                losses.unread()
-            if topic == STATUS:
-                with contextlib.suppress(RecordingError):
-                    losses.status(entry.payload())
-                continue
-            if topic == MARK:
-                if marks is None:
-                    marks = Output(out, f"{MARKS}.{form}", form, mark_columns(), outputs)
-                marks.add(mark_row(Mark.of(entry)))
-                continue
-            where = places[topic] if topic in places else places.setdefault(
-                topic, parse(topic))
-            if where is None:
-                continue
-            node = where[0]
-            count = losses._counts[node] = losses._counts.get(node, 0) + 1
-            open_table = tables.get(where)
-            if open_table is None:
-                open_table = tables[where] = _opened(entry, where, out, form, losses,
-                                                     outputs)
-            open_table.messages.append(entry.data)
-            open_table.counts.append(count)
-            if where[1] == STARTED:
-                payload = entry.payload()
-                for (owner, _), other in tables.items():
-                    if owner == node:
-                        _count(other, pa)
-                losses._started[node] = (payload, count)
-                for (owner, _), stream in losses.streams.items():
-                    if owner == node:
-                        stream.started(payload, count)
-            elif len(open_table.messages) >= BATCH:
-                _count(open_table, pa)
-        for open_table in tables.values():
-            _count(open_table, pa)
-            flush(open_table.stream, open_table.decided)
-            _write(open_table, pa)
-        if tables_only and not tables:
+                progress(block.bytes)
+            tables.take(block)
+        tables.finish()
+        if tables_only and not tables.open:
             raise NoTables(out)
-        if marks is None and tables:
-            marks = Output(out, f"{MARKS}.{form}", form, mark_columns(), outputs)
-    return [(t.output.path, t.table) for t in tables.values()], (
-        marks.rows if marks is not None else 0)
+        if tables.marks is None and tables.open:
+            tables.marks = Output(out, f"{MARKS}.{form}", form, mark_columns(), outputs)
+    return [(t.output.path, t.table) for t in tables.open.values()], (
+        tables.marks.rows if tables.marks is not None else 0)
+
+
+_SKIP, _STATUS, _MARK = 0, 1, 2
+"""What a block's message is to the export, by its channel: passed over, a status, a
+mark; from 3 on, a table's message (its number in ``_Tables.order`` plus 3)."""
+
+
+class _Tables:
+    """An export's tables, their messages taken a block at a time: each table's picked
+    out of a block by numpy and decoded a batch at a time, a status, a mark or a
+    continuous-mode reply handled in its place among them."""
+
+    def __init__(self, out: Path, form: str, pa: Any, outputs: list[Output]) -> None:
+        self.out, self.form, self.pa, self.outputs = out, form, pa, outputs
+        self.losses: Losses[int] = Losses()
+        self.open: dict[tuple[int, str], _Open] = {}
+        """The tables opened, in the order first met."""
+        self.order: list[tuple[int, str]] = []
+        """Each table's (node, record) by its kind (less 3), numbered when first in a
+        block (it is opened at its first message)."""
+        self._kinds: dict[tuple[int, str], int] = {}
+        self.marks: Output | None = None
+        self._places: dict[str, tuple[int, str] | None] = {}
+        """Each topic's (node, record), parsed once."""
+
+    def take(self, block: Block) -> None:
+        """The block's messages, in order."""
+        if not len(block):
+            return
+        if block.after_damage:
+            for open_table in self.open.values():
+                _count(open_table, self.pa)
+            self.losses.unread()
+        kinds = self._kinds_of(block)
+        # where a status, a mark or a continuous-mode reply is, the messages before it
+        # (up to it, for a reply: it is its table's row) are taken first
+        events = np.flatnonzero(np.isin(kinds, self._events()))
+        start = 0
+        for at in events.tolist():
+            self._segment(block, kinds, start, at + 1)
+            self._event(block, int(kinds[at]), at)
+            start = at + 1
+        self._segment(block, kinds, start, len(block))
+
+    def _kinds_of(self, block: Block) -> np.ndarray:
+        """What each message of the block is (_SKIP, _STATUS, _MARK or a table)."""
+        lookup = np.zeros(max(block.topics) + 1, np.int64)
+        for channel, topic in block.topics.items():
+            lookup[channel] = self._kind(topic)
+        return lookup[np.frombuffer(block.channel, np.uint16)]
+
+    def _kind(self, topic: str) -> int:
+        if topic == STATUS:
+            return _STATUS
+        if topic == MARK:
+            return _MARK
+        where = self._places[topic] if topic in self._places else self._places.setdefault(
+            topic, parse(topic))
+        if where is None:
+            return _SKIP
+        kind = self._kinds.get(where)
+        if kind is None:
+            kind = self._kinds[where] = len(self.order) + 3
+            self.order.append(where)
+        return kind
+
+    def _events(self) -> list[int]:
+        """The kinds of message handled in their place (a status, a mark, a reply)."""
+        return [_STATUS, _MARK, *(kind for where, kind in self._kinds.items()
+                                  if where[1] == STARTED)]
+
+    def _segment(self, block: Block, kinds: np.ndarray, start: int, stop: int) -> None:
+        """The block's table messages from ``start`` to ``stop``, each added to its
+        table with its node's count of messages so far; a table with a batch in
+        counted."""
+        if start >= stop:
+            return
+        kinds = kinds[start:stop]
+        present, first = np.unique(kinds, return_index=True)
+        tables = present[np.argsort(first)]  # (in the order first met: opened so)
+        tables = tables[tables > _MARK].tolist()
+        nodes: dict[int, np.ndarray] = {}
+        data = block.data
+        for kind in tables:
+            where = self.order[kind - 3]
+            node = where[0]
+            if node not in nodes:  # (every record of the node counts, in order)
+                mine = np.zeros(len(kinds), np.int64)
+                for other in tables:
+                    if self.order[other - 3][0] == node:
+                        mine += kinds == other
+                running = self.losses._counts.get(node, 0) + np.cumsum(mine)
+                self.losses._counts[node] = int(running[-1])
+                nodes[node] = running
+            at = np.flatnonzero(kinds == kind)
+            open_table = self.open.get(where)
+            if open_table is None:  # (its first message: its columns)
+                first = Entry(block.topics[block.channel[start + int(at[0])]], 0, 0,
+                              data[start + int(at[0])])
+                open_table = self.open[where] = _opened(first, where, self.out, self.form,
+                                                        self.losses, self.outputs)
+            if len(at) == stop - start:
+                open_table.messages.extend(data[start:stop])
+            else:
+                open_table.messages.extend([data[start + i] for i in at.tolist()])
+            open_table.counts.extend(nodes[node][at].tolist())
+            if len(open_table.messages) >= BATCH:
+                _count(open_table, self.pa)
+
+    def _event(self, block: Block, kind: int, at: int) -> None:
+        """A status, a mark, or a continuous-mode reply (its row already taken)."""
+        entry = Entry(block.topics[block.channel[at]], block.log_time[at],
+                      block.publish_time[at], block.data[at])
+        if kind == _STATUS:
+            with contextlib.suppress(RecordingError):
+                self.losses.status(entry.payload())
+        elif kind == _MARK:
+            if self.marks is None:
+                self.marks = Output(self.out, f"{MARKS}.{self.form}", self.form,
+                                    mark_columns(), self.outputs)
+            self.marks.add(mark_row(Mark.of(entry)))
+        else:
+            node = self.order[kind - 3][0]
+            payload = entry.payload()
+            for (owner, _), other in self.open.items():
+                if owner == node:
+                    _count(other, self.pa)
+            count = self.losses._counts[node]
+            self.losses._started[node] = (payload, count)
+            for (owner, _), stream in self.losses.streams.items():
+                if owner == node:
+                    stream.started(payload, count)
+
+    def finish(self) -> None:
+        for open_table in self.open.values():
+            _count(open_table, self.pa)
+            flush(open_table.stream, open_table.decided)
+            _write(open_table, self.pa)
 
 
 def _opened(entry: Entry, where: tuple[int, str], out: Path, form: str,
@@ -152,7 +321,7 @@ def _opened(entry: Entry, where: tuple[int, str], out: Path, form: str,
     reply of its node began it, as :meth:`.losses.Losses.add` begins it)."""
     node, record = where
     table = Table(node, record, entry.payload())
-    columns = Columns(entry.topic, table.columns, table.fields, LEADING)
+    columns = Columns(entry.topic, table.columns, table.fields, LEADING, form)
     stream = losses.streams[where] = Stream(
         losses.ahead, lambda after, at: losses.outages.back(node, after, at))
     if node in losses._started:

@@ -22,10 +22,12 @@ experiment), ``text``; written beside every export of tables, its header alone w
 the window holds no mark (a script that reads it finds it).
 
 Rows are written as they are read, once the WINDOW rows of their table after them are
-read too (the steps that tell the stream's period): a CSV export holds that many rows a
-table in memory, a Parquet one a batch of rows more (:mod:`.parquetfile`), a .mat one
-the whole table (scipy's writer takes a struct whole: :mod:`.matfile`). The types the
-formats give the columns: :mod:`.columns`. Each table is written under a temporary
+read too (the steps that tell the stream's period): an export a batch at a time
+(:mod:`.columnexport`: every format, where pyarrow is installed, but a refined time)
+holds that many rows a table in memory and a batch of them, row by row (CSV without
+pyarrow) the WINDOW rows alone, a .mat one the whole table (scipy's writer takes a
+struct whole: :mod:`.matfile`). The types the formats give the columns:
+:mod:`.columns`. Each table is written under a temporary
 name (TEMPORARY) and given its own when it is whole, so an export that fails or is
 interrupted leaves no cut table where a whole one is expected, and replaces the table
 of an earlier export only with a whole one.
@@ -41,13 +43,14 @@ from typing import Any
 from aspp.records import BY_NAME
 from gateway.common.topics import parse
 
+from .blocks import Block, entries_of
 from .columns import mark_columns
 from .files import MARK, STATUS, RecordingError
 from .losses import Counted, Losses
 from .marks import Mark
 from .matfile import mat_modules
 from .parquetfile import MissingExtra, parquet_modules
-from .reader import Entry, read_all
+from .reader import read_all
 from .refined import Refinement
 from .reports import Reading
 from .rosbag import Bag, export_bag, ros2_modules
@@ -85,8 +88,8 @@ EXTRAS: dict[str, Callable[[], object]] = {"parquet": parquet_modules, "mat": ma
 
 
 def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv",
-           progress: Callable[[Entry], None] | None = None,
-           written: list[Path] | None = None, entries: Iterable[Entry] | None = None,
+           progress: Callable[[int], None] | None = None,
+           written: list[Path] | None = None, blocks: Iterable[Block] | None = None,
            tables_only: bool = False, refined: Refinement | None = None
            ) -> tuple[list[tuple[Path, Table]], int]:
     """Write the tables of the recordings ``paths`` into ``out``: (path, table) of each
@@ -94,9 +97,10 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
     Each table written whole is added to ``written`` as it is. What reading skipped is
     in ``reading``. RecordingError for a message that is not a record's JSON object;
     MissingExtra for a format whose extra is not installed (Parquet: pyarrow, .mat:
-    scipy); on any error, or Ctrl-C, no table that was not whole is left. ``entries``: the
-    messages to export (a window of the recordings, :mod:`.window`) in place of every
-    message of ``paths``. ``tables_only``: NoTables, and nothing written, if there is
+    scipy); on any error, or Ctrl-C, no table that was not whole is left. ``blocks``: the
+    messages to export (a window of the recordings, :meth:`.window.Reader.blocks`) in
+    place of every message of ``paths``. ``progress``: given the bytes of the messages
+    as they are read. ``tables_only``: NoTables, and nothing written, if there is
     no table (only marks: the nodes asked are not in the recordings). ValueError, and
     nothing written, for a format that is not a table's (``ros2`` writes a window
     whole: WHOLE's function, :func:`.rosbag.export_bag`). ``refined``: each row's
@@ -109,12 +113,13 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
         raise ValueError(f"no export format {form!r}: one of {', '.join(FORMATS)}")
     if form in EXTRAS:
         EXTRAS[form]()
-    from .columnexport import BATCH_WRITERS, export_batches
+    from .columnexport import BATCH_WRITERS, batches_possible, export_batches
     # a batch at a time: the same tables, 7x faster or more; a refined time is not
     # carried there (the batch is typed from the messages' own JSON, and the losses are
-    # counted on their recorded time), so a refined export goes row by row, Parquet too
-    if form in BATCH_WRITERS and refined is None:
-        return export_batches(paths, out, reading, form, progress, written, entries,
+    # counted on their recorded time), so a refined export goes row by row, Parquet too;
+    # so does CSV without pyarrow (not a dependency of the gateway's own)
+    if form in BATCH_WRITERS and refined is None and batches_possible():
+        return export_batches(paths, out, reading, form, progress, written, blocks,
                               tables_only)
     out.mkdir(parents=True, exist_ok=True)
     tables: dict[tuple[int, str], tuple[Table, Output]] = {}
@@ -123,9 +128,9 @@ def export(paths: Iterable[Path], out: Path, reading: Reading, form: str = "csv"
     marks: Output | None = None
     done = [] if written is None else written
     with kept(outputs, done):  # (finished whole, or discarded)
-        for entry in read_all(paths, reading) if entries is None else entries:
+        for entry in read_all(paths, reading) if blocks is None else entries_of(blocks):
             if progress is not None:
-                progress(entry)
+                progress(len(entry.data))
             if entry.after_damage:
                 losses.unread()
             if entry.topic == STATUS:

@@ -85,6 +85,15 @@ class MatWriter:
                 real = number(value)
                 values.append(float("nan") if real is None else real)
 
+    def add_columns(self, columns: list[Any]) -> None:
+        """Rows a column at a time: a list of texts for a text column, else an array of
+        doubles (NaN: missing), as :meth:`add` would have made them."""
+        for column, values, given in zip(self._columns, self._values, columns, strict=True):
+            if column.kind == "text":
+                values.extend(given)
+            else:
+                values.frombytes(self._numpy.ascontiguousarray(given, "<f8").tobytes())
+
     def close(self) -> None:
         np = self._numpy
         names = field_names(self._columns)

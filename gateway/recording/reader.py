@@ -3,18 +3,19 @@ the order written, and a report of what could not be read (:mod:`.reports`)."""
 
 from __future__ import annotations
 
-import json
 import os
 import struct
 import zlib
 from collections.abc import Iterable, Iterator
+from dataclasses import replace
 from pathlib import Path
-from typing import IO, Any, NamedTuple
+from typing import IO
 
-import orjson
 import zstandard
 from mcap.opcode import Opcode
 
+from .blocks import Block, Span, entries_of, one, parsed
+from .entry import Entry
 from .files import (
     CHUNK_HEAD,
     FOOTER_BYTES,
@@ -23,7 +24,6 @@ from .files import (
     MESSAGE_HEAD,
     RECORD_HEAD,
     SCAN_BYTES,
-    RecordingError,
     being_written,
     known_opcode,
     unreadable,
@@ -44,67 +44,8 @@ from .reports import FileReport, Loss, Reading
 # was killed reads up to its last whole chunk; its summary (a finished file's channels
 # and message count) is read first, when there is one, so that a damaged chunk that
 # held a channel's definition loses no later message and the messages lost are counted
-# exactly.
-
-
-class Entry(NamedTuple):
-    """One message of a recording (a named tuple: made 3x faster than a frozen
-    dataclass, for every message read; bench/exportformats.py)."""
-
-    topic: str
-    log_time: int
-    publish_time: int
-    data: bytes
-    after_damage: bool = False
-    """A stretch of the file was skipped unread just before it (and after the message
-    before it): what the streams miss across it was recorded, then lost by the file."""
-
-    def payload(self) -> dict[str, Any]:
-        """A JSON channel's message; RecordingError if it is not a JSON object."""
-        try:
-            value = _parsed(self.data)
-        except ValueError:
-            raise RecordingError(f"a message on {self.topic} is not JSON") from None
-        if not isinstance(value, dict):
-            raise RecordingError(f"a message on {self.topic} is not a JSON object")
-        return value
-
-
-def _parsed(data: bytes) -> Any:
-    """The JSON in ``data``, as the standard library reads it. orjson: the refined
-    export of 10 minutes of a saturated station (178,000 rows, each message read twice)
-    in 0.91x the time the standard library's alone took (bench/commands.py,
-    docs/performance-history.md); what orjson refuses (NaN, the infinities: another
-    writer's) or would read otherwise (an integer past 64 bits, as a float) goes to the
-    standard library, as it always did. ValueError if neither reads it."""
-    try:
-        value = orjson.loads(data)
-    except ValueError:
-        return json.loads(data)
-    return json.loads(data) if _holds_a_long_integer(value) else value
-
-
-def _holds_a_long_integer(value: Any) -> bool:
-    """Whether orjson's reading may hold an integer past 64 bits: it reads one as a
-    float (it keeps -2**63 to 2**64 - 1 as ints), without refusing it, so any float
-    that far from 0 sends the message to the standard library (a float, to the same
-    value; an integer, as it was). A walk of the values, not a search of the bytes:
-    a regular expression for 20 digits took twice orjson's time and more."""
-    items = [value]
-    while items:
-        item = items.pop()
-        if isinstance(item, float):
-            if not -(2.0**63) < item < 2.0**63:
-                return True
-        elif isinstance(item, dict):
-            items.extend(item.values())
-        elif isinstance(item, list):
-            items.extend(item)
-    return False
-
-
-Span = tuple[int, int]
-"""A window of log_time: (first ns, ns after the last), end excluded."""
+# exactly. The messages are handed out a chunk at a time (:class:`.blocks.Block`), and
+# one at a time from those (:func:`read`).
 
 
 def read(path: Path, reading: Reading, topics: Iterable[str] | None = None,
@@ -114,19 +55,7 @@ def read(path: Path, reading: Reading, topics: Iterable[str] | None = None,
     With ``topics`` or ``span``, only the messages on those topics and logged in that
     span, and only the chunks that can hold them decompressed (a finished file's
     chunk index says where they are; in another, each chunk's header says its span)."""
-    report = FileReport(path)
-    reading.files.append(report)
-    report.skipped = unreadable(path)
-    if not report.skipped:
-        wanted = None if topics is None else frozenset(topics)
-        try:
-            with path.open("rb") as stream:
-                yield from _Walk(stream, report, span).entries(wanted)
-        except OSError as error:  # the disk failing under the reader
-            report.skipped = (f"reading failed after {report.read:,} messages: "
-                              f"{error.strerror or error}")
-        report.writing = not report.whole and being_written(path)
-    reading.done(report)
+    return entries_of(read_blocks(path, reading, topics, span))
 
 
 def read_all(paths: Iterable[Path], reading: Reading,
@@ -134,6 +63,31 @@ def read_all(paths: Iterable[Path], reading: Reading,
              ) -> Iterator[Entry]:
     for path in paths:
         yield from read(path, reading, topics, span)
+
+
+def read_blocks(path: Path, reading: Reading, topics: Iterable[str] | None = None,
+                span: Span | None = None) -> Iterator[Block]:
+    """:func:`read`'s messages a chunk at a time (none empty)."""
+    report = FileReport(path)
+    reading.files.append(report)
+    report.skipped = unreadable(path)
+    if not report.skipped:
+        wanted = None if topics is None else frozenset(topics)
+        try:
+            with path.open("rb") as stream:
+                yield from _Walk(stream, report, span).blocks(wanted)
+        except OSError as error:  # the disk failing under the reader
+            report.skipped = (f"reading failed after {report.read:,} messages: "
+                              f"{error.strerror or error}")
+        report.writing = not report.whole and being_written(path)
+    reading.done(report)
+
+
+def read_all_blocks(paths: Iterable[Path], reading: Reading,
+                    topics: Iterable[str] | None = None, span: Span | None = None
+                    ) -> Iterator[Block]:
+    for path in paths:
+        yield from read_blocks(path, reading, topics, span)
 
 
 def index_of(path: Path) -> tuple[FileIndex | None, FileReport]:
@@ -189,17 +143,17 @@ class _Walk:
         """Where the data section ends (the summary read, if whole, into ``index``)."""
         return self._summary()
 
-    def entries(self, wanted: frozenset[str] | None) -> Iterator[Entry]:
-        damaged = False  # (a skipped stretch before entries not wanted: said by the next)
-        span = self._span
-        for entry in self._entries(wanted):
-            damaged = damaged or entry.after_damage
-            if (wanted is None or entry.topic in wanted) and (
-                    span is None or span[0] <= entry.log_time < span[1]):
-                yield entry._replace(after_damage=True) if damaged else entry
+    def blocks(self, wanted: frozenset[str] | None) -> Iterator[Block]:
+        damaged = False  # (a skipped stretch before messages not wanted: said by the next)
+        for block in self._blocks(wanted):
+            damaged = damaged or block.after_damage
+            block = block.kept(self._span, None if wanted is None else block.on(
+                wanted.__contains__))
+            if len(block):
+                yield block.marked(damaged)
                 damaged = False
 
-    def _entries(self, wanted: frozenset[str] | None) -> Iterator[Entry]:
+    def _blocks(self, wanted: frozenset[str] | None) -> Iterator[Block]:
         end = self._summary()
         if self.index is not None and self.index.chunks and (
                 self._span is not None or wanted is not None):
@@ -240,19 +194,18 @@ class _Walk:
                     at = self._damaged_chunk(at, after, end)
                     continue
                 self._counting = None
-                for channel, log_time, publish_time, data in found:
-                    entry = self._entry(channel, log_time, publish_time, data)
-                    if entry is not None:
-                        yield entry
+                block = self._block(found)
+                if block is not None:
+                    yield block
             elif opcode in (Opcode.MESSAGE, Opcode.CHANNEL, Opcode.MESSAGE_INDEX):
                 body = self._at(at + RECORD_HEAD.size, length)
                 try:
-                    entry = self._top_level(opcode, body)
+                    block = self._top_level(opcode, body)
                 except (struct.error, UnicodeDecodeError):
                     at = self._resync(at, end, chunk=False)
                     continue
-                if entry is not None:
-                    yield entry
+                if block is not None:
+                    yield block
             at = after
         if self._deferred is not None:
             yield from self._undefer(at, at, end, None, wanted)
@@ -267,7 +220,7 @@ class _Walk:
     # whole record of a known kind after them shows their list complete.
 
     def _undefer(self, at: int, after: int, end: int, opcode: int | None,
-                 wanted: frozenset[str] | None) -> Iterator[Entry]:
+                 wanted: frozenset[str] | None) -> Iterator[Block]:
         """The chunk waiting for its message indexes, given the record at ``at``: read
         (its wanted messages yielded), passed over, or still waiting."""
         assert self._deferred is not None
@@ -294,10 +247,9 @@ class _Walk:
         if found is None:  # (its messages not counted: its indexes were passed over)
             self._lost(chunk, chunk_end - chunk, chunk=True)
             return
-        for channel, log_time, publish_time, data in found:
-            entry = self._entry(channel, log_time, publish_time, data)
-            if entry is not None:
-                yield entry
+        block = self._block(found)
+        if block is not None:
+            yield block
 
     def _touches(self, at: int) -> bool:
         """Whether the chunk at ``at`` can hold messages of the span, by its header."""
@@ -320,7 +272,7 @@ class _Walk:
                 loss.before = start
             self._waiting.clear()
 
-    def _indexed(self, end: int, wanted: frozenset[str] | None) -> Iterator[Entry]:
+    def _indexed(self, end: int, wanted: frozenset[str] | None) -> Iterator[Block]:
         """The messages of the chunks the index says can hold wanted ones, each
         sought directly; one that is not where the index says, or does not read, lost."""
         assert self.index is not None
@@ -339,13 +291,9 @@ class _Walk:
                 loss = self._lost(chunk.offset, chunk.length, chunk=True)
                 loss.messages = self._indexed_count(chunk, ids)
                 continue
-            low, high = self._span or (0, 2 ** 64)
-            for channel, log_time, publish_time, data in found:
-                if (ids is not None and channel not in ids) or not low <= log_time < high:
-                    continue  # (not made an entry only to be dropped: this is the hot path)
-                entry = self._entry(channel, log_time, publish_time, data)
-                if entry is not None:
-                    yield entry
+            block = self._block(found.kept(self._span, ids))
+            if block is not None:
+                yield block
         self._report.whole = True
 
     def _indexed_count(self, chunk: ChunkSpan, ids: frozenset[int] | None) -> int | None:
@@ -438,9 +386,9 @@ class _Walk:
                 return at
         return None
 
-    def _chunk(self, body: bytes) -> list[tuple[int, int, int, bytes]] | None:
-        """(channel, log_time, publish_time, data) of a chunk's messages, its channels
-        registered; None if the chunk is damaged (nothing of it is used then)."""
+    def _chunk(self, body: bytes) -> Block | None:
+        """A chunk's messages (their topics not yet set), its channels registered; None
+        if the chunk is damaged (nothing of it is used then)."""
         try:
             _, _, size, crc, width = CHUNK_HEAD.unpack_from(body)
             compression = body[CHUNK_HEAD.size:CHUNK_HEAD.size + width].decode()
@@ -454,36 +402,15 @@ class _Walk:
             records = _decompress(compression, data, size)
             if len(records) != size or (crc and zlib.crc32(records) != crc):
                 return None
-            return self._records(records)
+            found, channels = parsed(records)
         # a damaged chunk fails in whatever decodes it (a struct, the decompressor, a
         # name's UTF-8): every one of them means the same, the chunk is skipped
         except Exception:
             return None
-
-    def _records(self, records: bytes) -> list[tuple[int, int, int, bytes]]:
-        """The messages of a chunk's records, whose CRC held (struct.error if their
-        framing does not add up all the same)."""
-        found = []
-        channels = {}
-        at = 0
-        while at < len(records):
-            opcode, length = RECORD_HEAD.unpack_from(records, at)
-            body_at = at + RECORD_HEAD.size
-            at = body_at + length
-            if at > len(records):
-                raise struct.error("a record runs past its chunk")
-            if opcode == Opcode.MESSAGE:
-                channel, _, log_time, publish_time = MESSAGE_HEAD.unpack_from(records,
-                                                                                body_at)
-                found.append((channel, log_time, publish_time,
-                              records[body_at + MESSAGE_HEAD.size:at]))
-            elif opcode == Opcode.CHANNEL:
-                channel, topic = channel_of(records[body_at:at])
-                channels[channel] = topic
         self._channels.update(channels)
         return found
 
-    def _top_level(self, opcode: int, body: bytes) -> Entry | None:
+    def _top_level(self, opcode: int, body: bytes) -> Block | None:
         """A record outside chunks: a message (an unchunked file), a channel, or the
         message index of the chunk before it."""
         if opcode == Opcode.CHANNEL:
@@ -500,27 +427,34 @@ class _Walk:
                 self._counting.messages = (self._counting.messages or 0) + width // 16
         else:
             channel, _, log_time, publish_time = MESSAGE_HEAD.unpack_from(body)
-            return self._entry(channel, log_time, publish_time, body[MESSAGE_HEAD.size:])
+            return self._block(one(channel, log_time, publish_time, body[MESSAGE_HEAD.size:]))
         return None
 
-    def _entry(self, channel: int, log_time: int, publish_time: int,
-               data: bytes) -> Entry | None:
-        topic = self._channels.get(channel)
-        if topic is None and self._unindexed:
+    def _block(self, found: Block) -> Block | None:
+        """A chunk's messages (those a read keeps) with their topics, counted read; those
+        on a channel not defined (its definition was lost with a damaged chunk) counted
+        as orphans and left out; None if none is left."""
+        present = set(found.channel)
+        topics = {channel: self._channels.get(channel) for channel in present}
+        if None in topics.values() and self._unindexed:
             for passed in self._unindexed:
                 self._chunk(self._at(*passed))  # for its channels only
             self._unindexed.clear()
-            topic = self._channels.get(channel)
-        if topic is None:
-            self._report.orphans += 1
+            topics = {channel: self._channels.get(channel) for channel in present}
+        if None in topics.values():
+            known = [i for i, channel in enumerate(found.channel) if topics[channel] is not None]
+            self._report.orphans += len(found) - len(known)
+            found = found.taken(known)
+        if not len(found):
             return None
-        self._report.read += 1
-        self._report.last = log_time
-        damaged = bool(self._waiting)
+        self._report.read += len(found)
+        self._report.last = found.log_time[-1]
         for loss in self._waiting:
-            loss.before = log_time
+            loss.before = found.log_time[0]
+        damaged = bool(self._waiting)
         self._waiting.clear()
-        return Entry(topic, log_time, publish_time, data, damaged)
+        return replace(found, topics={channel: topic for channel, topic in topics.items()
+                                      if topic is not None}, after_damage=damaged)
 
     def _lost(self, offset: int, size: int, chunk: bool) -> Loss:
         after = max((t for t in (self._report.last, self._report.passed) if t is not None),

@@ -379,7 +379,7 @@ def replaceable(path: Path) -> str | None:
 
 
 def export_bag(paths: Iterable[Path], out: Path, reading: Reading, frame: str = "enu",
-               progress: Callable[[Entry], None] | None = None,
+               progress: Callable[[int], None] | None = None,
                entries: Iterable[Entry] | None = None, names: Mapping[int, str] = (),
                force: bool = False) -> Bag:
     """The records of ``paths`` (or ``entries``, a window of them) as a bag at ``out``;
@@ -391,7 +391,7 @@ def export_bag(paths: Iterable[Path], out: Path, reading: Reading, frame: str = 
     try:
         for entry in read_all(paths, reading) if entries is None else entries:
             if progress is not None:
-                progress(entry)
+                progress(len(entry.data))
             if entry.topic == STATUS:
                 with contextlib.suppress(RecordingError):
                     writer.named(entry.payload())

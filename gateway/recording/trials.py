@@ -6,6 +6,7 @@ record in it, and the files it spans."""
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -84,11 +85,12 @@ def trials(files: list[Described], between: tuple[str, str], reading: Reading,
     for trial in chosen:
         window = Window(trial.span)
         trial.files = [d.path for d in touched(files, window) if d.start is not None]
-        for entry in reader.entries(window):
-            where = parse(entry.topic)
-            if where is not None:
-                records = trial.nodes.setdefault(where[0], {})
-                records[where[1]] = records.get(where[1], 0) + 1
+        for block in reader.blocks(window):
+            for channel, count in Counter(block.channel).items():
+                where = parse(block.topics[channel])
+                if where is not None:
+                    records = trial.nodes.setdefault(where[0], {})
+                    records[where[1]] = records.get(where[1], 0) + count
         trial.nodes = {node: dict(sorted(records.items()))
                        for node, records in sorted(trial.nodes.items())}
     return chosen

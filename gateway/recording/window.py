@@ -16,9 +16,10 @@ from datetime import datetime
 from gateway.common.timetext import ISO, UTC, at
 from gateway.common.topics import parse
 
+from .blocks import Block, entries_of
 from .catalogue import Described, Marked, span_of
 from .files import NS_LIMIT
-from .reader import Entry, Span, read
+from .reader import Entry, Span, read_blocks
 from .reports import Reading
 
 MARKS_LISTED = 10
@@ -272,12 +273,12 @@ def _shared(described: Described, later: list[Described]) -> frozenset[str] | No
     return described.topics & frozenset().union(*(d.topics for d in overlapping))
 
 
-def _key(entry: Entry) -> int:
+def _key(log_time: int, topic: str, data: bytes) -> int:
     """A message's log_time and a 64-bit hash of its topic and data, as one integer
     (under 200 bytes remembered a message, with the set's own, where the message
     itself took 500): two messages that differ, logged at the same nanosecond, whose
     hashes are the same, are not met in practice."""
-    return entry.log_time << 64 | hash((entry.topic, entry.data)) & _HASH_BITS
+    return log_time << 64 | hash((topic, data)) & _HASH_BITS
 
 
 _HASH_BITS = (1 << 64) - 1
@@ -300,27 +301,58 @@ class Reader:
         """The most messages remembered at once (to tell duplicates)."""
 
     def entries(self, window: Window) -> Iterator[Entry]:
+        """The window's messages, one at a time."""
+        return entries_of(self.blocks(window))
+
+    def blocks(self, window: Window) -> Iterator[Block]:
+        """The window's messages, a chunk at a time (a message met again left out)."""
         chosen = touched(self._files, window)
         seen: set[int] = set()
         seen_until = -1
         """The last log_time of the files read: a message after it is not met twice."""
+        damaged = False  # (a skipped stretch before messages left out: said by the next)
         for i, described in enumerate(chosen):
             later = [d.start for d in chosen[i + 1:] if d.start is not None]
             keep_from = min(later) if later else None
             shared = _shared(described, chosen[i + 1:])
             if described.start is not None:  # nothing before this start comes again
                 seen = {key for key in seen if key >> 64 >= described.start}
-            for entry in read(described.path, self._reading, span=window.span):
-                if not window.keeps(entry.topic):
-                    continue
-                if entry.log_time <= seen_until and _key(entry) in seen:
-                    self.duplicates += 1
-                    self.duplicate_records += parse(entry.topic) is not None
-                    continue
-                if keep_from is not None and entry.log_time >= keep_from and (
-                        shared is None or entry.topic in shared):
-                    seen.add(_key(entry))
-                    self.remembered = max(self.remembered, len(seen))
-                yield entry
+            for block in read_blocks(described.path, self._reading, span=window.span):
+                damaged = damaged or block.after_damage
+                block = block.kept(channels=block.on(window.keeps))
+                keep = self._once(block, seen, seen_until, keep_from, shared)
+                if keep is not None:
+                    block = block.taken(keep)
+                if len(block):
+                    yield block.marked(damaged)
+                    damaged = False
             if described.end is not None:
                 seen_until = max(seen_until, described.end)
+
+    def _once(self, block: Block, seen: set[int], seen_until: int, keep_from: int | None,
+              shared: frozenset[str] | None) -> list[int] | None:
+        """Where the block's messages not met before are, the others counted; those a
+        later file may hold again remembered. Only messages logged by ``seen_until`` (the
+        end of the files read) can have been met, and only those from ``keep_from`` (a
+        later file's start) met again: None, all kept, when the block holds neither."""
+        times = block.log_time
+        if not len(times) or (min(times) > seen_until and (
+                keep_from is None or max(times) < keep_from)):
+            return None
+        kept = []
+        for i, (channel, log_time, data) in enumerate(zip(block.channel, times, block.data,
+                                                          strict=True)):
+            check = log_time <= seen_until
+            later = keep_from is not None and log_time >= keep_from
+            if check or later:
+                topic = block.topics[channel]
+                key = _key(log_time, topic, data)
+                if check and key in seen:
+                    self.duplicates += 1
+                    self.duplicate_records += parse(topic) is not None
+                    continue
+                if later and (shared is None or topic in shared):
+                    seen.add(key)
+            kept.append(i)
+        self.remembered = max(self.remembered, len(seen))
+        return kept
