@@ -100,7 +100,8 @@ def test_the_summaries_of_a_recording_say_an_unplug_apart_from_radio_loss(
         steps = [b["device_time"] - a["device_time"]
                  for (_, a), (_, b) in zip(sub.messages, sub.messages[1:], strict=False)]
         gap = round(max(steps) * RATE) - 1
-        assert gap >= UNPLUGGED * RATE * 0.9, gap
+        # (twice, in full runs on a loaded machine, no gap at all: said in full if again)
+        assert gap >= UNPLUGGED * RATE * 0.9, (gap, outage_said(sub, steps), gw.log()[-3000:])
 
         # gx2ctl record's summary: both stations' streams, one of them unplugged
         radio, gw_gap, down = said("".join(record.stderr))
@@ -133,6 +134,16 @@ def test_the_summaries_of_a_recording_say_an_unplug_apart_from_radio_loss(
         if record is not None:
             record.kill()
         sim.kill()
+
+
+def outage_said(sub: Subscriber, steps: list[float]) -> str:
+    """What the records say of the outage: their device time's largest and smallest
+    steps, the largest step of their host time, and each record's seq and timer."""
+    hosts = [b["host_time"] - a["host_time"]
+             for (_, a), (_, b) in zip(sub.messages, sub.messages[1:], strict=False)]
+    return (f"{len(sub.messages)} records; device steps {max(steps):.3f} / {min(steps):.3f} s,"
+            f" host steps up to {max(hosts):.3f} s; (seq, timer): "
+            f"{[(p['seq'], p['timer']) for _, p in sub.messages]}")
 
 
 def unplug_north_while_streaming(sim: Running, gw: RunningGateway, sub: Subscriber) -> None:
