@@ -32,7 +32,7 @@ from .files import MARK, STATUS, RecordingError
 from .losses import STARTED, Losses, Stream
 from .marks import Mark
 from .matfile import MatWriter
-from .parquetfile import BATCH, MissingExtra, parquet_modules
+from .parquetfile import BATCH, parquet_modules
 from .reader import read_all_blocks
 from .reports import Reading
 from .tables import LEADING, MARKS, NoTables, Output, Table, kept, mark_row, table_name
@@ -120,16 +120,6 @@ class MatTables:
 BATCH_WRITERS: dict[str, Callable[[Path, Any], Any]] = {
     "parquet": ParquetTables, "csv": CsvTables, "mat": MatTables}
 """The formats exported a batch at a time: how each writes a table's batches."""
-
-
-def batches_possible() -> bool:
-    """Whether pyarrow, which decodes the batches, is installed (CSV needs no extra: a
-    CSV export without it goes row by row)."""
-    try:
-        parquet_modules()
-    except MissingExtra:
-        return False
-    return True
 
 
 class _Open:

@@ -27,7 +27,9 @@ def _both(paths: list[Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
           form: str = "parquet") -> int:
     """Export ``paths`` both ways; the rows, having held them equal (a CSV file byte for
     byte, a .mat file's every field)."""
-    batch = export.export(paths, tmp_path / f"batch-{form}", Reading(), form)
+    with monkeypatch.context() as patched:
+        patched.setattr(export, "SMALL", 0)  # (these recordings are small)
+        batch = export.export(paths, tmp_path / f"batch-{form}", Reading(), form)
     with monkeypatch.context() as patched:
         patched.setattr(columnexport, "BATCH_WRITERS", {})
         rows = export.export(paths, tmp_path / f"rows-{form}", Reading(), form)
@@ -164,3 +166,72 @@ def test_each_format_a_batch_at_a_time_as_row_by_row(tmp_path, monkeypatch, form
     damaged.write_bytes(bytes(data))
     assert _both([path, damaged, _odd_values(tmp_path / "odd.mcap")], tmp_path, monkeypatch,
                  form) > 12_000
+
+
+_IMPORTS = """
+import sys
+from pathlib import Path
+if len(sys.argv) > 4:  # (modules not installed: an import of them fails)
+    class Missing:
+        def find_spec(self, name, path=None, target=None):
+            if name.split(".")[0] in sys.argv[4:]:
+                raise ImportError(f"no module named {name!r}")
+    sys.meta_path.insert(0, Missing())
+from gateway.recording.export import export
+from gateway.recording.reports import Reading
+export([Path(sys.argv[1])], Path(sys.argv[2]), Reading(), sys.argv[3])
+print(" ".join(sorted(m for m in ("pyarrow", "pandas") if m in sys.modules)))
+"""
+
+
+@pytest.mark.parametrize("form", ["csv", "mat"])
+def test_a_small_export_goes_row_by_row_without_importing_pyarrow(tmp_path, form) -> None:
+    """A recording under export.SMALL to CSV or .mat: pyarrow's import (and pandas'
+    through it) would cost more than the batches save (0.25 s of CPU against 0.55 s for
+    20 s of recording). One past it goes a batch at a time."""
+    import subprocess
+    import sys
+    small = make_file(tmp_path / "gx2-20261120T000000.000Z.mcap", 0, 20)
+    assert small.stat().st_size < export.SMALL
+    large = tmp_path / "large" / "gx2-20261120T000000.000Z.mcap"
+    large.parent.mkdir()
+    with large.open("wb") as out:
+        writer = RecordingWriter(out)
+        _stream(writer, 76, 30_000, 0.0, 1)
+        writer.finish()
+    assert large.stat().st_size >= export.SMALL
+    imported = {}
+    for name, path in (("small", small), ("large", large)):
+        ran = subprocess.run([sys.executable, "-c", _IMPORTS, str(path),
+                              str(tmp_path / f"out-{name}"), form],
+                             capture_output=True, text=True, timeout=120,
+                             cwd=Path(__file__).resolve().parents[2])
+        assert ran.returncode == 0, ran.stderr
+        imported[name] = ran.stdout.split()
+    assert "pyarrow" not in imported["small"], imported
+    assert "pyarrow" in imported["large"], imported
+
+
+def test_a_csv_export_without_pyarrow_or_numpy_goes_row_by_row(tmp_path) -> None:
+    """Neither is a dependency of the gateway's own: CSV is written without them, the
+    same file as with them."""
+    import subprocess
+    import sys
+    large = tmp_path / "gx2-20261120T000000.000Z.mcap"
+    with large.open("wb") as out:
+        writer = RecordingWriter(out)
+        _stream(writer, 76, 30_000, 0.01, 2)
+        writer.finish()
+    assert large.stat().st_size >= export.SMALL
+    for name, missing in (("with", []), ("without", ["pyarrow", "numpy", "pandas"])):
+        ran = subprocess.run([sys.executable, "-c", _IMPORTS, str(large),
+                              str(tmp_path / name), "csv", *missing],
+                             capture_output=True, text=True, timeout=120,
+                             cwd=Path(__file__).resolve().parents[2])
+        assert ran.returncode == 0, ran.stderr
+        assert ("pyarrow" in ran.stdout.split()) == (name == "with"), ran.stdout
+    written = sorted(path.name for path in (tmp_path / "without").glob("*.csv"))
+    assert "76_accel_angrate.csv" in written
+    for name in written:
+        assert (tmp_path / "without" / name).read_bytes() == \
+            (tmp_path / "with" / name).read_bytes(), name
