@@ -22,13 +22,13 @@ from dataclasses import dataclass, field, replace
 from mcap.opcode import Opcode
 
 from .entry import Entry
-from .files import RECORD_HEAD
+from .files import MESSAGE_HEAD, RECORD_HEAD
 from .index import channel_of
 
 Span = tuple[int, int]
 """A window of log_time: (first ns, ns after the last), end excluded."""
 
-_MESSAGE = struct.Struct("<BQHIQQ")
+_MESSAGE = struct.Struct(RECORD_HEAD.format + MESSAGE_HEAD.format.lstrip("<"))
 """A message record's head: opcode, length, then its channel, sequence, log_time and
 publish_time."""
 _MESSAGE_OP, _CHANNEL_OP = int(Opcode.MESSAGE), int(Opcode.CHANNEL)
