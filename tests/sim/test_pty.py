@@ -684,6 +684,29 @@ def test_unplug_and_return(sims: Sims, clients: Clients, tmp_path: Path) -> None
     assert sim.error is None
 
 
+def test_what_fell_due_while_unplugged_is_lost_however_late_the_loop(
+        sims: Sims, clients: Clients, tmp_path: Path) -> None:
+    """The simulator's loop kept from running for the whole outage (as the CPU once
+    starved it): the records due while the plug was out are not sent after it is back."""
+    link = tmp_path / "gx2"
+    sim = sims.start([NodeSettings(76, stream="accel_angrate")], link=link)
+    client = clients.open(link)
+    client.read_events(reply_from(76, 0xC2, count=5))
+    with sim._lock:  # (the loop takes it at every turn: it waits out the outage)
+        unplugged = sim.station.nodes[76].timer_at(time.monotonic())
+        sim.unplug()
+        time.sleep(0.3)
+        sim.replug()
+    back = unplugged + 0.3 * TICKS_PER_SECOND
+    wait_for(link.is_symlink, timeout=DEADLINE, what="the link reappears")
+    clients.close(client)
+    client = clients.open(link)
+    client.read_events(reply_from(76, 0xC2, count=5))
+    timers = [decode(e.payload).timer for _, e in client.log if is_reply(e, 76, 0xC2)]
+    inside = [t for t in timers if unplugged + 0.02 * TICKS_PER_SECOND < t < back]
+    assert inside == [], f"{len(inside)} records due while unplugged were sent after"
+
+
 def polled_reply_among_stream(client: Client, node: int, command: gx2.Command) -> Reply:
     events, reply = transact(client, node, command)
     assert events.count(Ack()) == 1 and len(replies(events, node, command.code)) == 1
