@@ -345,6 +345,14 @@ class BaseStation:
         """Bytes queued on the UART, not yet sent."""
         return sum(len(chunk) for _, chunk in self._out)
 
+    def lose_output(self, at: float) -> None:
+        """Unplugged until ``at``: what its UART still had to send, and the ACKs it held
+        back, went with the device's power; its line is free from then on."""
+        self.take_output(at)
+        self._out.clear()
+        self._held_ack_since, self._held_acks = None, 0
+        self._line_free_at = at
+
     def take_output(self, now: float) -> bytes:
         """The bytes whose last bit has left the UART by ``now``."""
         chunks = []

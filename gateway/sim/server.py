@@ -238,7 +238,7 @@ class Simulator:
         once sent the outage's records after the replug, as if the plug had stayed in (a
         full suite run: no gap in 2 s unplugged)."""
         self.station.advance(at)
-        self.station.take_output(at)
+        self.station.lose_output(at)
         self.port.open()
         self._replug_at = None
 
@@ -302,6 +302,8 @@ class Simulator:
                     continue
                 with self._lock:
                     now = time.monotonic()
+                    if self._replug_at is not None and now >= self._replug_at:
+                        self._plug_in(self._replug_at)  # (due while this loop waited)
                     data = b""
                     for key, mask in ready:
                         if key.fd == self._wake_r:
