@@ -213,6 +213,22 @@ def test_to_pandas_times_are_exact_beside_an_untimed_reply(tmp_path: Path) -> No
     assert untimed.host_time.value == nanoseconds(reply["host_time"])
 
 
+def test_to_pandas_gives_nat_for_a_time_no_timestamp_holds(tmp_path: Path) -> None:
+    """A record whose device_time (1e10 s) or time is past 2262 in nanoseconds (another
+    writer's file): NaT there, the rest of the frame as written (an OverflowError
+    before)."""
+    euler = [{"node": 76, "record": "euler", "command": 0xCE, "seq": seq,
+              "host_time": T0 + seq / 100, "time": T0 + seq / 100,
+              "device_time": seq / 100, "lqi": 200, "rssi": -50, "roll": 0.1,
+              "pitch": 0.2, "yaw": 0.3, "timer": seq * 1966} for seq in range(1, 4)]
+    euler[1] = {**euler[1], "device_time": 1e10, "time": 1e10}
+    frame = Recording(write(tmp_path / "run.mcap", euler)).to_pandas()
+    assert frame["device_time"].isna().tolist() == [False, True, False]
+    assert frame["time"].isna().tolist() == [False, True, False]
+    assert [t.value for t in frame["host_time"]] == [nanoseconds(p["host_time"])
+                                                     for p in euler]
+
+
 def test_records_the_recordings_do_not_hold_are_refused_as_nodes_are(tmp_path: Path
                                                                     ) -> None:
     path = write(tmp_path / "run.mcap", [payload(1, 1), payload(2, 2)])

@@ -1,7 +1,8 @@
 """Records as a pandas DataFrame, the same live and offline: a row per record, the
 columns ``gx2ctl export`` gives (vectors as ``accel_x``.., matrices as
 ``orientation_11``..), ``time`` and ``host_time`` as UTC timestamps (to the
-nanosecond the message wrote; NaT where a record has none, as an untimed reply),
+nanosecond the message wrote; NaT where a record has none, as an untimed reply, or one
+no timestamp holds, past the year 2262),
 ``device_time`` a duration; a Recording's with its time refined, ``time_placed`` and
 ``time_bound_ms`` after ``time``, as export's. pandas is optional.
 
@@ -63,7 +64,8 @@ def to_pandas(events: Iterable[Event]) -> pandas.DataFrame:
                             ("host_time", event.payload.get("host_time")),
                             ("device_time", event.device_time)):
             found = nanoseconds(value)
-            instants[name].append(NOT_A_TIME if found is None else found)
+            instants[name].append(found if found is not None and NOT_A_TIME < found < -NOT_A_TIME
+                                  else NOT_A_TIME)  # (none, or past what a timestamp holds)
         row = {"gateway": event.gateway, "node": event.node, "record": event.record,
                "seq": event.seq, "gap": event.gap, "restarted": event.restarted,
                "time": None}  # (the instants in their places, set below)
