@@ -4,11 +4,21 @@ from __future__ import annotations
 
 import socket
 
+_GIVEN: set[int] = set()
+"""Ports handed out in this process."""
+
 
 def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
+    """A port nothing is bound to now, never one handed out before in this process: the
+    kernel may give a port it has just given again, and a configuration's publish and
+    control endpoints were once the same (its check refused it)."""
+    while True:
+        with socket.socket() as probe:
+            probe.bind(("127.0.0.1", 0))
+            port = probe.getsockname()[1]
+        if port not in _GIVEN:
+            _GIVEN.add(port)
+            return port
 
 
 def endpoint() -> str:
