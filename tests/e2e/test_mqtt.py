@@ -179,8 +179,11 @@ def test_rate_hz_sends_every_nth_sample(simulator, gateway, broker) -> None:
     sub = gw.subscribe("gx2/77/euler")
     listener = Listener(mosquitto, f"{BASE}/+/accel_angrate", f"{BASE}/+/euler")
     try:
-        wait_for(lambda: len(listener.json(f"{BASE}/76/accel_angrate")) > 30, 10,
-                 "30 thinned records")
+        # (and 150 of 77's, every one, to hold against ZeroMQ's: a loaded run's listener,
+        # late to subscribe, had 41 in common when the 30 thinned had come)
+        wait_for(lambda: len(listener.json(f"{BASE}/76/accel_angrate")) > 30
+                 and len(listener.json(f"{BASE}/77/euler")) > 150, 15,
+                 "30 thinned records and 150 whole")
     finally:
         listener.close()
     got = seqs(listener, f"{BASE}/76/accel_angrate")
