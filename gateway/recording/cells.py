@@ -22,6 +22,7 @@ from gateway.common.reading import number
 
 from .arrowtime import exponent
 from .columns import Column
+from .tables import text_of
 
 
 class RowPath(Exception):
@@ -134,13 +135,6 @@ def _leaves(pa: Any, arrays: Iterable[Any]) -> Iterable[Any]:
             yield from _leaves(pa, [array.field(i) for i in range(array.type.num_fields)])
         else:
             yield array
-
-
-def text_of(value: Any) -> str | None:
-    """A value as CSV writes it (None: an empty cell)."""
-    if value is None:
-        return None
-    return repr(value) if isinstance(value, float) else str(value)
 
 
 def row_cells(pa: Any, form: str, columns: list[Column], values: list[list[Any]],

@@ -174,7 +174,7 @@ class Columns:
     def _row_path(self, messages: list[bytes]) -> tuple[Any, tuple[np.ndarray, ...]]:
         """The batch as the row by row export takes it (a message that is not a JSON
         object: RecordingError, as there)."""
-        from .reader import Entry
+        from .entry import Entry
         payloads = [Entry(self.topic, 0, 0, data).payload() for data in messages]
         if self.form == "parquet":
             return self.rows(payloads), _numbers(payloads)

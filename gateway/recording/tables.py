@@ -122,6 +122,14 @@ class Writer:
     def close(self) -> None: ...
 
 
+def text_of(value: Any) -> str | None:
+    """A value as a CSV cell holds it: a float as repr (it reads back to the same
+    float), None (null, NaN) an empty cell, anything else as str."""
+    if value is None:
+        return None
+    return repr(value) if isinstance(value, float) else str(value)
+
+
 class CsvWriter(Writer):
     def __init__(self, path: Path, columns: list[Column]) -> None:
         self._file: IO[str] = path.open("w", newline="", encoding="utf-8")
@@ -129,9 +137,7 @@ class CsvWriter(Writer):
         self._csv.writerow([column.name for column in columns])
 
     def add(self, row: list[Any]) -> None:
-        # repr of a float reads back to the same float; None (null, NaN) is empty
-        self._csv.writerow(["" if v is None else repr(v) if isinstance(v, float) else v
-                            for v in row])
+        self._csv.writerow([text_of(v) for v in row])  # (csv writes None as "")
 
     def close(self) -> None:
         self._file.close()
