@@ -239,6 +239,33 @@ def test_a_held_estimate_learns_nothing_from_the_backlog_and_comes_back_after_it
     assert max(abs(e) for t, e in errors_after if t >= 10.0) <= 1e-3
 
 
+def test_a_young_line_paused_while_a_queue_is_confirmed_stays_where_it_was() -> None:
+    # a line 3 s old when a queue began growing under its packets (a third of real
+    # time), paused from the serial line's first bin of evidence and held at its third
+    # (gateway.daemon.station.lineload, CONFIRM): unpaused, its drift, not yet bound,
+    # stepped onto the queue's slope before the hold, and ``time`` went 0.55 ms late
+    drift, young = 30e-6, 3.0
+    rng = random.Random(5)
+    clock = NodeClock()
+    worst = 0.0
+    for i in range(int((young + 6.0) / PERIOD)):
+        device = i * PERIOD
+        queued = max(device - young, 0.0)
+        if queued == pytest.approx(1.0):
+            clock.pause(True)
+        if queued == pytest.approx(3.0):
+            clock.pause(False)
+            clock.hold()
+        truth = 1000.0 + (1 + drift) * device + FLOOR
+        host = truth + rng.expovariate(1 / 0.0003) + queued / 3
+        error = clock.update(device, host, waited=queued > 0) - truth
+        if queued:
+            worst = max(worst, abs(error))
+        if 0 < queued < 3.0:
+            assert not clock.held and (clock.locked or queued < 1.0)
+    assert worst < 0.25e-3, worst
+
+
 def test_a_hold_through_a_reboot_stays_a_hold() -> None:
     clock = NodeClock()
     for device, host in overloaded(5, 0, 3):

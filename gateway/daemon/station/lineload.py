@@ -23,6 +23,9 @@ its packets waited. A queue in the base station is shared by every node behind i
   wait (behind three other nodes' packets of the longest record, 20 ms) and above a
   radio's retries; CONFIRM is above two seconds of gx2-sim's 50 ms output stalls
   bunched at 90% (a queue of 300 ms that drains: ``gx2sim`` seed 9 of the sweep).
+  While the evidence runs short of CONFIRM the line is :attr:`~LineLoad.suspect`, and
+  its nodes' clocks take no points (:meth:`aspp.clock.NodeClock.pause`): a line young
+  enough to follow the queue would otherwise do so before the hold.
 - **Not over capacity, whatever the bytes a second**: a host stall. The host read
   nothing while stalled; what it reads after comes faster than the baud rate, its own
   backlog, and the waits fall bin after bin as it catches up (and so do those of a
@@ -150,8 +153,8 @@ class LineLoad:
     def read(self, now: float, bytes_read: int, period: float) -> bool:
         """A read made at ``now`` (monotonic seconds: the live clock, or a replay's
         recorded one), after ``bytes_read`` bytes: the bins due every ``period`` up to
-        it closed first, each with the bytes read before it. True when :attr:`over`
-        changed."""
+        it closed first, each with the bytes read before it. True when :attr:`over` or
+        :attr:`suspect` changed."""
         following = self._next
         if following is not None and now < following:
             if now >= following - period:
@@ -160,7 +163,7 @@ class LineLoad:
             # judged afresh, as that gateway's was
             self._samples.clear()
             self._tracks.clear()
-            changed = self.over
+            changed = self.over or self.suspect
             self.link_down()
             self._next = now + period
             return changed
@@ -168,12 +171,12 @@ class LineLoad:
             following = now
         elif now - following > SPAN:  # a silence: only its last SPAN is measured
             following += math.floor((now - SPAN - following) / period) * period
-        was = self.over
+        was = self.over, self.suspect
         while following <= now:
             self.sample(following, bytes_read)
             following += period
         self._next = following
-        return self.over != was
+        return (self.over, self.suspect) != was
 
     def sample(self, now: float, bytes_read: int) -> bool:
         """Close a bin at ``now`` (``bytes_read`` the link's count so far): judge it
@@ -188,6 +191,14 @@ class LineLoad:
         was = self.over
         self._judge(list(self._waits()), read)
         return self.over != was
+
+    @property
+    def suspect(self) -> bool:
+        """Whether the last bins show the queue's evidence, not yet for CONFIRM bins:
+        the nodes' clocks learn nothing meanwhile (:meth:`aspp.clock.NodeClock.pause`),
+        and either the evidence is confirmed (over capacity, held from the line as it
+        stood) or it goes (a host stall's backlog read back) and they learn again."""
+        return self._queued > 0 and not self.over
 
     def _spanned(self) -> bool:
         """Whether the bytes a second span enough of SPAN to judge by."""

@@ -89,6 +89,8 @@ class Station:
         self._read_at_sample = 0
         self._silent = 0
         """Samples running (:meth:`sample`) in which its link read nothing."""
+        self._said_over = False
+        """Whether the log last said its line over capacity."""
 
     def _node(self, entry: NodeEntry) -> Node:
         return Node(entry, byte_time=byte_time(self.config.baudrate),
@@ -103,6 +105,7 @@ class Station:
         node = self.nodes[entry.address] = self._node(entry)
         if self.line.over:
             node.clock.hold()
+        node.clock.pause(self.line.suspect)
         self.reader.heard.forget(entry.address)
         return node
 
@@ -180,15 +183,21 @@ class Station:
         return [node.take_wait() for node in self.nodes.values()]
 
     def _line_changed(self) -> None:
-        """Its line went over capacity, or has room again: its nodes' clocks told (a
+        """Its line went over capacity, has room again, or shows a queue not yet
+        confirmed (:attr:`.LineLoad.suspect`), or no longer: its nodes' clocks told (a
         clock already as the line is, a node added meanwhile, is left)."""
-        log.warning("base station %s: %s", self.name, self.line.reason()
-                    if self.line.over else "line has room again")
+        line = self.line
+        if line.over != self._said_over:
+            self._said_over = line.over
+            log.warning("base station %s: %s", self.name, line.reason()
+                        if line.over else "line has room again")
         for node in self.nodes.values():
-            if self.line.over and not node.clock.held:
-                node.clock.hold()
-            elif not self.line.over and node.clock.held:
-                node.clock.release()
+            clock = node.clock
+            clock.pause(line.suspect)
+            if line.over and not clock.held:
+                clock.hold()
+            elif not line.over and clock.held:
+                clock.release()
 
     def close(self) -> None:
         """Close its link (a request still running fails as with the base station gone,
@@ -217,7 +226,7 @@ class Station:
             self.reader.line_opened()
         else:
             self.scheduler.on_link_down()
-            if self.line.over:  # (its queue went with it)
+            if self.line.over or self.line.suspect:  # (its queue went with it)
                 self.line.link_down()
                 self._line_changed()
         self.supervisor.link_changed(up)

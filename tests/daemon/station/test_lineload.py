@@ -227,3 +227,19 @@ def test_a_line_behind_a_full_queue_from_the_start_is_over_capacity_by_its_bytes
     line = Line()
     line.floor_seen = dict.fromkeys(FLOOR, False)
     assert not any(line.run([0.0] * 10, share=0.93))
+
+
+def test_a_queue_not_yet_confirmed_is_suspect_and_a_stall_is_not_for_long() -> None:
+    line = settled()
+    line.run([0.12, 0.36])
+    assert line.line.suspect and not line.line.over
+    line.bin(0.36)
+    assert line.line.over and not line.line.suspect  # (confirmed: held, not paused)
+    stalled = settled()
+    stalled.run([None, None, 0.36])
+    assert stalled.line.suspect  # (a stall's first bin looks like a queue's)
+    stalled.bin(0.29)
+    assert not stalled.line.suspect
+    stalled.bin(0.36)
+    stalled.line.link_down()
+    assert not stalled.line.suspect

@@ -78,3 +78,30 @@ def test_a_held_line_that_falls_silent_has_room_again() -> None:
     station.sample()
     assert not station.line.over
     assert not any(n.clock.held for n in station.nodes.values())
+
+
+def test_the_clocks_learn_nothing_while_a_queue_is_being_confirmed() -> None:
+    """Bins of the queue's evidence before CONFIRM: the clocks paused (a young line
+    steps onto the queue's slope otherwise, before anything is said), then held from
+    the line as it stood; a stall's one bin of waiting, then falling waits, lets them
+    learn again at once, and a lost link takes the suspicion with the queue."""
+    line = Line()
+    station = line.station
+    clocks = [n.clock for n in station.nodes.values()]
+    for wait in [0.0, 0.0, 0.0, 0.0]:
+        line.second(wait)
+    assert not any(c.paused for c in clocks)
+    line.second(0.2)
+    assert station.line.suspect and all(c.paused and not c.held for c in clocks)
+    station._link_state(False)
+    assert not station.line.suspect and not any(c.paused for c in clocks)
+    station.scheduler.link_up = True
+    line.second(0.2)  # (the first bin after a replug has no last wait to stand on)
+    line.second(0.2)
+    assert all(c.paused for c in clocks)
+    line.second(0.1)  # falling: a stall's backlog, not a queue
+    assert not station.line.suspect and not any(c.paused for c in clocks)
+    for wait in [0.2, 0.3, 0.3]:
+        line.second(wait)
+    assert station.line.over and not station.line.suspect
+    assert all(c.held and not c.paused for c in clocks)
