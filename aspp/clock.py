@@ -384,15 +384,16 @@ class NodeClock:
     # line's judge confirms a queue only after CONFIRM bins of evidence
     # (gateway.daemon.station.lineload), so a line 3 s old when an overload began went
     # 0.5 ms late before its hold, unwarned (the suite's fault soak, CI of 45853d9:
-    # 6% of the off samples; a line of 0.5 to 3 s, fed a queue growing at 0.26 s a
+    # 6% of the off samples; a line of 2 to 3 s, fed a queue growing at 0.26 s a
     # second, is 0.55 ms off by its hold at 3 s, and 0.09 paused from the first bin:
     # tests/aspp/test_clock.py). Pausing is no state of the estimate: the line stays
     # fitted and locked, and only stops taking points, until the evidence is either
     # confirmed (a hold, from the line as it stood) or gone (a host stall's backlog).
     def pause(self, paused: bool) -> None:
         """Whether the packets from now on teach the line nothing: the serial line shows
-        a queue it has not yet confirmed. A line not fitted is not paused (a first
-        packet anchors one as ever; a held one learns nothing anyway)."""
+        a queue it has not yet confirmed. Only a fitted line is kept: a first packet
+        still anchors one (FRESH, RELEASED: the packets after it then keep that
+        anchor), and a held one learns nothing anyway."""
         self._paused = paused
 
     @property
@@ -472,13 +473,17 @@ class NodeClock:
                 return self._give(device, device + self._offset + self._drift * device)
             self._event(OUTAGE)  # after a long outage: the old points no longer bound
             return self._unfitted(device, host, waited)
-        if self._paused:  # (the line kept as it stands: see pause)
-            line = self._offset + self._drift * device
-            self.last_wait = host - device - line
-            return self._give(device, device + line)
         if gap > GAP_MIN and self._locked_since is not None and self._cannot_bridge(gap):
             self._locked_since = None  # (see GAP_MIN: said not locked for a second)
             self._relock_at = device + LOCK_SPAN
+        if self._paused:  # (the line kept as it stands: see pause)
+            # the newest packet still counted: a hold anchors there, the floor ages, and
+            # the first packet after a pause is no gap
+            self._spacing = gap
+            self._last = device
+            line = self._offset + self._drift * device
+            self.last_wait = host - device - line
+            return self._give(device, device + line)
         y = host - device
         _push(self._current, device, y)
         self._points += 1

@@ -143,6 +143,7 @@ def judged(model: Model) -> Judged:
         changed = line.read(packet.read, read_bytes, 1.0)
         if changed:
             for clock in clocks.values():
+                clock.pause(line.suspect)
                 if line.over and not clock.held:
                     clock.hold()
                 elif not line.over and clock.held:

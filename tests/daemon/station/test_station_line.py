@@ -80,7 +80,7 @@ def test_a_held_line_that_falls_silent_has_room_again() -> None:
     assert not any(n.clock.held for n in station.nodes.values())
 
 
-def test_the_clocks_learn_nothing_while_a_queue_is_being_confirmed() -> None:
+def test_the_clocks_learn_nothing_while_a_queue_is_being_confirmed(caplog) -> None:
     """Bins of the queue's evidence before CONFIRM: the clocks paused (a young line
     steps onto the queue's slope otherwise, before anything is said), then held from
     the line as it stood; a stall's one bin of waiting, then falling waits, lets them
@@ -93,6 +93,12 @@ def test_the_clocks_learn_nothing_while_a_queue_is_being_confirmed() -> None:
     assert not any(c.paused for c in clocks)
     line.second(0.2)
     assert station.line.suspect and all(c.paused and not c.held for c in clocks)
+    for clock in clocks:  # a packet faster than the line: a learning line lowers to it
+        clock.update(4.0, 3.999)
+        assert clock.estimate().offset == 0.0
+    assert station.add_node(NodeEntry(address=78)).clock.paused  # (a reload, meanwhile)
+    clocks = [n.clock for n in station.nodes.values()]
+    assert "room again" not in caplog.text  # (nothing was said: nothing is unsaid)
     station._link_state(False)
     assert not station.line.suspect and not any(c.paused for c in clocks)
     station.scheduler.link_up = True
@@ -101,6 +107,9 @@ def test_the_clocks_learn_nothing_while_a_queue_is_being_confirmed() -> None:
     assert all(c.paused for c in clocks)
     line.second(0.1)  # falling: a stall's backlog, not a queue
     assert not station.line.suspect and not any(c.paused for c in clocks)
+    learner = clocks[0]
+    learner.update(8.0, 7.998)
+    assert learner.estimate().offset < 0.0
     for wait in [0.2, 0.3, 0.3]:
         line.second(wait)
     assert station.line.over and not station.line.suspect
