@@ -69,6 +69,16 @@ def test_each_station_shows_everywhere_and_one_unplugged_never_delays_another(
         sub.drain(3.0)
         return [p for t, p in sub.messages if t == "gx2/78/accel_angrate"]
 
+    def latest(records: list[dict]) -> list[tuple[float, ...]]:
+        """The five latest records (latency, host time, device time, seq): a late read
+        shows in the host times, a clock misplaced in the latencies alone."""
+        worst = sorted(records, key=lambda r: r["host_time"] - r["time"])[-5:]
+        return [(round(r["host_time"] - r["time"], 4), r["host_time"], r["device_time"],
+                 r["seq"]) for r in worst]
+
+    def south_clock() -> dict:
+        return next(n for n in gw.status()["nodes"] if n["node"] == 78).get("clock", {})
+
     def latency_p99(records: list[dict]) -> float:
         delays = sorted(r["host_time"] - r["time"] for r in records)
         return delays[int(0.99 * (len(delays) - 1))]
@@ -91,7 +101,8 @@ def test_each_station_shows_everywhere_and_one_unplugged_never_delays_another(
     if latency_p99(after) > latency_p99(before) + 0.05:
         after = south_for_3_s()
     assert latency_p99(after) <= latency_p99(before) + 0.05, (
-        latency_p99(before), latency_p99(after))
+        f"p99 {latency_p99(before):.4f} s before, {latency_p99(after):.4f} after; "
+        f"latest {latest(after)}; 78's clock {south_clock()}")
     assert gw.control.result("poll", node=78, record="euler")["station"] == "south"
     nodes = {n["node"]: n for n in gw.status()["nodes"]}
     assert nodes[76]["state"] == "link down" and nodes[78]["state"] == "streaming"
