@@ -143,11 +143,7 @@ def judged(model: Model) -> Judged:
         changed = line.read(packet.read, read_bytes, 1.0)
         if changed:
             for clock in clocks.values():
-                clock.pause(line.suspect)
-                if line.over and not clock.held:
-                    clock.hold()
-                elif not line.over and clock.held:
-                    clock.release()
+                line.tell(clock)
         if changed or math.floor(packet.read) != second:  # (a read a second, and changes)
             second = math.floor(packet.read)
             out.bins.append((packet.read, line.over))

@@ -68,7 +68,10 @@ import math
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
+
+if TYPE_CHECKING:
+    from aspp.clock import NodeClock
 
 SPAN = 5.0
 """Seconds over which the line's bytes per second are shown."""
@@ -199,6 +202,15 @@ class LineLoad:
         and either the evidence is confirmed (over capacity, held from the line as it
         stood) or it goes (a host stall's backlog read back) and they learn again."""
         return self._queued > 0 and not self.over
+
+    def tell(self, clock: NodeClock) -> None:
+        """Make a node's clock as the line is: paused while :attr:`suspect`, held while
+        :attr:`over`, released once it is not (a clock already so is left)."""
+        clock.pause(self.suspect)
+        if self.over and not clock.held:
+            clock.hold()
+        elif not self.over and clock.held:
+            clock.release()
 
     def _spanned(self) -> bool:
         """Whether the bytes a second span enough of SPAN to judge by."""

@@ -103,9 +103,7 @@ class Station:
         configured; the supervisor arms it (:meth:`Supervisor.adopt`). Its clock is held
         if its line is over capacity (it would learn the queue)."""
         node = self.nodes[entry.address] = self._node(entry)
-        if self.line.over:
-            node.clock.hold()
-        node.clock.pause(self.line.suspect)
+        self.line.tell(node.clock)
         self.reader.heard.forget(entry.address)
         return node
 
@@ -192,12 +190,7 @@ class Station:
             log.warning("base station %s: %s", self.name, line.reason()
                         if line.over else "line has room again")
         for node in self.nodes.values():
-            clock = node.clock
-            clock.pause(line.suspect)
-            if line.over and not clock.held:
-                clock.hold()
-            elif not line.over and clock.held:
-                clock.release()
+            line.tell(node.clock)
 
     def close(self) -> None:
         """Close its link (a request still running fails as with the base station gone,
