@@ -176,11 +176,15 @@ def clock_reasons(node: Node) -> list[str]:
         # (while the line kept is still within the floor's noise of where it was, time
         # is as good as before the hold: the station's WARN says the line is over
         # capacity, and the node's says so once its time may be off, or at once if its
-        # floor had gone unseen long enough to be said when the hold began)
+        # floor had gone unseen long enough to be said when the hold began; or at once
+        # if it was not locked then: its line stands on its first packets, and those
+        # may have waited in the queue the hold is for, as a node rebooted, released or
+        # added while the queue was still being confirmed does: ``time`` 360 ms late
+        # and nothing said for 15 s, held_error growing from 0; an outside review)
         error, age = clock.held_error(), clock.held_floor_age
         unseen = age is not None and age >= unseen_after(node)
-        return [LINE_OVER_CAPACITY] if error is None or error > FLOOR_NOISE or unseen \
-            else []
+        return [LINE_OVER_CAPACITY] if error is None or age is None \
+            or error > FLOOR_NOISE or unseen else []
     age = clock.floor_age
     if age is None:  # (not locked yet: judge() says so once the stream settled)
         return []

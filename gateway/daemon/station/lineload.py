@@ -174,6 +174,7 @@ class LineLoad:
             following = now
         elif now - following > SPAN:  # a silence: only its last SPAN is measured
             following += math.floor((now - SPAN - following) / period) * period
+            self._queued = 0  # (and evidence from before it no longer runs)
         was = self.over, self.suspect
         while following <= now:
             self.sample(following, bytes_read)
@@ -242,6 +243,8 @@ class LineLoad:
         if not seen:  # nothing of the nodes' read: a stall says nothing, a silence room
             if self.over and read:
                 self._release()
+            elif read:
+                self._queued = 0  # (a queue's evidence runs in consecutive bins)
             return
         if self.over:
             self._while_held(seen)

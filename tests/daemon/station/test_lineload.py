@@ -243,3 +243,27 @@ def test_a_queue_not_yet_confirmed_is_suspect_and_a_stall_is_not_for_long() -> N
     stalled.bin(0.36)
     stalled.line.link_down()
     assert not stalled.line.suspect
+
+
+def test_a_queues_evidence_runs_in_consecutive_bins_not_across_a_silence() -> None:
+    """Two bins of a queue's evidence, then the streams stop (bytes read, no record) or
+    nothing is read for longer than SPAN: the count starts over, so a host stall's one
+    bin of waiting when they come back is no third bin (it confirmed over capacity, and
+    the clocks stayed paused through the silence: an outside review)."""
+    line = settled()
+    line.run([0.2, 0.36])
+    assert line.line.suspect
+    line.bin(None, share=0.1)  # the streams stopped: replies read, no record
+    assert not line.line.suspect
+    assert not line.bin(0.36) and line.line.suspect  # (its first bin again)
+    read = Line()  # the same through the reads, as the station closes bins
+    for wait in [0.001, 0.0, 0.002, 0.0, 0.2, 0.36]:
+        read.bins = {node: FLOOR[node] + wait for node in FLOOR}
+        read.now += 1.0
+        read.read += 10_000
+        read.line.read(read.now, read.read, 1.0)
+    assert read.line.suspect
+    read.now += 2 * SPAN  # nothing read meanwhile (a stall; no bin closed)
+    read.bins = {node: FLOOR[node] + 0.36 for node in FLOOR}
+    read.line.read(read.now, read.read, 1.0)
+    assert not read.line.over and read.line.suspect

@@ -114,3 +114,41 @@ def test_the_clocks_learn_nothing_while_a_queue_is_being_confirmed(caplog) -> No
         line.second(wait)
     assert station.line.over and not station.line.suspect
     assert all(c.held and not c.paused for c in clocks)
+
+
+def test_a_clock_held_before_its_line_locked_says_so_at_once() -> None:
+    """A node a reload adds while the queue is being confirmed anchors its line on its
+    first packet, which waited in the queue; held from there, its ``time`` is late by
+    the queue while the held line's allowance grows from 0. Its health says so from
+    the hold, as a node's rebooted into the queue does (it once said nothing for 15 s:
+    an outside review)."""
+    from gateway.daemon.health import LINE_OVER_CAPACITY, clock_reasons
+    line = Line()
+    station = line.station
+    for wait in [0.0, 0.0, 0.0, 0.0, 0.2]:
+        line.second(wait)
+    assert station.line.suspect
+    added = station.add_node(NodeEntry(address=78))
+    for i in range(50):  # half a second of its packets, each 0.2 s behind the queue
+        added.clock.update(i / 100, line.now + i / 100 + 0.2, waited=True)
+    for wait in [0.3, 0.3]:
+        line.second(wait)
+    assert station.line.over and added.clock.held and not added.clock.locked
+    assert added.clock.held_error() < 0.5e-3  # (the line's movement only: not its offset)
+    assert clock_reasons(added) == [LINE_OVER_CAPACITY]
+
+
+def test_a_line_that_falls_silent_while_a_queue_is_confirmed_lets_its_clocks_learn() -> None:
+    """Every stream stopped while the queue was being confirmed: no bin closes, and the
+    clocks stayed paused until the streams came back (an outside review)."""
+    line = Line()
+    for wait in [0.0, 0.0, 0.0, 0.0, 0.2]:
+        line.second(wait)
+    station = line.station
+    assert station.line.suspect
+    station.link = types.SimpleNamespace(bytes_read=station.link.bytes_read)
+    station.replaying = False
+    for _ in range(3):  # its count taken, then two seconds with nothing read
+        station.sample()
+    assert not station.line.suspect
+    assert not any(n.clock.paused for n in station.nodes.values())
