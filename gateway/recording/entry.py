@@ -47,25 +47,21 @@ def _parsed(data: bytes) -> Any:
         value = orjson.loads(data)
     except ValueError:
         return json.loads(data)
-    return json.loads(data) if _holds_a_long_integer(value) else value
+    return json.loads(data) if _may_hold_a_long_integer(data) else value
 
 
-def _holds_a_long_integer(value: Any) -> bool:
-    """Whether orjson's reading may hold an integer past 64 bits: it reads one as a
-    float (it keeps -2**63 to 2**64 - 1 as ints), without refusing it, so any float
-    that far from 0 sends the message to the standard library (a float, to the same
-    value; an integer, as it was). A walk of the values, not a search of the bytes:
-    a regular expression for 20 digits took twice orjson's time and more."""
-    items = [value]
-    while items:
-        item = items.pop()
-        if isinstance(item, float):
-            if not -(2.0**63) < item < 2.0**63:
-                return True
-        elif isinstance(item, dict):
-            items.extend(item.values())
-        elif isinstance(item, list):
-            items.extend(item)
-    return False
+_DIGITS = bytes.maketrans(b"0123456789", b"0" * 10)
+_LONG = b"0" * 19
+
+
+def _may_hold_a_long_integer(data: bytes) -> bool:
+    """Whether ``data`` may hold an integer orjson reads otherwise than the standard
+    library: past 64 bits (it keeps -2**63 to 2**64 - 1 as ints) it gives a float,
+    without refusing it. Such an integer has 19 digits or more in a row, which the
+    bytes show with every digit made one (a run of 19 in other numbers, a long
+    fraction, only sends the message to the standard library, which reads it the
+    same). 0.53 us a message of the demo's recording, against 2.2 us for the walk of
+    orjson's values it replaced and 2.9 us for a regular expression (bench/jsonlong.py)."""
+    return _LONG in data.translate(_DIGITS)
 
 
