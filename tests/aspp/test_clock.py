@@ -295,6 +295,26 @@ def test_a_pause_ends_where_the_packets_are() -> None:
         assert clock.locked or device < 1.0, device
 
 
+
+def test_a_line_unlocked_by_a_gap_during_a_pause_fits_a_second_after_it() -> None:
+    """A gap the line cannot vouch for itself across unlocks it for a second of fitting
+    (GAP_MIN); a gap that ends while the line is paused must not spend that second
+    paused, fitting nothing, and lock again at the pause's first packet after (an
+    outside review)."""
+    rng = random.Random(2)
+    clock = NodeClock()
+    locked = {}
+    for i in range(int(26.0 / PERIOD)):
+        device = i * PERIOD
+        if 15.5 <= device < 20.5:
+            continue  # its packets lost over the radio
+        clock.pause(15.0 <= device < 23.0)
+        clock.update(device, 1000.0 + (1 + 30e-6) * device + rng.expovariate(1 / 3e-4))
+        locked[round(device, 2)] = clock.locked
+    assert locked[15.4] and not locked[20.5]
+    assert not locked[23.5]  # (unpaused at 23: its second of fitting runs from there)
+    assert locked[24.2]
+
 def test_a_hold_through_a_reboot_stays_a_hold() -> None:
     clock = NodeClock()
     for device, host in overloaded(5, 0, 3):

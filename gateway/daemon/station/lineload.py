@@ -139,6 +139,9 @@ class LineLoad:
         self._tracks: dict[int, _Track] = {}
         self._queued = 0
         """Bins running with the queue's evidence."""
+        self._evidence_at = -math.inf
+        """When a bin last held a node's record (a slow node's bins between its records
+        say nothing; SPAN without any, the streams stopped)."""
         self.over = False
         """Whether the line is over capacity now."""
         self.wait = 0.0
@@ -193,7 +196,7 @@ class LineLoad:
         read = bytes_read > self._bytes_at_bin
         self._bytes_at_bin = bytes_read
         was = self.over
-        self._judge(list(self._waits()), read)
+        self._judge(list(self._waits()), read, now)
         return self.over != was
 
     @property
@@ -228,7 +231,7 @@ class LineLoad:
 
     # -- the rule ------------------------------------------------------------------------
 
-    def _judge(self, evidence: list[Waited], read: bool) -> None:
+    def _judge(self, evidence: list[Waited], read: bool, now: float) -> None:
         """The rule of the module's docstring, on one bin's waits."""
         tracks = self._tracks
         for gone in tracks.keys() - {w.address for w in evidence}:
@@ -243,9 +246,10 @@ class LineLoad:
         if not seen:  # nothing of the nodes' read: a stall says nothing, a silence room
             if self.over and read:
                 self._release()
-            elif read:
-                self._queued = 0  # (a queue's evidence runs in consecutive bins)
+            elif read and now - self._evidence_at > SPAN:
+                self._queued = 0  # (the streams stopped: what they showed has gone)
             return
+        self._evidence_at = now
         if self.over:
             self._while_held(seen)
         else:

@@ -253,7 +253,9 @@ def test_a_queues_evidence_runs_in_consecutive_bins_not_across_a_silence() -> No
     line = settled()
     line.run([0.2, 0.36])
     assert line.line.suspect
-    line.bin(None, share=0.1)  # the streams stopped: replies read, no record
+    line.bin(None, share=0.1)  # (a slow node's bin between its records: nothing)
+    assert line.line.suspect
+    line.run([None] * int(SPAN), share=0.1)  # the streams stopped: replies, no record
     assert not line.line.suspect
     assert not line.bin(0.36) and line.line.suspect  # (its first bin again)
     read = Line()  # the same through the reads, as the station closes bins
