@@ -8,14 +8,14 @@ side.
     git worktree add --detach /tmp/before44 COMMIT
     .venv/bin/python bench/exportformats.py --before /tmp/before44 --rows 1000000 --rounds 2
 
-One recording of ``--rows`` 0xCB records (accel_angrate_mag, 17 columns) of one node
-at 100 Hz, written through the recorder's writer; then, interleaved over ``--rounds``,
-``export()`` of it in this process to each format (process start excluded; the best
-round kept). ``reading`` is the same loop with a writer that keeps nothing: what every
-format pays before its own writer (a ROS 2 bag: two messages a row, an Imu and a
-MagneticField, each built and serialized by rosbags). The .mat writer holds a table
-whole until scipy's ``savemat`` takes it: its peak is measured by tracemalloc in a
-round of its own.
+One recording of ``--rows`` 0xCB records (accel_angrate_mag, 17 columns) of one node (or
+of ``--nodes`` in turn, a table each) at 100 Hz, written through the recorder's writer;
+then, interleaved over ``--rounds``, ``export()`` of it in this process to each format
+(process start excluded; the best round kept). ``reading`` is the same loop with a
+writer that keeps nothing: what every format pays before its own writer (a ROS 2 bag:
+two messages a row, an Imu and a MagneticField, each built and serialized by rosbags).
+The .mat writer holds a table whole until scipy's ``savemat`` takes it: its peak is
+measured by tracemalloc in a round of its own.
 
 With ``--before``, each export runs in a process of its own, the two trees' in turn
 (A B A B, the same file): its seconds (the export alone, not the imports), its CPU
@@ -63,14 +63,17 @@ class Nothing:
         pass
 
 
-def recording(path: Path, rows: int) -> Path:
+def recording(path: Path, rows: int, nodes: int = 1) -> Path:
+    """``rows`` rows of accel_angrate_mag at 100 Hz, from ``nodes`` nodes (76 on) in
+    turn, a table each."""
     with path.open("wb") as output:
         writer = RecordingWriter(output)
-        for i in range(rows):
-            at = T0 + i / 100
-            writer.message("gx2/76/accel_angrate_mag", {
+        for row in range(rows):
+            i, node = divmod(row, nodes)
+            at = T0 + i / 100 + node * 1e-4
+            writer.message(f"gx2/{76 + node}/accel_angrate_mag", {
                 "accel": [0.001 * i, 0.002, -1.0], "ang_rate": [0.01, 0.02, 0.03],
-                "mag": [0.2, 0.1, 0.4], "timer": i * 196_608, "node": 76,
+                "mag": [0.2, 0.1, 0.4], "timer": i * 196_608, "node": 76 + node,
                 "record": "accel_angrate_mag", "command": 0xCB, "seq": i + 1,
                 "host_time": at + 0.004, "lqi": 200, "rssi": -50,
                 "device_time": i / 100, "time": at})
@@ -119,7 +122,7 @@ def side_by_side(args: argparse.Namespace) -> None:
     trees = {"before": str(Path(args.before).resolve()), "after": TREE}
     best: dict[tuple[str, str], dict[str, float] | None] = {}
     with tempfile.TemporaryDirectory() as work:
-        source = recording(Path(work) / "run.mcap", args.rows)
+        source = recording(Path(work) / "run.mcap", args.rows, args.nodes)
         for round_ in range(args.rounds):
             for form in ("reading", *FORMATS):
                 for name, tree in trees.items():
@@ -134,8 +137,9 @@ def side_by_side(args: argparse.Namespace) -> None:
                     if kept is not None and got is not None:
                         for key in ("seconds", "cpu", "rss"):
                             kept[key] = min(kept[key], got[key])
-    print(f"{args.rows:,} rows of accel_angrate_mag, best of {args.rounds} interleaved "
-          f"rounds; before: {trees['before']}")
+    print(f"{args.rows:,} rows of accel_angrate_mag ({args.nodes} node"
+          f"{'s' if args.nodes > 1 else ''}), best of {args.rounds} interleaved rounds; "
+          f"before: {trees['before']}")
     print(f"{'':8} {'before':>22} {'after':>22} {'factor':>7}  CPU s/M before/after "
           f"(factor)  peak RSS before/after")
     for form in ("reading", *FORMATS):
@@ -171,6 +175,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rows", type=int, default=200_000)
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--nodes", type=int, default=1,
+                        help="the rows spread over this many nodes, a table each")
     parser.add_argument("--before", help="another tree (a checkout), side by side")
     parser.add_argument("--tree", help=argparse.SUPPRESS)
     parser.add_argument("--child", help=argparse.SUPPRESS)
@@ -184,7 +190,7 @@ def main() -> None:
         side_by_side(args)
         return
     with tempfile.TemporaryDirectory() as work:
-        source = recording(Path(work) / "run.mcap", args.rows)
+        source = recording(Path(work) / "run.mcap", args.rows, args.nodes)
         register_reading()
         best: dict[str, float] = {}
         for round_ in range(args.rounds):
