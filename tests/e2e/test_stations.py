@@ -114,8 +114,9 @@ def test_each_station_shows_everywhere_and_one_unplugged_never_delays_another(
     # after the unplug: 19 -> 158 ms; at the p90 a block of 50 to 80 ms passed unseen).
     # The host's scheduling does that too, once, at any moment (0.1 to 0.4 s at 6 to 8
     # test processes on 2 cores, before the unplug as after it, though the test runs
-    # favoured): a window whose p99 rose is taken again, and a block that comes with
-    # each reopen shows in that one too. One at the unplug alone is held to the gap.
+    # favoured; twice running in two full runs of seven): a window whose p99 rose is
+    # taken again, up to twice, and a block that comes with each reopen (three in each
+    # window) shows in every one. One at the unplug alone is held to the gap.
     # The margin, 50 ms, lets a block of about 80 ms pass (p99 of 300 records: the
     # third worst); under load the p99 rose by 18 ms in both windows once.
     after = south_for_3_s()
@@ -123,7 +124,9 @@ def test_each_station_shows_everywhere_and_one_unplugged_never_delays_another(
     assert len(after) >= 0.95 * span * 100, (len(after), span)
     gaps = [b["host_time"] - a["host_time"] for a, b in pairwise(after)]
     assert max(gaps) < 0.5, max(gaps)
-    if latency_p99(after) > latency_p99(before) + 0.05:
+    for _ in range(2):
+        if latency_p99(after) <= latency_p99(before) + 0.05:
+            break
         after = south_for_3_s()
     assert latency_p99(after) <= latency_p99(before) + 0.05, (
         f"p99 {latency_p99(before):.4f} s before, {latency_p99(after):.4f} after; "
