@@ -478,11 +478,11 @@ class NodeClock:
             self._relock_at = device + LOCK_SPAN
         if self._paused:  # (the line kept as it stands: see pause)
             # the newest packet still counted: a hold anchors there, the floor ages, and
-            # the first packet after a pause is no gap; a line not locked (a gap it could
-            # not bridge, its first second) fits its second after the pause
+            # the first packet after a pause is no gap; a line a gap unlocked (GAP_MIN)
+            # fits its second after the pause
             self._spacing = gap
             self._last = device
-            if self._locked_since is None:
+            if self._locked_since is None and self._relock_at:
                 self._relock_at = max(self._relock_at, device + LOCK_SPAN)
             line = self._offset + self._drift * device
             self.last_wait = host - device - line

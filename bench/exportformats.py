@@ -175,7 +175,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rows", type=int, default=200_000)
     parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--nodes", type=int, default=1,
+    parser.add_argument("--nodes", type=int, default=1, choices=range(1, 1001),
+                        metavar="1..1000",
                         help="the rows spread over this many nodes, a table each")
     parser.add_argument("--before", help="another tree (a checkout), side by side")
     parser.add_argument("--tree", help=argparse.SUPPRESS)

@@ -177,7 +177,6 @@ class LineLoad:
             following = now
         elif now - following > SPAN:  # a silence: only its last SPAN is measured
             following += math.floor((now - SPAN - following) / period) * period
-            self._queued = 0  # (and evidence from before it no longer runs)
         was = self.over, self.suspect
         while following <= now:
             self.sample(following, bytes_read)
@@ -246,8 +245,12 @@ class LineLoad:
         if not seen:  # nothing of the nodes' read: a stall says nothing, a silence room
             if self.over and read:
                 self._release()
-            elif read and now - self._evidence_at > SPAN:
-                self._queued = 0  # (the streams stopped: what they showed has gone)
+            elif not read or now - self._evidence_at > SPAN:
+                # (a base station with a queue sends: a bin with nothing read is a stall
+                # or an idle line, and the evidence before it no longer runs; bytes but
+                # no record for SPAN, the streams stopped. A slow node's bins between
+                # its records, bytes read, say nothing)
+                self._queued = 0
             return
         self._evidence_at = now
         if self.over:

@@ -161,9 +161,9 @@ class Station:
         self._on_data(data, host_time, monotonic)
 
     def sample(self) -> None:
-        """Once a second, live: a line held over capacity (or showing a queue not yet
-        confirmed) that has read nothing for SILENT_SAMPLES seconds running has no
-        queue (a base station with one sends at its baud rate): it has room again.
+        """Once a second, live: a line held over capacity that has read nothing for
+        SILENT_SAMPLES seconds running has no queue (a base station with one sends at
+        its baud rate): it has room again.
         Its bins close on its reads, and a line whose streams were all stopped while
         it was held reads nothing more to close one with (the line stayed over
         capacity for good). Two seconds, not one: after a
@@ -173,7 +173,7 @@ class Station:
         read = self.link.bytes_read
         self._silent = self._silent + 1 if read == self._read_at_sample else 0
         self._read_at_sample = read
-        if (self.line.over or self.line.suspect) and self._silent >= SILENT_SAMPLES:
+        if self.line.over and self._silent >= SILENT_SAMPLES:
             self.line.link_down()
             self._line_changed()
 

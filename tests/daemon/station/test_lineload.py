@@ -245,11 +245,20 @@ def test_a_queue_not_yet_confirmed_is_suspect_and_a_stall_is_not_for_long() -> N
     assert not stalled.line.suspect
 
 
+
+def reading(line: Line, at: float, wait: float) -> None:
+    """A read at ``at`` as the station makes it: the bins due closed with what was read
+    before it, then its records' waits (evidence for the next bin) and its bytes."""
+    line.line.read(at, line.read, 1.0)
+    line.bins = {node: FLOOR[node] + wait for node in FLOOR}
+    line.read += 1000
+
+
 def test_a_queues_evidence_runs_in_consecutive_bins_not_across_a_silence() -> None:
-    """Two bins of a queue's evidence, then the streams stop (bytes read, no record) or
-    nothing is read for longer than SPAN: the count starts over, so a host stall's one
-    bin of waiting when they come back is no third bin (it confirmed over capacity, and
-    the clocks stayed paused through the silence: an outside review)."""
+    """Two bins of a queue's evidence, then the streams stop (bytes read, no record)
+    for SPAN, or nothing is read for longer than SPAN: the count starts over, so a host
+    stall's one bin of waiting when they come back is no third bin (it confirmed over
+    capacity, and the clocks stayed paused through the silence: an outside review)."""
     line = settled()
     line.run([0.2, 0.36])
     assert line.line.suspect
@@ -259,13 +268,28 @@ def test_a_queues_evidence_runs_in_consecutive_bins_not_across_a_silence() -> No
     assert not line.line.suspect
     assert not line.bin(0.36) and line.line.suspect  # (its first bin again)
     read = Line()  # the same through the reads, as the station closes bins
-    for wait in [0.001, 0.0, 0.002, 0.0, 0.2, 0.36]:
-        read.bins = {node: FLOOR[node] + wait for node in FLOOR}
-        read.now += 1.0
-        read.read += 10_000
-        read.line.read(read.now, read.read, 1.0)
+    for second in range(7):
+        for tenth in range(10):
+            reading(read, second + tenth / 10, 0.001 if second < 5 else 0.3)
     assert read.line.suspect
-    read.now += 2 * SPAN  # nothing read meanwhile (a stall; no bin closed)
-    read.bins = {node: FLOOR[node] + 0.36 for node in FLOOR}
-    read.line.read(read.now, read.read, 1.0)
-    assert not read.line.over and read.line.suspect
+    reading(read, 7.0 + 2 * SPAN, 0.36)  # nothing read meanwhile (no bin closed)
+    assert not read.line.suspect
+    reading(read, 7.1 + 2 * SPAN, 0.36)
+    assert not read.line.over
+
+
+def test_a_stall_between_a_queues_bins_ends_its_evidence() -> None:
+    """Two bins of waiting, then the host stalled for seconds (no bin with anything
+    read: a base station holding a queue sends all the while), then its backlog: one
+    bin of waiting, then falling waits, is a stall's, never a queue (the count ran
+    across the stall and confirmed over capacity: an outside review)."""
+    for stall in (2.0, 3.0, 5.0, 6.0):
+        line = Line()
+        for second in range(7):
+            for tenth in range(10):
+                reading(line, second + tenth / 10, 0.001 if second < 5 else 0.3)
+        assert line.line.suspect
+        at = 6.9 + stall
+        for k in range(30):  # the backlog read back, its waits falling
+            reading(line, at + k * 0.1, max(stall - k * 0.2, 0.0))
+            assert not line.line.over, (stall, k)
