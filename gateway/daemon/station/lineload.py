@@ -142,6 +142,8 @@ class LineLoad:
         self._evidence_at = -math.inf
         """When a bin last held a node's record (a slow node's bins between its records
         say nothing; SPAN without any, the streams stopped)."""
+        self._after_gap = False
+        """Whether a bin with nothing read came since the last with records."""
         self.over = False
         """Whether the line is over capacity now."""
         self.wait = 0.0
@@ -242,14 +244,20 @@ class LineLoad:
                 track = tracks[waited.address] = _Track(waited.epoch)  # (no floor yet)
             if waited.wait < math.inf:
                 seen.append((waited, track))
-        if not seen:  # nothing of the nodes' read: a stall says nothing, a silence room
-            if self.over and read:
-                self._release()
-            elif not read or now - self._evidence_at > SPAN:
-                # (a base station with a queue sends: a bin with nothing read is a stall
-                # or an idle line, and the evidence before it no longer runs; bytes but
-                # no record for SPAN, the streams stopped. A slow node's bins between
-                # its records, bytes read, say nothing)
+        if not seen:
+            # Nothing of the nodes' read. Bytes but no record: a slow node's bin between
+            # its records, or a full base station's drop of them, says nothing; SPAN of
+            # such bins, the streams stopped, and a queue with them (a held line
+            # released at the first such bin, with a 1 Hz node, a neighbour's stream
+            # filling the line: an outside review). Nothing read at all: a stall of
+            # the host's, or a gap in its reads (a port by URL), says nothing either
+            # (a count reset there never confirmed a queue read in gaps of 1 s), but
+            # the bin after it cannot be a queue's third (a stall's backlog, read in
+            # it, stands as high as the stall was long: it falls in the bin after).
+            self._after_gap = self._after_gap or not read
+            if read and now - self._evidence_at > SPAN:
+                if self.over:
+                    self._release()
                 self._queued = 0
             return
         self._evidence_at = now
@@ -257,6 +265,7 @@ class LineLoad:
             self._while_held(seen)
         else:
             self._while_free(seen)
+        self._after_gap = False
         for waited, track in seen:
             track.last = waited.wait
 
@@ -275,6 +284,8 @@ class LineLoad:
             queued = self._spanned() and self.share >= AT_CAPACITY
             self.wait = math.nan  # (no floor to measure the queue from)
         self._queued = self._queued + 1 if queued else 0
+        if self._after_gap:
+            self._queued = min(self._queued, CONFIRM - 1)
         if waits:
             self.wait = max(min(waits), 0.0)
         if self._queued >= CONFIRM:
