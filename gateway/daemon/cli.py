@@ -17,6 +17,16 @@ def _exit_quietly(signum: int, frame: FrameType | None) -> NoReturn:
     raise SystemExit(0)
 
 
+SWITCH_INTERVAL = 0.0005
+"""Seconds a thread holds the GIL while another waits for it (Python's default is 5 ms):
+the loop, woken by a read, waits at most this long for the recorder's thread. Four
+saturated stations, recording and metrics on, latency p99 from the simulator's write to
+a subscriber: 2.39, 2.12 and 2.65 ms at the default, 1.58, 1.53 and 1.72 ms at this
+(0.66x), the gateway's CPU 18.4, 17.7, 20.5% against 16.8, 15.5, 18.1% of a core (not
+more); rounds interleaved, bench/stations.py --stations 4 --rounds 1 --seconds 15 run
+from each tree in turn."""
+
+
 def main(argv: list[str] | None = None) -> int:
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, _exit_quietly)
@@ -103,6 +113,7 @@ def main(argv: list[str] | None = None) -> int:
         await gateway.run(stop)
         return gateway.exit_status
 
+    sys.setswitchinterval(SWITCH_INTERVAL)
     try:
         return asyncio.run(serve())
     except StartupError as error:
