@@ -163,10 +163,9 @@ class Station:
     def sample(self) -> None:
         """Once a second, live: a line held over capacity that has read nothing for
         SILENT_SAMPLES seconds running has no queue (a base station with one sends at
-        its baud rate): it has room again.
-        Its bins close on its reads, and a line whose streams were all stopped while
-        it was held reads nothing more to close one with (the line stayed over
-        capacity for good). Two seconds, not one: after a
+        its baud rate): it has room again. Its bins close on its reads, and a line whose
+        streams were all stopped while it was held reads nothing more to close one
+        with (the line stayed over capacity for good). Two seconds, not one: after a
         host stall this may run before the backlog's read."""
         if self.replaying or self.link is None:
             return
